@@ -1,0 +1,45 @@
+# makeway — two commands for a fresh clone: `make demo` and `make test`.
+PYTHON ?= python3
+VENV   := .venv
+BIN    := $(VENV)/bin
+STAMP  := $(VENV)/.installed
+OUT    ?= reports/demo
+
+.PHONY: venv demo test lint typecheck bench bench-sort bench-video clean
+
+venv: $(STAMP)
+
+$(STAMP): pyproject.toml
+	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install -q --upgrade pip
+	$(BIN)/python -m pip install -q -e ".[dev]"
+	touch $(STAMP)
+
+demo: venv
+	$(BIN)/makeway demo --out $(OUT)
+
+lint: venv
+	$(BIN)/ruff check src tests benchmarks
+	$(BIN)/ruff format --check src tests benchmarks
+
+typecheck: venv
+	$(BIN)/mypy
+
+test: lint typecheck
+	$(BIN)/python -m pytest -q
+
+# Benchmarks: the reference SORT (GPL, installed only here, never vendored) is the anchor.
+$(VENV)/.bench: $(STAMP)
+	$(BIN)/python -m pip install -q --no-deps "sort-track==0.0.8" "filterpy==1.4.5"
+	touch $(VENV)/.bench
+
+bench-sort: $(VENV)/.bench
+	$(BIN)/python benchmarks/bench_sort_mot15.py
+
+bench-video: venv
+	$(BIN)/python benchmarks/bench_video_pipeline.py
+
+bench: bench-sort bench-video
+
+clean:
+	rm -rf $(VENV) reports .pytest_cache .mypy_cache .ruff_cache

@@ -1,0 +1,44 @@
+"""Where makeway looks for the shared data and the detector weights.
+
+``MAKEWAY_DATA`` overrides the data folder; otherwise ``../shared/data`` next to the current
+directory or next to the repository checkout is used when it exists. ``MAKEWAY_MODELS`` overrides the
+folder of ONNX weights (default: ``<data>/models``).
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+_REPO_ROOT = Path(__file__).resolve().parents[2]
+
+
+def data_candidates() -> list[Path]:
+    """The folders that may hold the shared data, in the order they are tried."""
+    out: list[Path] = []
+    env = os.environ.get("MAKEWAY_DATA")
+    if env:
+        out.append(Path(env).expanduser())
+    out.append(Path.cwd() / ".." / "shared" / "data")
+    out.append(_REPO_ROOT / ".." / "shared" / "data")
+    return out
+
+
+def data_dir() -> Path | None:
+    """The shared data folder, or ``None`` when none of :func:`data_candidates` exists."""
+    for cand in data_candidates():
+        if cand.is_dir():
+            return cand.resolve()
+    return None
+
+
+def models_candidates() -> list[Path]:
+    """The folders that may hold detector weights, in the order they are tried."""
+    out: list[Path] = []
+    env = os.environ.get("MAKEWAY_MODELS")
+    if env:
+        out.append(Path(env).expanduser())
+    data = data_dir()
+    if data is not None:
+        out.append(data / "models")
+    return out

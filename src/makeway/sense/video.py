@@ -1,0 +1,213 @@
+"""Read video files frame by frame (OpenCV's FFmpeg backend).
+
+:class:`VideoReader` checks the file when it is built (exists, is a file, opens, and a first frame
+decodes), so a caller learns about a bad input before it writes any output. Problems are raised as
+:class:`~makeway.errors.InputError`, naming the file. Frames come out as ``(frame_index, time_s,
+frame_bgr)`` where ``frame_index`` counts source frames from 0 (strided frames keep their source
+index) and ``time_s = frame_index / fps``.
+
+Example::
+
+    with VideoReader("clip.mp4", stride=2, max_frames=100) as reader:
+        print(reader.info)
+        for index, time_s, frame in reader:
+            ...
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from types import TracebackType
+
+import cv2
+import numpy as np
+
+from makeway.errors import InputError
+
+#: The frame rate assumed when a file reports none (zero, negative or NaN).
+DEFAULT_FPS = 25.0
+
+
+@dataclass(frozen=True)
+class VideoInfo:
+    """What a video file says about itself.
+
+    ``frame_count`` is the container's (sometimes estimated) number of frames, ``-1`` when unknown;
+    ``duration_s`` is ``frame_count / fps``, ``-1.0`` when the count is unknown. ``fps_assumed`` is
+    true when the file gave no usable frame rate and :data:`DEFAULT_FPS` was used instead.
+    """
+
+    path: Path
+    width: int
+    height: int
+    fps: float
+    frame_count: int
+    duration_s: float
+    fps_assumed: bool = False
+
+
+def _open_capture(path: Path) -> cv2.VideoCapture:
+    # Name the FFmpeg backend explicitly: other backends would read "%03d"-style names as image
+    # sequences or open devices.
+    return cv2.VideoCapture(str(path), cv2.CAP_FFMPEG)
+
+
+class VideoReader:
+    """Iterate over the frames of a video file; a context manager.
+
+    Args:
+        path: the video file.
+        stride: keep every ``stride``-th frame (source indices ``0, stride, 2·stride, …``); the
+            frames in between are grabbed without colour conversion.
+        max_frames: stop after yielding this many frames (``None``: read to the end).
+
+    Raises:
+        InputError: the path is missing, is a folder, cannot be opened as a video, or its first
+            frame does not decode.
+        ValueError: ``stride < 1`` or ``max_frames < 1``.
+
+    Attributes:
+        info: the :class:`VideoInfo` of the file.
+        frames_read: source frames decoded in the latest pass (grabbed ones included). When decoding
+            fails part-way, iteration stops quietly and this tells how far it got.
+        frames_yielded: frames handed out in the latest pass.
+
+    Each ``for`` loop over the reader starts again from the first frame (the file is reopened for a
+    second pass); two loops over one reader at the same time are not supported.
+    """
+
+    def __init__(self, path: str | Path, *, stride: int = 1, max_frames: int | None = None) -> None:
+        if isinstance(stride, bool) or not isinstance(stride, int) or stride < 1:
+            raise ValueError(f"stride must be an integer >= 1, got {stride!r}")
+        if max_frames is not None and (
+            isinstance(max_frames, bool) or not isinstance(max_frames, int) or max_frames < 1
+        ):
+            raise ValueError(f"max_frames must be an integer >= 1 or None, got {max_frames!r}")
+        self.path = Path(path)
+        self.stride = stride
+        self.max_frames = max_frames
+        self.frames_read = 0
+        self.frames_yielded = 0
+        self._cap: cv2.VideoCapture | None = None
+        self._first: np.ndarray | None = None
+        self._closed = False
+
+        if not self.path.exists():
+            raise InputError(self.path, "no such file")
+        if self.path.is_dir():
+            raise InputError(self.path, "is a folder, expected a video file")
+        if not self.path.is_file():
+            raise InputError(self.path, "is not a regular file")
+
+        cap = _open_capture(self.path)
+        if not cap.isOpened():
+            cap.release()
+            raise InputError(self.path, "cannot be opened as a video (not a video file, or damaged)")
+        ok, first = cap.read()
+        if not ok or first is None or first.ndim != 3 or first.shape[2] != 3 or first.size == 0:
+            cap.release()
+            raise InputError(self.path, "opens as a video but no frame decodes (truncated or damaged file)")
+
+        height, width = int(first.shape[0]), int(first.shape[1])
+        fps = float(cap.get(cv2.CAP_PROP_FPS))
+        fps_assumed = not (math.isfinite(fps) and fps > 0.0)
+        if fps_assumed:
+            fps = DEFAULT_FPS
+        raw_count = float(cap.get(cv2.CAP_PROP_FRAME_COUNT))
+        frame_count = int(round(raw_count)) if math.isfinite(raw_count) and raw_count > 0 else -1
+        duration_s = frame_count / fps if frame_count > 0 else -1.0
+        self.info = VideoInfo(
+            path=self.path,
+            width=width,
+            height=height,
+            fps=fps,
+            frame_count=frame_count,
+            duration_s=duration_s,
+            fps_assumed=fps_assumed,
+        )
+        self._cap = cap
+        self._first = first
+
+    # ------------------------------------------------------------------------------------ iteration
+
+    def __iter__(self) -> Iterator[tuple[int, float, np.ndarray]]:
+        if self._closed:
+            raise ValueError(f"{self.path}: reader is closed")
+        cap, first = self._cap, self._first
+        self._first = None
+        if cap is None or first is None:
+            # A later pass: the capture was used up, so open the file again from the start.
+            if cap is not None:
+                cap.release()
+            cap = _open_capture(self.path)
+            self._cap = cap
+            ok, first = cap.read() if cap.isOpened() else (False, None)
+            if not ok:
+                first = None
+        return self._frames(cap, first)
+
+    def _frames(
+        self, cap: cv2.VideoCapture, first: np.ndarray | None
+    ) -> Iterator[tuple[int, float, np.ndarray]]:
+        self.frames_read = 0
+        self.frames_yielded = 0
+        if first is None:
+            return
+        fps, stride, limit = self.info.fps, self.stride, self.max_frames
+        self.frames_read = 1
+        self.frames_yielded = 1
+        yield 0, 0.0, first
+        index = 0
+        while limit is None or self.frames_yielded < limit:
+            for _ in range(stride - 1):
+                if not cap.grab():
+                    return
+                self.frames_read += 1
+            ok, frame = cap.read()
+            if not ok or frame is None:
+                return
+            self.frames_read += 1
+            index += stride
+            self.frames_yielded += 1
+            yield index, index / fps, frame
+
+    # ---------------------------------------------------------------------------------- life cycle
+
+    def close(self) -> None:
+        """Release the file; safe to call more than once."""
+        self._closed = True
+        if self._cap is not None:
+            self._cap.release()
+        self._cap = None
+        self._first = None
+
+    def __enter__(self) -> VideoReader:
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        self.close()
+
+    def __repr__(self) -> str:
+        i = self.info
+        return (
+            f"VideoReader({str(self.path)!r}, {i.width}x{i.height} @ {i.fps:g} fps, "
+            f"stride={self.stride}, max_frames={self.max_frames})"
+        )
+
+
+def probe_video(path: str | Path) -> VideoInfo:
+    """The :class:`VideoInfo` of ``path``, after checking that a first frame decodes.
+
+    Raises:
+        InputError: as :class:`VideoReader`.
+    """
+    with VideoReader(path) as reader:
+        return reader.info
