@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from makeway.errors import InputError
+from makeway.paths import data_dir
 from makeway.perceive.vision import detectors as detectors_module
 from makeway.perceive.vision.detectors import (
     COCO_CLASSES,
@@ -22,7 +23,6 @@ from makeway.perceive.vision.detectors import (
     nms,
     resolve_model_path,
 )
-from makeway.paths import data_dir
 
 VEHICLE_NAMES = {COCO_CLASSES[c] for c in VEHICLE_CLASSES}
 
@@ -259,7 +259,7 @@ def test_class_filter_threshold_and_agnostic_nms(shared_data: Path, night_frame:
 
 
 def test_registry_and_factory(shared_data: Path, models: Path) -> None:
-    assert DETECTORS == {"yolox_nano": YoloxNano, "nanodet_m": NanoDetM}
+    assert dict(DETECTORS) == {"yolox_nano": YoloxNano, "nanodet_m": NanoDetM}
     det = create_detector("nanodet_m", models, score_threshold=0.4, nms_iou=0.5, num_threads=1)
     assert isinstance(det, NanoDetM)
     assert det.model_path == models / "nanodet_m_416.onnx"  # a folder is joined with the default name
@@ -270,7 +270,7 @@ def test_registry_and_factory(shared_data: Path, models: Path) -> None:
 
 
 def test_unknown_detector_name() -> None:
-    with pytest.raises(ValueError, match="unknown detector 'yolo'.*nanodet_m, yolox_nano"):
+    with pytest.raises(ValueError, match=r"unknown detector 'yolo'.*nanodet_m, yolox_nano"):
         create_detector("yolo")
 
 

@@ -353,6 +353,9 @@ class Detector:
         opts.execution_mode = ort.ExecutionMode.ORT_SEQUENTIAL
         opts.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
         opts.log_severity_level = 3  # NanoDet's "initializer appears in graph inputs" warnings
+        # Idle worker threads sleep instead of spinning: the same speed when the detector has the
+        # cores to itself, and 1.5–3× faster when video decoding or another process shares them.
+        opts.add_session_config_entry("session.intra_op.allow_spinning", "0")
         try:
             session = ort.InferenceSession(str(self.model_path), opts, providers=["CPUExecutionProvider"])
         except Exception as exc:  # ORT raises several pybind types (InvalidProtobuf, Fail, ...)

@@ -1,0 +1,5 @@
+"""``python -m makeway`` runs the command line."""
+
+from makeway.cli.main import app
+
+app()

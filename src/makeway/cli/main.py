@@ -1,0 +1,250 @@
+"""The ``makeway`` command line: thin shells over library functions.
+
+Every command prints a short human summary; ``--json`` (where offered) prints one JSON line last for
+machines. Bad input ends with one red ``error:`` line naming the file and the problem, exit code 2,
+and no half-written outputs.
+"""
+
+from __future__ import annotations
+
+import functools
+import json
+import sys
+from collections.abc import Callable
+from pathlib import Path
+from typing import Annotated, Any, TypeVar
+
+import numpy as np
+import typer
+from rich.console import Console
+from rich.table import Table
+
+from makeway import __version__
+from makeway.errors import MakewayError
+
+app = typer.Typer(
+    name="makeway",
+    help=(
+        "makeway — notice an active emergency vehicle, localize it, keep the belief stable, "
+        "and make way.\n\n"
+        "Start with `makeway demo` (no data needed), then `makeway detect VIDEO` on a road video."
+    ),
+    no_args_is_help=True,
+    add_completion=False,
+    pretty_exceptions_enable=False,
+)
+console = Console()
+err_console = Console(stderr=True)
+
+F = TypeVar("F", bound=Callable[..., Any])
+
+
+def _friendly_errors(func: F) -> F:
+    """Turn makeway's own errors into one red line and exit code 2."""
+
+    @functools.wraps(func)
+    def wrapper(*args: Any, **kwargs: Any) -> Any:
+        try:
+            return func(*args, **kwargs)
+        except MakewayError as exc:
+            err_console.print(f"[bold red]error:[/] {exc}", highlight=False, soft_wrap=True)
+            raise typer.Exit(code=2) from None
+        except ValueError as exc:
+            err_console.print(f"[bold red]error:[/] {exc}", highlight=False, soft_wrap=True)
+            raise typer.Exit(code=2) from None
+
+    return wrapper  # type: ignore[return-value]
+
+
+def _print_json_line(obj: Any) -> None:
+    sys.stdout.write(json.dumps(obj, separators=(", ", ": ")) + "\n")
+    sys.stdout.flush()
+
+
+@app.callback(invoke_without_command=True)
+def _main(
+    version: Annotated[bool, typer.Option("--version", help="Print the version and exit.")] = False,
+) -> None:
+    if version:
+        console.print(f"makeway {__version__}")
+        raise typer.Exit()
+
+
+# ------------------------------------------------------------------------------------------- detect
+@app.command()
+@_friendly_errors
+def detect(
+    video: Annotated[Path, typer.Argument(help="Road video (any format OpenCV/FFmpeg reads).")],
+    out: Annotated[
+        Path | None,
+        typer.Option("--out", "-o", help="Output folder [default: makeway_out/<video name>]."),
+    ] = None,
+    detector: Annotated[str, typer.Option(help="Vehicle detector: yolox_nano or nanodet_m.")] = "yolox_nano",
+    model: Annotated[
+        Path | None,
+        typer.Option(
+            help="ONNX weights for the detector "
+            "[default: searched in $MAKEWAY_MODELS, ../shared/data/models]."
+        ),
+    ] = None,
+    score_threshold: Annotated[float, typer.Option(help="Detector score threshold.")] = 0.3,
+    stride: Annotated[int, typer.Option(min=1, help="Process every N-th frame.")] = 1,
+    max_frames: Annotated[int | None, typer.Option(min=1, help="Stop after N processed frames.")] = None,
+    no_video: Annotated[bool, typer.Option("--no-video", help="Skip the annotated mp4.")] = False,
+    as_json: Annotated[bool, typer.Option("--json", help="Print the run summary as one JSON line.")] = False,
+    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")] = False,
+) -> None:
+    """Detect and track vehicles in a video (Framework B: detector → SORT → smoother).
+
+    Writes OUT/annotated.mp4 (H.264, boxes, ids, EV state colours, FPS), OUT/tracks.jsonl (one JSON
+    object per frame) and OUT/summary.json (timings per stage, real-time factor).
+    """
+    from makeway.pipeline.video import run_video
+
+    out_dir = out if out is not None else Path("makeway_out") / video.stem
+    summary = run_video(
+        video,
+        out_dir,
+        detector=detector,
+        model=model,
+        score_threshold=score_threshold,
+        stride=stride,
+        max_frames=max_frames,
+        write_video=not no_video,
+        progress=not quiet,
+    )
+    table = Table(title=f"makeway detect — {video.name}", show_header=False)
+    table.add_row("frames", f"{summary.frames} ({summary.width}×{summary.height} @ {summary.fps:g} fps)")
+    table.add_row("real-time factor", f"{summary.realtime_factor:.2f}× ({summary.wall_seconds:.1f} s wall)")
+    table.add_row("ms / frame", ", ".join(f"{k} {v:.1f}" for k, v in summary.ms_per_frame.items()))
+    table.add_row("tracks", f"{summary.unique_tracks} ids, at most {summary.max_tracks} at once")
+    for name, path in summary.outputs.items():
+        table.add_row(name, path)
+    if not as_json:
+        console.print(table)
+    else:
+        _print_json_line(summary.to_json())
+
+
+# -------------------------------------------------------------------------------------------- track
+@app.command()
+@_friendly_errors
+def track(
+    mot_det: Annotated[Path, typer.Option("--mot-det", help="MOTChallenge detection file (det.txt).")],
+    out: Annotated[Path, typer.Option("--out", "-o", help="Where to write the MOTChallenge tracks.")],
+    gt: Annotated[
+        Path | None, typer.Option(help="Ground truth (gt.txt): also print MOTA, MOTP, IDF1, ID switches.")
+    ] = None,
+    max_age: Annotated[int, typer.Option(min=0, help="Frames a track survives unmatched.")] = 1,
+    min_hits: Annotated[int, typer.Option(min=0, help="Consecutive hits before a track is reported.")] = 3,
+    iou_threshold: Annotated[float, typer.Option(min=0.0, max=1.0, help="Minimum IoU to match.")] = 0.3,
+    min_score: Annotated[
+        float | None, typer.Option(help="Drop detections scoring below this before tracking.")
+    ] = None,
+) -> None:
+    """Run SORT on a MOTChallenge detection file; write frame,id,x,y,w,h,1,-1,-1,-1 rows.
+
+    With --gt, prints the CLEAR MOT and identity metrics as one JSON line.
+    """
+    from makeway.eval.mot import evaluate_mot
+    from makeway.pipeline.mot import track_mot
+    from makeway.sense.motfile import read_mot, write_mot_tracks
+
+    dets = read_mot(mot_det, kind="detection")
+    truth = read_mot(gt, kind="gt") if gt is not None else None  # read before writing anything
+    tracks = track_mot(
+        dets, max_age=max_age, min_hits=min_hits, iou_threshold=iou_threshold, min_score=min_score
+    )
+    rows = [
+        (int(f), int(i), float(b[0]), float(b[1]), float(b[2]), float(b[3]))
+        for f, i, b in zip(tracks.frames, tracks.ids, tracks.xywh, strict=True)
+    ]
+    write_mot_tracks(out, rows)
+    err_console.print(
+        f"tracked {dets.num_frames} frames, {len(dets)} detections → {len(np.unique(tracks.ids))} tracks, "
+        f"{len(rows)} boxes → {out}",
+        highlight=False,
+    )
+    if truth is not None:
+        metrics = evaluate_mot(truth, tracks).summary()
+        _print_json_line({"sequence": str(mot_det), **metrics})
+
+
+@app.command("mot-eval")
+@_friendly_errors
+def mot_eval(
+    gt: Annotated[Path, typer.Argument(help="Ground truth (gt.txt).")],
+    tracks: Annotated[Path, typer.Argument(help="Tracker output in MOTChallenge format.")],
+    iou: Annotated[float, typer.Option(min=0.0, max=1.0, help="IoU needed for a match.")] = 0.5,
+) -> None:
+    """Score a MOTChallenge tracker output against ground truth (MOTA, MOTP, IDF1, switches)."""
+    from makeway.eval.mot import evaluate_mot
+    from makeway.sense.motfile import read_mot
+
+    metrics = evaluate_mot(read_mot(gt, kind="gt"), read_mot(tracks, kind="tracks"), iou_threshold=iou)
+    _print_json_line(metrics.summary())
+
+
+# --------------------------------------------------------------------------------------------- demo
+@app.command()
+@_friendly_errors
+def demo(
+    out: Annotated[Path, typer.Option("--out", "-o", help="Report folder.")] = Path("reports/demo"),
+    seed: Annotated[int, typer.Option(help="Scene seed.")] = 0,
+    duration: Annotated[float, typer.Option(min=2.0, help="Scene length in seconds.")] = 20.0,
+    no_video: Annotated[bool, typer.Option("--no-video", help="Skip the annotated mp4.")] = False,
+    as_json: Annotated[bool, typer.Option("--json", help="Print the summary as one JSON line.")] = False,
+) -> None:
+    """Run the tracker and smoother on a built-in simulated traffic scene (no data needed).
+
+    Writes a report folder: summary.json, report.md, plots and an annotated scene.mp4.
+    """
+    from makeway.pipeline.demo import run_demo
+
+    summary = run_demo(out, seed=seed, duration_s=duration, write_video=not no_video, progress=not as_json)
+    if as_json:
+        _print_json_line(summary.to_json())
+        return
+    table = Table(title="makeway demo — simulated roadside camera", show_header=False)
+    for key, value in summary.to_json().items():
+        if isinstance(value, dict):
+            continue
+        if isinstance(value, float):
+            value = f"{value:.3f}"
+        table.add_row(str(key), str(value))
+    console.print(table)
+    console.print(f"report: [bold]{Path(out) / 'report.md'}[/]")
+
+
+# --------------------------------------------------------------------------------------------- info
+@app.command()
+def info() -> None:
+    """Show versions, where the shared data and detector weights were found, and the H.264 encoder."""
+    import cv2
+    import onnxruntime as ort
+
+    from makeway.paths import data_candidates, data_dir, models_candidates
+    from makeway.viz.video_writer import pick_h264_encoder
+
+    table = Table(title="makeway info", show_header=False)
+    table.add_row("makeway", __version__)
+    table.add_row("python", sys.version.split()[0])
+    table.add_row("onnxruntime", ort.__version__)
+    table.add_row("opencv", cv2.__version__)
+    found = data_dir()
+    table.add_row(
+        "data",
+        str(found) if found else "not found (looked in " + ", ".join(map(str, data_candidates())) + ")",
+    )
+    for folder in models_candidates():
+        models = sorted(p.name for p in folder.glob("*.onnx")) if folder.is_dir() else []
+        table.add_row("models", f"{folder}: {', '.join(models) or 'none'}")
+    try:
+        table.add_row("h264 encoder", pick_h264_encoder())
+    except MakewayError as exc:
+        table.add_row("h264 encoder", f"none ({exc})")
+    console.print(table)
+
+
+if __name__ == "__main__":  # pragma: no cover
+    app()
