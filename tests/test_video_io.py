@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import math
 import os
-import shutil
 from pathlib import Path
 
 import av
@@ -77,7 +76,7 @@ def test_night_clip_metadata(night: Path) -> None:
 
 def test_stride_and_max_frames(night: Path) -> None:
     with VideoReader(night) as reader:
-        every = [(i, t, f.copy()) for i, t, f in zip(range(28), *zip(*_take(reader, 28)), strict=False)]
+        every = _take(reader, 28)
     with VideoReader(night, stride=3, max_frames=10) as reader:
         got = list(reader)
         assert reader.frames_yielded == 10
@@ -245,7 +244,9 @@ def test_writer_odd_size_and_ntsc_rate(video_dir: Path, tmp_path: Path) -> None:
         assert stream.average_rate == pytest.approx(30000 / 1001)
         decoded = [fr.to_ndarray(format="bgr24") for fr in container.decode(stream)]
     assert len(decoded) == 10 and decoded[0].shape == (240, 320, 3)
-    diff = np.mean([np.abs(a[:239, :319].astype(np.int16) - b).mean() for a, b in zip(decoded, frames, strict=True)])
+    diff = np.mean(
+        [np.abs(a[:239, :319].astype(np.int16) - b).mean() for a, b in zip(decoded, frames, strict=True)]
+    )
     assert diff < 3.0
 
 
@@ -262,7 +263,7 @@ def test_writer_exception_leaves_nothing(night_frames: list[np.ndarray], tmp_pat
 
     # An older file at the target survives a failed rewrite.
     old = tmp_path / "old.mp4"
-    shutil.copyfile(tmp_path.parent / tmp_path.name / "crash.mp4", old) if out.exists() else old.write_bytes(b"x")
+    old.write_bytes(b"x")
     with pytest.raises(ValueError), H264Writer(old, 25.0, 1280, 720) as writer:
         writer.write(night_frames[0][:, :640])  # wrong size
     assert old.read_bytes() == b"x"
@@ -305,7 +306,7 @@ def test_annotate_colours_and_extent(night_frames: list[np.ndarray]) -> None:
         b = t.box
         allowed[int(b.y1) - 40 : int(b.y2) + 10, int(b.x1) - 10 : int(b.x2) + 10] = True
     assert not np.any(changed & ~allowed)
-    assert changed[:160, :460].mean() > 0.3  # the panel is darkened
+    assert changed[8:60, 8:150].mean() > 0.5  # the panel is darkened
     # The middle of a box is untouched (outline only, no fill).
     assert not changed[380:440, 560:620].any()
 
@@ -323,6 +324,10 @@ def test_annotate_in_place_and_helpers(night_frames: list[np.ndarray]) -> None:
     odd = PerceptionFrame(
         1,
         0.04,
-        (Track(1, Box(-50, -50, 5000, 5000)), Track(2, Box(math.nan, 0, 10, 10)), Track(3, Box(2000, 0, 2100, 5))),
+        (
+            Track(1, Box(-50, -50, 5000, 5000)),
+            Track(2, Box(math.nan, 0, 10, 10)),
+            Track(3, Box(2000, 0, 2100, 5)),
+        ),
     )
     draw_frame(img, odd)

@@ -17,6 +17,7 @@ Example::
 from __future__ import annotations
 
 import math
+import os
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -50,9 +51,18 @@ class VideoInfo:
 
 
 def _open_capture(path: Path) -> cv2.VideoCapture:
+    # FFmpeg's own messages about damaged input ("moov atom not found", "Invalid NAL unit size" …)
+    # would be printed around the one-line InputError; OpenCV reads this when it first opens a
+    # file, and a user who wants them can set OPENCV_FFMPEG_LOGLEVEL (e.g. 16 = errors) themselves.
+    os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "-8")
     # Name the FFmpeg backend explicitly: other backends would read "%03d"-style names as image
-    # sequences or open devices.
-    return cv2.VideoCapture(str(path), cv2.CAP_FFMPEG)
+    # sequences or open devices. OpenCV's "can't be used to capture by name" warning is muted too.
+    level = cv2.utils.logging.getLogLevel()
+    cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)
+    try:
+        return cv2.VideoCapture(str(path), cv2.CAP_FFMPEG)
+    finally:
+        cv2.utils.logging.setLogLevel(level)
 
 
 class VideoReader:

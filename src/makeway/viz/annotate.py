@@ -66,9 +66,10 @@ class _Style:
     """Font sizes and line widths scaled to the frame height."""
 
     def __init__(self, height: int) -> None:
-        s = min(max(height / 720.0, 0.45), 3.0)
+        s = min(max(height / 720.0, 0.6), 3.0)
         self.font_scale = 0.55 * s
         self.text_thick = max(1, round(1.2 * s))
+        self.tag_thick = self.text_thick + 1 if s >= 0.9 else self.text_thick
         self.box_thick = max(1, round(2 * s))
         self.active_thick = max(3, round(5 * s))
         self.pad = max(2, round(4 * s))
@@ -117,7 +118,7 @@ def _draw_track(img: np.ndarray, track: Track, state: EVTrackState | None, style
     y_top = y1 - style.line_h if y1 - style.line_h >= 0 else y1
     x = x1
     if active:
-        x = _draw_tag(img, x, y_top, "EV", _WHITE, STATE_COLOURS[EVState.ACTIVE], style, style.text_thick + 1)
+        x = _draw_tag(img, x, y_top, "EV", _WHITE, STATE_COLOURS[EVState.ACTIVE], style, style.tag_thick)
     _draw_tag(img, x, y_top, _label_text(track, state), colour, _text_colour(colour), style, style.text_thick)
 
 

@@ -122,6 +122,8 @@ class H264Writer:
         self._container = av.open(str(self.partial_path), mode="w", format="mp4")
         try:
             stream = self._container.add_stream(self.encoder, rate=self.rate)
+            if not isinstance(stream, av.VideoStream):  # pragma: no cover - an H.264 encoder is video
+                raise RuntimeError(f"{self.encoder} did not give a video stream")
             stream.width = self.enc_width
             stream.height = self.enc_height
             stream.pix_fmt = "yuv420p"
@@ -135,7 +137,7 @@ class H264Writer:
                 ctx.color_trc = 6
                 ctx.color_range = 1  # AVCOL_RANGE_MPEG
             if self.encoder == "libx264":
-                options = {"crf": str(int(crf)), "preset": str(preset)}
+                options: dict[str, object] = {"crf": str(int(crf)), "preset": str(preset)}
                 if x264_params:
                     options["x264-params"] = x264_params
                 stream.options = options
@@ -173,7 +175,7 @@ class H264Writer:
                 self.enc_width - self.width,
                 cv2.BORDER_REPLICATE,
             )
-        i420 = cv2.cvtColor(frame_bgr, cv2.COLOR_BGR2YUV_I420)
+        i420 = np.ascontiguousarray(cv2.cvtColor(frame_bgr, cv2.COLOR_BGR2YUV_I420), dtype=np.uint8)
         frame = av.VideoFrame.from_ndarray(i420, format="yuv420p")
         frame.pts = self.frames_written
         frame.time_base = 1 / self.rate
