@@ -1,0 +1,131 @@
+"""The video pipeline (Framework B) on real clips: outputs, classifier hook, and bad input."""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Sequence
+from pathlib import Path
+
+import av
+import numpy as np
+import pytest
+
+from makeway.errors import InputError
+from makeway.messages import EVObservation, Track
+from makeway.pipeline.video import run_video
+
+
+class RedBlueLightScore:
+    """A tiny real classifier for the hook: share of saturated red/blue bright pixels in the box."""
+
+    def classify(
+        self, image_bgr: np.ndarray, tracks: Sequence[Track], frame_index: int, time_s: float
+    ) -> list[EVObservation]:
+        out = []
+        h, w = image_bgr.shape[:2]
+        for t in tracks:
+            b = t.box.clip(w, h)
+            crop = image_bgr[int(b.y1) : int(b.y2), int(b.x1) : int(b.x2)].astype(np.int16)
+            if crop.shape[0] < 4 or crop.shape[1] < 18:
+                out.append(EVObservation(t.track_id, frame_index, time_s, None))
+                continue
+            bgr_b, bgr_g, bgr_r = crop[..., 0], crop[..., 1], crop[..., 2]
+            lit = ((bgr_r > 180) & (bgr_r - bgr_g > 80)) | ((bgr_b > 180) & (bgr_b - bgr_g > 60))
+            out.append(EVObservation(t.track_id, frame_index, time_s, float(min(1.0, 50 * lit.mean()))))
+        return out
+
+
+def test_outputs_on_real_clip(video_dir: Path, tmp_path: Path) -> None:
+    out = tmp_path / "night"
+    s = run_video(video_dir / "night_ambulance_lights.mp4", out, max_frames=40, progress=False)
+    assert s.frames == 40 and s.width == 1280 and s.height == 720
+    assert s.unique_tracks >= 2 and s.realtime_factor > 0
+    assert set(s.ms_per_frame) == {"read", "detect", "track", "classify", "annotate", "encode"}
+    lines = (out / "tracks.jsonl").read_text().splitlines()
+    assert len(lines) == 40
+    first = json.loads(lines[0])
+    assert first["frame"] == 0 and first["time_s"] == 0.0
+    rec = json.loads(lines[-1])
+    assert rec["frame"] == 39 and rec["time_s"] == pytest.approx(39 / 25)
+    assert rec["tracks"], "vehicles are visible at the end of the first 40 frames"
+    t = rec["tracks"][0]
+    assert {"id", "box", "score", "label", "state"} <= set(t)
+    assert 0 <= t["box"]["x1"] < t["box"]["x2"] <= 1280
+    assert t["label"] in {"car", "bus", "truck", "motorcycle"}
+    with av.open(str(out / "annotated.mp4")) as c:
+        stream = c.streams.video[0]
+        assert stream.codec_context.name == "h264"
+        assert sum(1 for _ in c.decode(stream)) == 40
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["frames"] == 40 and summary["detector"] == "yolox_nano"
+    assert sorted(p.name for p in out.iterdir()) == ["annotated.mp4", "summary.json", "tracks.jsonl"]
+
+
+def test_stride_and_single_worker(video_dir: Path, tmp_path: Path) -> None:
+    s = run_video(
+        video_dir / "traffic_no_ev.mp4",
+        tmp_path / "o",
+        stride=3,
+        max_frames=10,
+        write_video=False,
+        detector_workers=1,
+        progress=False,
+    )
+    frames = [json.loads(x)["frame"] for x in (tmp_path / "o" / "tracks.jsonl").read_text().splitlines()]
+    assert frames == list(range(0, 30, 3))
+    assert s.detector_workers == 1 and "video" not in s.outputs
+
+
+def test_parallel_detection_gives_identical_tracks(video_dir: Path, tmp_path: Path) -> None:
+    clip = video_dir / "intersection_cam_ambulance.mp4"
+    one = run_video(
+        clip, tmp_path / "a", max_frames=25, write_video=False, detector_workers=1, progress=False
+    )
+    two = run_video(
+        clip, tmp_path / "b", max_frames=25, write_video=False, detector_workers=2, progress=False
+    )
+    assert one.unique_tracks == two.unique_tracks
+    a = [json.loads(x) for x in (tmp_path / "a" / "tracks.jsonl").read_text().splitlines()]
+    b = [json.loads(x) for x in (tmp_path / "b" / "tracks.jsonl").read_text().splitlines()]
+    assert [[t["id"] for t in f["tracks"]] for f in a] == [[t["id"] for t in f["tracks"]] for f in b]
+
+
+def test_classifier_hook_and_smoother(video_dir: Path, tmp_path: Path) -> None:
+    s = run_video(
+        video_dir / "night_ambulance_lights.mp4",
+        tmp_path / "c",
+        max_frames=60,
+        write_video=False,
+        classifier=RedBlueLightScore(),
+        progress=False,
+    )
+    recs = [json.loads(x) for x in (tmp_path / "c" / "tracks.jsonl").read_text().splitlines()]
+    states = {t["state"] for r in recs for t in r["tracks"]}
+    assert "unclassified" not in states
+    assert states <= {"warming_up", "active", "inactive"}
+    late = [t for r in recs[20:] for t in r["tracks"]]
+    assert any(t["ev_n_valid"] >= 6 for t in late)
+    for t in late:
+        if t["state"] == "active":
+            assert t["ev_positive_fraction"] > 0.5
+    assert set(s.active_ev_tracks) == {t["id"] for r in recs for t in r["tracks"] if t["state"] == "active"}
+
+
+def test_missing_and_corrupt_video_write_nothing(tmp_path: Path) -> None:
+    out = tmp_path / "out"
+    with pytest.raises(InputError, match="no such file"):
+        run_video(tmp_path / "missing.mp4", out, progress=False)
+    bad = tmp_path / "bad.mp4"
+    bad.write_bytes(np.random.default_rng(0).integers(0, 256, 50_000, dtype=np.uint8).tobytes())
+    with pytest.raises(InputError, match=r"bad\.mp4"):
+        run_video(bad, out, progress=False)
+    assert not out.exists() or not any(out.iterdir())
+
+
+def test_wrong_model_writes_nothing(video_dir: Path, tmp_path: Path) -> None:
+    junk = tmp_path / "model.onnx"
+    junk.write_text("not a model")
+    out = tmp_path / "out"
+    with pytest.raises(InputError, match=r"model\.onnx.*not a valid ONNX model"):
+        run_video(video_dir / "traffic_no_ev.mp4", out, model=junk, progress=False)
+    assert not out.exists() or not any(out.iterdir())
