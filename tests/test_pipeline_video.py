@@ -129,3 +129,12 @@ def test_wrong_model_writes_nothing(video_dir: Path, tmp_path: Path) -> None:
     with pytest.raises(InputError, match=r"model\.onnx.*not a valid ONNX model"):
         run_video(video_dir / "traffic_no_ev.mp4", out, model=junk, progress=False)
     assert not out.exists() or not any(out.iterdir())
+
+
+def test_runs_on_every_clip(video_dir: Path, tmp_path: Path) -> None:
+    clips = sorted(video_dir.glob("*.mp4"))
+    assert len(clips) >= 5
+    for clip in clips:
+        s = run_video(clip, tmp_path / clip.stem, max_frames=6, stride=5, progress=False)
+        assert s.frames == 6, clip.name
+        assert (tmp_path / clip.stem / "annotated.mp4").stat().st_size > 0

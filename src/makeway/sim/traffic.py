@@ -877,11 +877,16 @@ class SceneRenderer:
             self._poly(img, px, shown)  # type: ignore[arg-type]
             if lit:
                 centre = px.mean(axis=0)
-                radius = max(2, int(round(0.9 * (px[:, 0].max() - px[:, 0].min()))))
+                radius = max(2, int(round(0.6 * (px[:, 0].max() - px[:, 0].min()))))
                 cv2.circle(img, (int(centre[0]), int(centre[1])), radius, colour, 2, cv2.LINE_AA)
-                cv2.circle(img, (int(centre[0]), int(centre[1])), max(1, radius // 2), (255, 255, 255), -1)
+                cv2.circle(img, (int(centre[0]), int(centre[1])), max(1, radius // 3), (255, 255, 255), -1)
 
     # ------------------------------------------------------------------------------------- api
+    @property
+    def background(self) -> np.ndarray:
+        """The empty road (a copy), for plotting trajectories over it."""
+        return self._background.copy()
+
     def render(self, index: int) -> np.ndarray:
         """The synthetic BGR image of frame ``index`` (``height × width × 3`` uint8)."""
         frame = self.scene.frames[index]
