@@ -1,28 +1,5 @@
-"""Perception (SPEC §7: sense → **perceive** → track): turn raw frames into detections.
+"""Perception (SPEC §7: sense → **perceive** → track): per-frame judgements.
 
-``makeway.perceive.vision`` holds the COCO vehicle detectors (SPEC §2).
+``makeway.perceive.vision`` holds the COCO vehicle detectors (SPEC §2); audio perception joins it
+as ``makeway.perceive.audio``.
 """
-
-from makeway.perceive.vision import (
-    COCO_CLASSES,
-    DETECTORS,
-    VEHICLE_CLASSES,
-    Detector,
-    NanoDetM,
-    YoloxNano,
-    create_detector,
-    nms,
-    resolve_model_path,
-)
-
-__all__ = [
-    "COCO_CLASSES",
-    "DETECTORS",
-    "VEHICLE_CLASSES",
-    "Detector",
-    "NanoDetM",
-    "YoloxNano",
-    "create_detector",
-    "nms",
-    "resolve_model_path",
-]

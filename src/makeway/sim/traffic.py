@@ -138,23 +138,29 @@ _DEFAULT_EVS = (
 class TrafficConfig:
     """Everything :func:`simulate_scene` needs; the defaults give a 20 s urban arterial scene.
 
-    Camera: a 1280×720, 25 fps camera with a 60° horizontal field of view on a 9 m pole 9.5 m
-    right of the road's centre line, turned 10° towards the road and pitched 9° down (a roadside
-    unit as in seed 001; the road is visible from ~18 m to the horizon).
+    Camera: a 1280×720, 25 fps camera with a 50° horizontal field of view on a 10 m pole 9.5 m
+    right of the road's centre line, turned 10° towards the road and pitched 11° down (a roadside
+    unit as in seed 001; the road surface is in view from ~21 m ahead to the horizon).
 
-    Road and traffic: two 3.5 m lanes each way, inner lanes 16 m/s (58 km/h), outer 13 m/s,
-    400 vehicles per hour per lane (light urban traffic: about 15 vehicles seen in 20 s), at least
-    1.8 s between arrivals, desired speeds spread ±7 %, and a class mix of 68 % cars, 10 %
-    motorcycles, 14 % trucks, 8 % buses.
+    Road and traffic: two 3.5 m lanes each way over 220 m, inner lanes 16 m/s (58 km/h), outer
+    13 m/s, 400 vehicles per hour per lane (light urban traffic: 12–24 vehicles seen in 20 s,
+    15 with seed 0), at least 1.8 s between arrivals, desired speeds spread ±7 %, and a class mix
+    of 68 % cars, 10 % motorcycles, 14 % trucks, 8 % buses. Emergency vehicles: a police car
+    approaching at 20 m/s from t = 1 s (lights 2 Hz) and an ambulance driving away at 17 m/s from
+    t = 8 s (3 Hz); a bulb is lit 70 % of each flash cycle.
+
+    Ground truth counts (MOTChallenge "consider" flag) for boxes at least 10 px high and 25 %
+    visible; smaller or more hidden vehicles are kept with the flag 0.
 
     Detector: box edges jittered with σ = 3 % of the box size; 3 % base miss rate; detection
-    probability 50 % at 13 px box height and at 35 % visibility (logistic in both); 0.25 false
+    probability 50 % at 10.5 px box height and at 35 % visibility (logistic in both); 0.25 false
     positives per frame; 4 % class confusion. Scores rise with size and visibility.
 
     Classifier (logits, then a sigmoid): +3.0 for an EV in a lit frame (less when small or
-    occluded), −1.0 in a dark frame, −3.5 for an ordinary vehicle, +1.5 during a brake-light burst;
-    Gaussian noise σ = 1.0, up to 2.0 on small crops; 12 % of approaching and 30 % of receding
-    ordinary vehicles have bursty brake/tail-light glints (on ~25 % of frames, ~3-frame bursts).
+    occluded), −1.0 in a dark frame, −3.5 for an ordinary vehicle, +1.0 during a brake-light glint;
+    Gaussian noise σ = 1.0, up to 2.0 on crops narrower than 48 px; 12 % of approaching and 25 % of
+    receding ordinary vehicles have glints, a two-state Markov chain per frame (start 0.07, stop
+    0.3: on ~19 % of frames, in bursts of ~3 frames).
     """
 
     seed: int = 0
@@ -193,8 +199,8 @@ class TrafficConfig:
     # detector
     det_jitter: float = 0.03
     det_miss_base: float = 0.03
-    det_height50_px: float = 13.0
-    det_height_softness_px: float = 2.5
+    det_height50_px: float = 10.5
+    det_height_softness_px: float = 2.0
     det_visibility50: float = 0.35
     det_visibility_softness: float = 0.07
     det_fp_per_frame: float = 0.25
@@ -204,13 +210,13 @@ class TrafficConfig:
     cls_logit_lit: float = 3.0
     cls_logit_dark: float = -1.0
     cls_logit_normal: float = -3.5
-    cls_logit_glint: float = 1.5
+    cls_logit_glint: float = 1.0
     cls_noise: float = 1.0
     cls_small_noise: float = 1.0
     cls_small_width_px: float = 48.0
     cls_distractor_approaching: float = 0.12
-    cls_distractor_receding: float = 0.30
-    cls_glint_start: float = 0.1
+    cls_distractor_receding: float = 0.25
+    cls_glint_start: float = 0.07
     cls_glint_stop: float = 0.3
 
     def __post_init__(self) -> None:
@@ -834,8 +840,8 @@ class SceneRenderer:
             pts3 = corners[list(idx)]
             if float(np.dot(np.array(normal), cam - pts3.mean(axis=0))) <= 0:
                 continue
-            colour = tuple(int(v) for v in np.clip(base * shade + 10, 0, 255))
-            self._poly(img, px[list(idx)], colour)  # type: ignore[arg-type]
+            b, g, r = (int(v) for v in np.clip(base * shade + 10, 0, 255))
+            self._poly(img, px[list(idx)], (b, g, r))
             if normal[1] < 0:  # the end that faces the camera: window band and lamps
                 self._end_details(img, corners[list(idx)], facing_front=actor.approaching, kind=kind)
         if actor.is_ev:
@@ -873,8 +879,8 @@ class SceneRenderer:
             px, depth = self._px(pts)
             if depth.min() <= 0.5:
                 continue
-            shown = colour if lit else tuple(int(0.35 * v) for v in colour)
-            self._poly(img, px, shown)  # type: ignore[arg-type]
+            shown = colour if lit else (colour[0] * 35 // 100, colour[1] * 35 // 100, colour[2] * 35 // 100)
+            self._poly(img, px, shown)
             if lit:
                 centre = px.mean(axis=0)
                 radius = max(2, int(round(0.6 * (px[:, 0].max() - px[:, 0].min()))))
