@@ -360,3 +360,23 @@ def test_wrong_model_for_detector(models: Path) -> None:
         NanoDetM(models / "yolox_nano.onnx")
     msg = str(info.value)
     assert "[1, 2704, 80]" in msg and "[1, 2704, 32]" in msg and "found [1, 3549, 85]" in msg
+
+
+def test_fit_aspect_runs_16_9_frames_at_416x256_with_the_same_boxes(
+    shared_data: Path, night_frame: np.ndarray, traffic_frame: np.ndarray
+) -> None:
+    fitted = YoloxNano(class_agnostic=True)
+    square = YoloxNano(class_agnostic=True, fit_aspect=False)
+    assert fitted.fit_aspect and not square.fit_aspect
+    for frame in (night_frame, traffic_frame):
+        a, _, _ = fitted.detect_arrays(frame)
+        b, sb, _ = square.detect_arrays(frame)
+        assert fitted._blob.shape == (1, 3, 256, 416)  # 16:9 → 416×234 letterboxed → 416×256 input
+        assert abs(len(a) - len(b)) <= 1
+        strong = b[sb >= 0.5]
+        iou = _iou_matrix(strong, a)
+        assert (iou.max(axis=1) >= 0.9).all()
+    portrait = np.ascontiguousarray(night_frame[:, :400])  # 720×400 → 416×231 letterboxed
+    fitted.detect_arrays(portrait)
+    assert fitted._blob.shape == (1, 3, 416, 256)
+    assert not NanoDetM(fit_aspect=True).fit_aspect  # its graph has size-bound reshapes

@@ -207,9 +207,10 @@ def nms(boxes: np.ndarray, scores: np.ndarray, iou_threshold: float) -> np.ndarr
     return np.asarray(keep, dtype=np.int64)
 
 
-@functools.lru_cache(maxsize=8)
-def _grid(input_size: int, offset: float) -> tuple[np.ndarray, np.ndarray]:
-    """Cell coordinates ``(n, 2)`` as ``(column + offset, row + offset)`` and their strides ``(n,)``.
+@functools.lru_cache(maxsize=16)
+def _grid(height: int, width: int, offset: float) -> tuple[np.ndarray, np.ndarray]:
+    """Cell coordinates ``(n, 2)`` as ``(column + offset, row + offset)`` and their strides ``(n,)``
+    for a ``height × width`` network input.
 
     Levels in stride order 8, 16, 32, each row-major — the order both models emit their cells in.
     The arrays are shared by every detector with the same layout, hence read-only.
@@ -217,10 +218,9 @@ def _grid(input_size: int, offset: float) -> tuple[np.ndarray, np.ndarray]:
     cells: list[np.ndarray] = []
     strides: list[np.ndarray] = []
     for stride in _STRIDES:
-        n = input_size // stride
-        rows, cols = np.mgrid[0:n, 0:n]
+        rows, cols = np.mgrid[0 : height // stride, 0 : width // stride]
         cells.append(np.stack([cols.ravel(), rows.ravel()], axis=1) + offset)
-        strides.append(np.full(n * n, stride))
+        strides.append(np.full(rows.size, stride))
     xy = np.concatenate(cells).astype(np.float32)
     st = np.concatenate(strides).astype(np.float32)
     xy.flags.writeable = False
@@ -281,6 +281,13 @@ class Detector:
         class_agnostic: suppress across classes too. Off by default (class-aware NMS, as SPEC §2
             asks), but note that with class-aware NMS one vehicle sometimes comes out twice, as
             ``car`` and as ``truck``; turn this on when that matters more than the label.
+        fit_aspect: for models whose graph does not depend on the input size
+            (:attr:`shape_agnostic`), shape the network input to the frame instead of padding it to
+            a square: the long side is ``input_size``, the short side the letterboxed size rounded
+            up to a multiple of 32. A 16:9 frame then runs at 416×256 instead of 416×416 — 38 %
+            fewer pixels, the same detections up to the bottom rows of padding. Needs the ``onnx``
+            package to relax the model's declared input shape; falls back to the square input
+            when that fails.
 
     Raises:
         InputError: the model file is missing, not a valid ONNX model, or not the model this
@@ -295,6 +302,8 @@ class Detector:
     input_size: ClassVar[int] = 416
     #: Grid cell centre = ``(column + center_offset, row + center_offset) * stride``.
     center_offset: ClassVar[float] = 0.0
+    #: Whether the graph runs on any input size that is a multiple of 32 (no size-bound reshapes).
+    shape_agnostic: ClassVar[bool] = False
 
     def __init__(
         self,
@@ -305,6 +314,7 @@ class Detector:
         classes: Sequence[int] | None = VEHICLE_CLASSES,
         num_threads: int | None = None,
         class_agnostic: bool = False,
+        fit_aspect: bool = True,
     ) -> None:
         if not 0.0 <= score_threshold <= 1.0:
             raise ValueError(f"score_threshold must be in [0, 1], got {score_threshold}")
@@ -328,12 +338,16 @@ class Detector:
             slice(None) if self.classes == tuple(range(_NUM_CLASSES)) else np.asarray(self.classes)
         )
         self._class_ids = np.asarray(self.classes, dtype=np.int64)
-        self._grid_xy, self._grid_stride = _grid(self.input_size, self.center_offset)
+        self._grid_xy, self._grid_stride = _grid(self.input_size, self.input_size, self.center_offset)
 
         self.model_path = resolve_model_path(self.default_filename, model_path)
         self._session = self._load_session()
         self._input_name = self._session.get_inputs()[0].name
         self._blob = np.empty((1, 3, self.input_size, self.input_size), dtype=np.float32)
+        self._blobs: dict[tuple[int, int], np.ndarray] = {}
+        self.fit_aspect = bool(fit_aspect) and self.shape_agnostic
+        if self.fit_aspect:
+            self._session = self._relaxed_session()
 
     def __repr__(self) -> str:
         return (
@@ -344,9 +358,7 @@ class Detector:
 
     # ------------------------------------------------------------------------------ session & checks
 
-    def _load_session(self) -> Any:
-        import onnxruntime as ort  # imported here so that `import makeway.perceive` stays cheap
-
+    def _session_options(self, ort: Any) -> Any:
         opts = ort.SessionOptions()
         opts.intra_op_num_threads = self.num_threads
         opts.inter_op_num_threads = 1
@@ -356,6 +368,12 @@ class Detector:
         # Idle worker threads sleep instead of spinning: the same speed when the detector has the
         # cores to itself, and 1.5–3× faster when video decoding or another process shares them.
         opts.add_session_config_entry("session.intra_op.allow_spinning", "0")
+        return opts
+
+    def _load_session(self) -> Any:
+        import onnxruntime as ort  # imported here so that `import makeway.perceive` stays cheap
+
+        opts = self._session_options(ort)
         try:
             session = ort.InferenceSession(str(self.model_path), opts, providers=["CPUExecutionProvider"])
         except Exception as exc:  # ORT raises several pybind types (InvalidProtobuf, Fail, ...)
@@ -378,6 +396,47 @@ class Detector:
             )
         self._check_outputs([list(o.shape) for o in session.get_outputs()])
         return session
+
+    def _relaxed_session(self) -> Any:
+        """A session on the same model with symbolic input height/width (see ``fit_aspect``).
+
+        The model was already checked by :meth:`_load_session`; only the declared shapes change.
+        Returns the square session unchanged when the rewrite is not possible here.
+        """
+        import onnxruntime as ort
+
+        try:
+            import onnx
+        except ImportError:
+            self.fit_aspect = False
+            return self._session
+        try:
+            model = onnx.load(str(self.model_path))
+            dims = model.graph.input[0].type.tensor_type.shape.dim
+            for axis, name in ((2, "height"), (3, "width")):
+                dims[axis].ClearField("dim_value")
+                dims[axis].dim_param = name
+            for out in model.graph.output:
+                for dim in out.type.tensor_type.shape.dim[1:2]:
+                    dim.ClearField("dim_value")
+                    dim.dim_param = "cells"
+            del model.graph.value_info[:]  # stale intermediate shapes
+            opts = self._session_options(ort)
+            return ort.InferenceSession(model.SerializeToString(), opts, providers=["CPUExecutionProvider"])
+        except Exception:  # any failure: keep the square input, which is known to work
+            self.fit_aspect = False
+            return self._session
+
+    def _input_for(self, resized: np.ndarray) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray]]:
+        """The input buffer and the cell grid for a letterboxed image of this size."""
+        if not self.fit_aspect:
+            return self._blob, (self._grid_xy, self._grid_stride)
+        nh, nw = resized.shape[:2]
+        shape = (-(-nh // 32) * 32, -(-nw // 32) * 32)
+        blob = self._blobs.get(shape)
+        if blob is None:
+            blob = self._blobs[shape] = np.empty((1, 3, *shape), dtype=np.float32)
+        return blob, _grid(shape[0], shape[1], self.center_offset)
 
     def _check_outputs(self, shapes: list[list[Any]]) -> None:
         raise NotImplementedError
@@ -431,6 +490,7 @@ class Detector:
         image = _check_image(image_bgr)
         h, w = image.shape[:2]
         resized, sx, sy = self._letterbox(image)
+        self._blob, (self._grid_xy, self._grid_stride) = self._input_for(resized)
         self._fill_input(resized)
         outputs = self._session.run(None, {self._input_name: self._blob})
         boxes, scores, class_ids = self._decode(outputs)
@@ -484,11 +544,15 @@ class YoloxNano(Detector):
 
     then divide by the letterbox scale to get original pixels. Cells are pre-filtered on
     objectness (an upper bound of the score) before anything else is computed.
+
+    The graph has no size-bound reshapes, so with ``fit_aspect`` (default) a 16:9 frame runs at
+    416×256 (2184 cells) instead of 416×416; the grid follows the input.
     """
 
     name: ClassVar[str] = "yolox_nano"
     default_filename: ClassVar[str] = "yolox_nano.onnx"
     center_offset: ClassVar[float] = 0.0
+    shape_agnostic: ClassVar[bool] = True  # Slice/Resize by scale/Reshape [1, 85, -1] only
 
     def _check_outputs(self, shapes: list[list[Any]]) -> None:
         n = len(self._grid_stride)
@@ -545,6 +609,7 @@ class NanoDetM(Detector):
     """
 
     name: ClassVar[str] = "nanodet_m"
+    # shape_agnostic stays False: its channel shuffles reshape to fixed 52/26/13 grids.
     default_filename: ClassVar[str] = "nanodet_m_416.onnx"
     center_offset: ClassVar[float] = 0.5
     reg_max: ClassVar[int] = 7
@@ -561,6 +626,7 @@ class NanoDetM(Detector):
         classes: Sequence[int] | None = VEHICLE_CLASSES,
         num_threads: int | None = None,
         class_agnostic: bool = False,
+        fit_aspect: bool = True,
     ) -> None:
         self._cls_order: list[int] = []
         self._reg_order: list[int] = []
@@ -571,6 +637,7 @@ class NanoDetM(Detector):
             classes=classes,
             num_threads=num_threads,
             class_agnostic=class_agnostic,
+            fit_aspect=fit_aspect,
         )
         self._pad = ((_PAD_VALUE - self._MEAN) * self._INV_STD).reshape(3, 1, 1)
         self._mean_chw = self._MEAN.reshape(3, 1, 1)
