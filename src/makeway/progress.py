@@ -4,32 +4,52 @@ from __future__ import annotations
 
 import contextlib
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
+from typing import Any
 
 
-def _no_progress(n: int = 1) -> None:
-    """The ``advance`` of a disabled progress bar."""
+class Progress:
+    """Handle yielded by :func:`progress_bar`: call it to advance, :meth:`finish` at a short end."""
+
+    def __init__(self, bar: Any = None, task: Any = None, unit: str = "frames") -> None:
+        self._bar = bar
+        self._task = task
+        self._unit = unit
+        self._start = time.perf_counter()
+        self.done = 0
+
+    def __call__(self, n: int = 1) -> None:
+        self.done += n
+        if self._bar is not None:
+            rate = self.done / max(time.perf_counter() - self._start, 1e-9)
+            self._bar.update(self._task, advance=n, rate=f"{rate:6.1f} {self._unit}/s")
+
+    def finish(self) -> None:
+        """Mark the bar complete at the count reached (a container's frame count can overstate)."""
+        if self._bar is not None:
+            self._bar.update(self._task, total=self.done, completed=self.done)
 
 
 @contextlib.contextmanager
 def progress_bar(
     description: str, total: int | None, *, enabled: bool = True, unit: str = "frames"
-) -> Iterator[Callable[[int], None]]:
+) -> Iterator[Progress]:
     """A rich progress bar showing count, rate, elapsed and remaining time.
 
-    Yields an ``advance(n=1)`` callable; with ``enabled=False`` it is a no-op and nothing prints.
+    Yields a :class:`Progress`; call it (``advance(n=1)``) per item. With ``enabled=False`` it
+    counts silently.
     """
     if not enabled:
-        yield _no_progress
+        yield Progress(unit=unit)
         return
     from rich.progress import (
         BarColumn,
         MofNCompleteColumn,
-        Progress,
         TextColumn,
         TimeElapsedColumn,
         TimeRemainingColumn,
     )
+    from rich.progress import Progress as RichProgress
 
     columns = (
         TextColumn("[bold]{task.description}"),
@@ -39,15 +59,6 @@ def progress_bar(
         TimeElapsedColumn(),
         TimeRemainingColumn(),
     )
-    with Progress(*columns) as bar:
+    with RichProgress(*columns) as bar:
         task = bar.add_task(description, total=total, rate="")
-        start = time.perf_counter()
-        done = 0
-
-        def advance(n: int = 1) -> None:
-            nonlocal done
-            done += n
-            rate = done / max(time.perf_counter() - start, 1e-9)
-            bar.update(task, advance=n, rate=f"{rate:6.1f} {unit}/s")
-
-        yield advance
+        yield Progress(bar, task, unit)

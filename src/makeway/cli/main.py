@@ -119,7 +119,7 @@ def detect(
     table.add_row("ms / frame", ", ".join(f"{k} {v:.1f}" for k, v in summary.ms_per_frame.items()))
     table.add_row("tracks", f"{summary.unique_tracks} ids, at most {summary.max_tracks} at once")
     for name, path in summary.outputs.items():
-        table.add_row(name, path)
+        table.add_row(f"→ {name}", path)
     if not as_json:
         console.print(table)
     else:

@@ -32,7 +32,7 @@ import shutil
 import tempfile
 import time
 from collections import Counter, defaultdict
-from collections.abc import Iterator, Sequence
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -43,6 +43,7 @@ from makeway import __version__
 from makeway.errors import InputError
 from makeway.eval.mot import evaluate_mot
 from makeway.messages import Box, EVObservation, EVState, EVTrackState, PerceptionFrame, Track
+from makeway.progress import progress_bar
 from makeway.sense.motfile import MotData
 from makeway.sim.traffic import Scene, SceneRenderer, TrafficConfig, simulate_scene
 from makeway.track.smoother import TrackSmoother
@@ -171,25 +172,6 @@ class _TrackRecord:
     positive_fraction: float
     n_valid: int
     states: dict[float, EVState]
-
-
-@contextlib.contextmanager
-def _progress(enabled: bool, total: int, description: str) -> Iterator[Any]:
-    """A rich progress bar (or a no-op) yielding ``advance()``."""
-    if not enabled:
-        yield lambda: None
-        return
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
-
-    with Progress(
-        TextColumn("[bold]{task.description}"),
-        BarColumn(),
-        MofNCompleteColumn(),
-        TextColumn("frames"),
-        TimeElapsedColumn(),
-    ) as bar:
-        task = bar.add_task(description, total=total)
-        yield lambda: bar.advance(task)
 
 
 # ------------------------------------------------------------------------------------------ the run
@@ -325,7 +307,7 @@ def _track_and_smooth(
             writer = stack.enter_context(
                 H264Writer(stage / "scene.mp4", scene.fps, renderer.width, renderer.height)
             )
-        advance = stack.enter_context(_progress(progress, scene.num_frames, "makeway demo"))
+        advance = stack.enter_context(progress_bar("makeway demo", scene.num_frames, enabled=progress))
         for frame in scene.frames:
             tracks = tracker.update([d.detection for d in frame.detections])
             probs = _track_probabilities(tracks, frame.detections)

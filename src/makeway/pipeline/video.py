@@ -353,8 +353,7 @@ def run_video(
     seen_ids: set[int] = set()
     active_ids: set[int] = set()
     annotate_s = 0.0
-    fps_ema: float | None = None
-    last_t = time.perf_counter()
+    recent: deque[float] = deque(maxlen=26)  # completion times of the last frames, for the FPS overlay
 
     with progress_bar(f"detect {Path(video).name}", total, enabled=progress) as advance:
         jsonl_ctx = atomic_path(out / "tracks.jsonl") if out is not None else _null_path()
@@ -379,17 +378,18 @@ def run_video(
                     if on_frame is not None:
                         on_frame(frame)
                     now = time.perf_counter()
-                    inst = 1.0 / max(now - last_t, 1e-6)
-                    fps_ema = inst if fps_ema is None else 0.9 * fps_ema + 0.1 * inst
-                    last_t = now
+                    recent.append(now)
+                    span = recent[-1] - recent[0]
+                    fps_now = (len(recent) - 1) / span if span > 0 else 0.0
                     if bg is not None:
                         ta = time.perf_counter()
                         annotated = draw_frame(
-                            image, frame, fps_text=f"{fps_ema:5.1f} fps ({det.name})", copy=False
+                            image, frame, fps_text=f"{fps_now:5.1f} fps ({det.name})", copy=False
                         )
                         annotate_s += time.perf_counter() - ta
                         bg.write(annotated)
                     advance(1)
+                advance.finish()
                 wall = time.perf_counter() - wall0
                 if bg is not None:
                     bg.finish()
