@@ -44,9 +44,9 @@ def test_outputs_on_real_clip(video_dir: Path, tmp_path: Path) -> None:
     lines = (out / "tracks.jsonl").read_text().splitlines()
     assert len(lines) == 40
     first = json.loads(lines[0])
-    assert first["frame"] == 0 and first["time_s"] == 0.0
+    assert first["index"] == 0 and first["time_s"] == 0.0
     rec = json.loads(lines[-1])
-    assert rec["frame"] == 39 and rec["time_s"] == pytest.approx(39 / 25)
+    assert rec["index"] == 39 and rec["time_s"] == pytest.approx(39 / 25)
     assert rec["tracks"], "vehicles are visible at the end of the first 40 frames"
     t = rec["tracks"][0]
     assert {"id", "box", "score", "label", "state"} <= set(t)
@@ -71,7 +71,7 @@ def test_stride_and_single_worker(video_dir: Path, tmp_path: Path) -> None:
         detector_workers=1,
         progress=False,
     )
-    frames = [json.loads(x)["frame"] for x in (tmp_path / "o" / "tracks.jsonl").read_text().splitlines()]
+    frames = [json.loads(x)["index"] for x in (tmp_path / "o" / "tracks.jsonl").read_text().splitlines()]
     assert frames == list(range(0, 30, 3))
     assert s.detector_workers == 1 and "video" not in s.outputs
 

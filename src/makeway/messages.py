@@ -189,7 +189,8 @@ class PerceptionFrame:
     ev_states: tuple[EVTrackState, ...] = field(default=())
 
     def to_json(self) -> dict[str, Any]:
-        """A JSON-ready dict: index, time, and per track its box, id, score, class and EV state."""
+        """A JSON-ready dict: ``index`` (source frame index), ``time_s``, and per track its box, id,
+        score, class and EV state."""
         ev = {s.track_id: s for s in self.ev_states}
         tracks = []
         for t in self.tracks:
@@ -207,4 +208,4 @@ class PerceptionFrame:
                     "ev_n_valid": s.n_valid if s is not None else 0,
                 }
             )
-        return {"frame": self.frame_index, "time_s": round(self.time_s, 4), "tracks": tracks}
+        return {"index": self.frame_index, "time_s": round(self.time_s, 4), "tracks": tracks}
