@@ -616,33 +616,13 @@ class NanoDetM(Detector):
 
     _MEAN = np.array([103.53, 116.28, 123.675], dtype=np.float32)
     _INV_STD = (1.0 / np.array([57.375, 57.12, 58.395], dtype=np.float64)).astype(np.float32)
-
-    def __init__(
-        self,
-        model_path: str | Path | None = None,
-        *,
-        score_threshold: float = 0.3,
-        nms_iou: float = 0.45,
-        classes: Sequence[int] | None = VEHICLE_CLASSES,
-        num_threads: int | None = None,
-        class_agnostic: bool = False,
-        fit_aspect: bool = True,
-    ) -> None:
-        self._cls_order: list[int] = []
-        self._reg_order: list[int] = []
-        super().__init__(
-            model_path,
-            score_threshold=score_threshold,
-            nms_iou=nms_iou,
-            classes=classes,
-            num_threads=num_threads,
-            class_agnostic=class_agnostic,
-            fit_aspect=fit_aspect,
-        )
-        self._pad = ((_PAD_VALUE - self._MEAN) * self._INV_STD).reshape(3, 1, 1)
-        self._mean_chw = self._MEAN.reshape(3, 1, 1)
-        self._inv_std_chw = self._INV_STD.reshape(3, 1, 1)
-        self._bins = np.arange(self.reg_max + 1, dtype=np.float32)
+    _mean_chw = _MEAN.reshape(3, 1, 1)
+    _inv_std_chw = _INV_STD.reshape(3, 1, 1)
+    _pad = ((_PAD_VALUE - _MEAN) * _INV_STD).reshape(3, 1, 1)  # the letterbox fill, normalised
+    _bins = np.arange(reg_max + 1, dtype=np.float32)
+    # Output positions of the class-score and box-distribution tensors per level (set on load).
+    _cls_order: list[int]
+    _reg_order: list[int]
 
     def _check_outputs(self, shapes: list[list[Any]]) -> None:
         cells = [(self.input_size // s) ** 2 for s in _STRIDES]
