@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import cv2
@@ -10,7 +9,6 @@ import numpy as np
 import pytest
 
 from makeway.errors import InputError
-from makeway.paths import data_dir
 from makeway.perceive.vision import detectors as detectors_module
 from makeway.perceive.vision.detectors import (
     COCO_CLASSES,
@@ -31,14 +29,9 @@ VEHICLE_NAMES = {COCO_CLASSES[c] for c in VEHICLE_CLASSES}
 
 
 @pytest.fixture(scope="module")
-def shared_data() -> Path:
-    """The shared data folder; a hard failure on CI, a skip elsewhere (to move into conftest)."""
-    path = data_dir()
-    if path is None:
-        if os.environ.get("CI"):
-            pytest.fail("../shared/data missing")
-        pytest.skip("shared data not found (set MAKEWAY_DATA or put it at ../shared/data)")
-    return path
+def shared_data(data_root: Path) -> Path:
+    """The shared data folder (see ``conftest.data_root``: fails on CI when missing)."""
+    return data_root
 
 
 def _read_frame(data: Path, video: str, index: int) -> np.ndarray:

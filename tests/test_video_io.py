@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import math
-import os
 from pathlib import Path
 
 import av
@@ -11,7 +10,6 @@ import cv2
 import numpy as np
 import pytest
 
-from makeway import paths
 from makeway.errors import InputError
 from makeway.messages import Box, EVState, EVTrackState, PerceptionFrame, Track
 from makeway.sense import video as video_mod
@@ -26,19 +24,6 @@ CLIPS: dict[str, tuple[int, int, float]] = {
     "traffic_no_ev.mp4": (640, 360, 30.0),
     "highway_cam_no_ev.mp4": (320, 240, 25.0),
 }
-
-
-@pytest.fixture(scope="module")
-def video_dir() -> Path:
-    data = paths.data_dir()
-    if data is None:
-        if os.environ.get("CI"):
-            pytest.fail("../shared/data missing")
-        pytest.skip("shared data folder not found (set MAKEWAY_DATA or provide ../shared/data)")
-    folder = data / "video"
-    if not folder.is_dir():
-        pytest.fail(f"{folder} missing from the shared data")
-    return folder
 
 
 @pytest.fixture(scope="module")

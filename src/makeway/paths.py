@@ -19,8 +19,10 @@ def data_candidates() -> list[Path]:
     env = os.environ.get("MAKEWAY_DATA")
     if env:
         out.append(Path(env).expanduser())
-    out.append(Path.cwd() / ".." / "shared" / "data")
-    out.append(_REPO_ROOT / ".." / "shared" / "data")
+    for base in (Path.cwd(), _REPO_ROOT):
+        cand = (base / ".." / "shared" / "data").resolve()
+        if cand not in out:
+            out.append(cand)
     return out
 
 
