@@ -41,6 +41,7 @@ import numpy as np
 
 from makeway import __version__
 from makeway.errors import InputError
+from makeway.eval.classification import precision_recall_f1, threshold_metrics
 from makeway.eval.mot import evaluate_mot
 from makeway.messages import Box, EVObservation, EVState, EVTrackState, PerceptionFrame, Track
 from makeway.progress import progress_bar
@@ -125,40 +126,6 @@ def _clean(value: Any) -> Any:
     if isinstance(value, Path):
         return str(value)
     return value
-
-
-def _prf(tp: int, fp: int, fn: int) -> dict[str, Any]:
-    p = tp / (tp + fp) if tp + fp else float("nan")
-    r = tp / (tp + fn) if tp + fn else float("nan")
-    f1 = 2 * p * r / (p + r) if tp and (p + r) > 0 else (0.0 if (tp + fp) and (tp + fn) else float("nan"))
-    return {"precision": p, "recall": r, "f1": f1, "tp": tp, "fp": fp, "fn": fn}
-
-
-def _threshold_curves(scores: np.ndarray, labels: np.ndarray) -> dict[str, float]:
-    """Max-F1 over thresholds and the best precision at recall ≥ 0.8 (SPEC §1 metrics)."""
-    n_pos = int(labels.sum())
-    if n_pos == 0 or len(scores) == 0:
-        return {
-            "max_f1": float("nan"),
-            "max_f1_threshold": float("nan"),
-            "precision_at_recall_0.8": float("nan"),
-        }
-    order = np.argsort(-scores, kind="stable")
-    s, y = scores[order], labels[order]
-    tp = np.cumsum(y)
-    fp = np.cumsum(~y)
-    last = np.r_[np.flatnonzero(np.diff(s)), len(s) - 1]  # only cut between distinct scores
-    tp, fp, thr = tp[last], fp[last], s[last]
-    precision = tp / (tp + fp)
-    recall = tp / n_pos
-    f1 = np.where(precision + recall > 0, 2 * precision * recall / np.maximum(precision + recall, 1e-12), 0)
-    best = int(np.argmax(f1))
-    at08 = precision[recall >= 0.8]
-    return {
-        "max_f1": float(f1[best]),
-        "max_f1_threshold": float(thr[best]),
-        "precision_at_recall_0.8": float(at08.max()) if len(at08) else float("nan"),
-    }
 
 
 @dataclass
@@ -447,10 +414,10 @@ def _evaluate(scene: Scene, records: list[list[_TrackRecord]]) -> dict[str, Any]
             labels.append(d.actor_id in lit)
     s_arr, y_arr = np.array(scores, dtype=np.float64), np.array(labels, dtype=bool)
     pred = s_arr >= 0.5
-    classifier: dict[str, Any] = _prf(
+    classifier: dict[str, Any] = precision_recall_f1(
         int((pred & y_arr).sum()), int((pred & ~y_arr).sum()), int((~pred & y_arr).sum())
     )
-    classifier.update(_threshold_curves(s_arr, y_arr))
+    classifier.update(threshold_metrics(s_arr, y_arr))
     classifier.update(
         {"num_valid": len(s_arr), "num_positive_labels": int(y_arr.sum()), "num_skipped": n_skipped}
     )
@@ -465,7 +432,7 @@ def _evaluate(scene: Scene, records: list[list[_TrackRecord]]) -> dict[str, Any]
     ev_keys = {("actor", a) for a in ev_ids}
     for thr in THRESHOLDS:
         flagged = {actor_key(r.track_id) for r in flat if r.states[thr] is EVState.ACTIVE}
-        pa = _prf(len(flagged & ev_keys), len(flagged - ev_keys), len(ev_keys - flagged))
+        pa = precision_recall_f1(len(flagged & ev_keys), len(flagged - ev_keys), len(ev_keys - flagged))
         pa["flagged"] = sorted(f"{k}:{v}" for k, v in flagged)
         per_actor[str(thr)] = pa
         tp = fp = fn = 0
@@ -478,7 +445,7 @@ def _evaluate(scene: Scene, records: list[list[_TrackRecord]]) -> dict[str, Any]
             tp += act and truth
             fp += act and not truth
             fn += truth and not act
-        per_frame[str(thr)] = _prf(tp, fp, fn)
+        per_frame[str(thr)] = precision_recall_f1(tp, fp, fn)
     base = per_actor[str(THRESHOLDS[0])]
     for thr in THRESHOLDS:
         pa = per_actor[str(thr)]
