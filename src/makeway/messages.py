@@ -209,3 +209,163 @@ class PerceptionFrame:
                 }
             )
         return {"index": self.frame_index, "time_s": round(self.time_s, 4), "tracks": tracks}
+
+
+# ------------------------------------------------------------------------------- decide / plan / control
+#
+# World frame: metres, x and y on the road plane (right-handed, z up), yaw counter-clockwise from +x.
+# Vehicle frame as in the module docstring (x forward, y left). Steering angle δ is the front-wheel
+# angle, positive to the left (counter-clockwise). Lateral error ``e_lat`` is positive when the vehicle
+# is to the LEFT of the reference path (looking along the direction of travel); ``yaw_error`` =
+# θ − θ_R and ``yaw_rate_error`` = θ̇ − v_x·κ_R with κ_R = 1/R signed (positive for a left turn), so
+# that a positive error is corrected by a negative (rightward) steering term (SPEC §6).
+
+
+@dataclass(frozen=True, slots=True)
+class VehicleState:
+    """The ego vehicle at one instant (SPEC §6 single-track model), world frame.
+
+    ``vx_mps``/``vy_mps`` are the longitudinal/lateral velocities in the vehicle frame,
+    ``steer_rad`` the actual front-wheel angle, ``ax_mps2`` the longitudinal acceleration.
+    """
+
+    time_s: float
+    x_m: float
+    y_m: float
+    yaw_rad: float
+    vx_mps: float
+    vy_mps: float = 0.0
+    yaw_rate_radps: float = 0.0
+    steer_rad: float = 0.0
+    ax_mps2: float = 0.0
+
+
+@dataclass(frozen=True, slots=True)
+class ControlCommand:
+    """What the controllers ask of the actuators: front-wheel angle and longitudinal acceleration."""
+
+    time_s: float
+    steer_rad: float
+    accel_mps2: float
+
+
+@dataclass(frozen=True, slots=True)
+class TrackingErrors:
+    """Errors of the vehicle against the locally fitted reference (SPEC §6; signs above).
+
+    ``kind`` is ``"line"`` or ``"arc"``; ``curvature_1pm`` is κ_R = 1/R (0 for a line, signed).
+    """
+
+    e_lat: float
+    yaw_error: float
+    yaw_rate_error: float
+    curvature_1pm: float
+    kind: str
+
+    @property
+    def radius_m(self) -> float:
+        return 1.0 / self.curvature_1pm if self.curvature_1pm != 0.0 else float("inf")
+
+
+@dataclass(frozen=True)
+class ReferencePath:
+    """A reference path for the ego vehicle: points in the world frame along the direction of travel.
+
+    ``s_m`` is the arc length from the first point; ``heading_rad`` and ``curvature_1pm`` (signed,
+    positive to the left) are per point. ``stop_s_m`` is where the vehicle must be stopped, if anywhere.
+    """
+
+    x_m: np.ndarray
+    y_m: np.ndarray
+    s_m: np.ndarray
+    heading_rad: np.ndarray
+    curvature_1pm: np.ndarray
+    stop_s_m: float | None = None
+
+    def __len__(self) -> int:
+        return len(self.x_m)
+
+
+class EVRelation(StrEnum):
+    """Where an emergency vehicle is relative to the ego vehicle and its road."""
+
+    BEHIND = "behind"  # same direction, coming up from behind
+    AHEAD = "ahead"  # same direction, in front
+    ONCOMING = "oncoming"  # opposite direction, approaching
+    CROSSING = "crossing"  # on a crossing road, towards the intersection ahead
+    UNKNOWN = "unknown"  # heard but not placed (e.g. siren only, no bearing)
+
+
+@dataclass(frozen=True, slots=True)
+class EVBelief:
+    """The fused belief that an active emergency vehicle is around (input of the yield decision).
+
+    ``detected`` is the smoothed yes/no; ``confidence`` in ``[0, 1]``. Position is relative to the
+    ego vehicle in the vehicle frame (``rel_x_m`` forward, ``rel_y_m`` left), with ``distance_m`` and
+    ``bearing_rad`` (0 ahead, positive to the left). ``approaching`` is ``None`` when unknown.
+    ``lights``/``siren`` say which signals are perceived now. ``source`` names the producer.
+    """
+
+    time_s: float
+    detected: bool
+    confidence: float
+    relation: EVRelation = EVRelation.UNKNOWN
+    rel_x_m: float = float("nan")
+    rel_y_m: float = float("nan")
+    distance_m: float = float("nan")
+    bearing_rad: float = float("nan")
+    approaching: bool | None = None
+    lights: bool = False
+    siren: bool = False
+    source: str = "simulated"
+
+    @staticmethod
+    def nothing(time_s: float, source: str = "simulated") -> EVBelief:
+        """No emergency vehicle perceived at ``time_s``."""
+        return EVBelief(time_s=time_s, detected=False, confidence=0.0, source=source)
+
+
+@dataclass(frozen=True, slots=True)
+class RoadContext:
+    """What the map says around the ego vehicle, along its reference path (arc length ``s``).
+
+    ``intersections`` are ``(s_start, s_end)`` intervals of the path inside an intersection box;
+    ``right_edge_offset_m`` is the lateral distance from the current lane centre to where a stopped
+    car's centre should be at the right edge (negative: to the right).
+    """
+
+    s_m: float
+    lane_width_m: float = 3.5
+    right_edge_offset_m: float = -3.0
+    intersections: tuple[tuple[float, float], ...] = ()
+    speed_limit_mps: float = 13.4
+
+
+class YieldState(StrEnum):
+    """States of the yield decision (SPEC §6)."""
+
+    NO_EV = "no_ev"
+    EV_CONFIRMED = "ev_confirmed"
+    MOVING_OVER = "moving_over"
+    STOPPED_WAITING = "stopped_waiting"
+    EV_PASSED = "ev_passed"
+    RESUMING = "resuming"
+
+
+@dataclass(frozen=True, slots=True)
+class YieldDecision:
+    """What the yield state machine decided at ``time_s``.
+
+    ``pull_over``: move to the right edge; ``stop_s_m``: stop at this arc length (``None``: no stop
+    required); ``target_speed_mps``: the speed to hold or approach; ``action`` a short word for logs
+    and metrics (``"continue"``, ``"pull_over_and_stop"``, ``"stop_before_intersection"``,
+    ``"wait"``, ``"resume"`` …); ``reason`` a sentence for people.
+    """
+
+    time_s: float
+    state: YieldState
+    action: str
+    pull_over: bool
+    target_speed_mps: float
+    stop_s_m: float | None = None
+    reason: str = ""
