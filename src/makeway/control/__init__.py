@@ -1,0 +1,32 @@
+"""Lateral and longitudinal control (SPEC §6): seed 003's feed-forward + feedback steering with
+structured-LQR gains, Stanley and pure-pursuit baselines, and a comfort-limited stop controller.
+
+``LATERAL_CONTROLLERS`` names the lateral controllers for the CLI and the metrics, all with
+``steer(state, path, hint) -> (δ, TrackingErrors, nearest index)``.
+"""
+
+from makeway.control.lateral import (
+    LATERAL_CONTROLLERS,
+    FeedforwardFeedback,
+    GainSchedule,
+    LateralController,
+    PurePursuit,
+    Stanley,
+    default_gains,
+    design_gains,
+    path_error_model,
+)
+from makeway.control.longitudinal import LongitudinalController
+
+__all__ = [
+    "LATERAL_CONTROLLERS",
+    "FeedforwardFeedback",
+    "GainSchedule",
+    "LateralController",
+    "LongitudinalController",
+    "PurePursuit",
+    "Stanley",
+    "default_gains",
+    "design_gains",
+    "path_error_model",
+]

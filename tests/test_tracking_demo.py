@@ -11,8 +11,8 @@ import pytest
 
 from makeway.errors import InputError
 from makeway.eval.mot import evaluate_mot
-from makeway.pipeline.demo import THRESHOLDS, DemoSummary, run_demo
 from makeway.pipeline.mot import track_mot
+from makeway.pipeline.tracking_demo import THRESHOLDS, TrackingDemoSummary, run_tracking_demo
 from makeway.sense.motfile import MotData
 from makeway.sim.traffic import COCO_IDS, Scene, SceneRenderer, TrafficConfig, simulate_scene
 
@@ -24,10 +24,10 @@ def scene() -> Scene:
 
 
 @pytest.fixture(scope="module")
-def default_run(tmp_path_factory: pytest.TempPathFactory) -> tuple[DemoSummary, dict]:
+def default_run(tmp_path_factory: pytest.TempPathFactory) -> tuple[TrackingDemoSummary, dict]:
     """The demo on the default scene, without the video."""
     out = tmp_path_factory.mktemp("demo") / "out"
-    summary = run_demo(out, write_video=False, progress=False)
+    summary = run_tracking_demo(out, write_video=False, progress=False)
     return summary, json.loads((out / "summary.json").read_text(encoding="utf-8"))
 
 
@@ -141,7 +141,7 @@ def test_sort_tracks_the_simulated_detections(scene: Scene) -> None:
 # ---------------------------------------------------------------------------------------------- demo
 
 
-def test_smoother_beats_per_frame_precision(default_run: tuple[DemoSummary, dict]) -> None:
+def test_smoother_beats_per_frame_precision(default_run: tuple[TrackingDemoSummary, dict]) -> None:
     summary, doc = default_run
     assert summary.mota == pytest.approx(doc["mot"]["mota"], abs=1e-6) and summary.mota > 0.65
     # seed 000's claim: smoothing raises precision over the raw per-frame output, recall kept
@@ -158,7 +158,7 @@ def test_smoother_beats_per_frame_precision(default_run: tuple[DemoSummary, dict
 
 def test_run_demo_writes_the_report(tmp_path: Path) -> None:
     out = tmp_path / "demo"
-    summary = run_demo(out, duration_s=6.0, write_video=True, progress=False)
+    summary = run_tracking_demo(out, duration_s=6.0, write_video=True, progress=False)
     names = {
         "summary.json",
         "report.md",
@@ -194,7 +194,7 @@ def test_run_demo_writes_the_report(tmp_path: Path) -> None:
         assert sum(1 for _ in container.decode(stream)) == 150
 
     # a second run replaces the earlier output
-    again = run_demo(out, seed=1, duration_s=2.0, write_video=False, progress=False)
+    again = run_tracking_demo(out, seed=1, duration_s=2.0, write_video=False, progress=False)
     assert not (out / "scene.mp4").exists() and again.num_frames == 50
     assert [p.name for p in tmp_path.iterdir()] == ["demo"]
 
@@ -202,5 +202,5 @@ def test_run_demo_writes_the_report(tmp_path: Path) -> None:
 def test_run_demo_refuses_a_foreign_folder(tmp_path: Path) -> None:
     (tmp_path / "mine.txt").write_text("keep me", encoding="utf-8")
     with pytest.raises(InputError):
-        run_demo(tmp_path, duration_s=1.0, write_video=False, progress=False)
+        run_tracking_demo(tmp_path, duration_s=1.0, write_video=False, progress=False)
     assert [p.name for p in tmp_path.iterdir()] == ["mine.txt"]

@@ -1,0 +1,743 @@
+"""The yield decision: a state machine that makes the car give way to an active emergency vehicle (SPEC §6).
+
+The law it serves (Texas Transportation Code 545.156): on an emergency vehicle (EV) using audible and
+visual signals, yield the right of way, drive immediately to a position parallel to and as close as
+possible to the right-hand edge, clear of any intersection, and stop until the EV has passed.
+
+:class:`YieldStateMachine` consumes one fused :class:`~makeway.messages.EVBelief`, the ego
+:class:`~makeway.messages.VehicleState` and the map's :class:`~makeway.messages.RoadContext` per
+decision period and returns a :class:`~makeway.messages.YieldDecision`. Its clock is the later of
+``ego.time_s`` and ``belief.time_s`` (it must not go backwards; equal times are fine).
+
+States::
+
+    NO_EV ──confirm──▶ EV_CONFIRMED ──needs yield──▶ MOVING_OVER ──stopped──▶ STOPPED_WAITING
+      ▲                 │ (follow / continue                                           │
+      │◀──EV gone───────┘  while no yield is needed)                          EV passed │
+      │                                                                                ▼
+      └──back at speed / timeout── RESUMING ◀──passed_hold_s── EV_PASSED ◀─────────────┘
+       (an EV needing a yield, confirmed during EV_PASSED or RESUMING → EV_CONFIRMED)
+
+**Perceiving an EV.** Per belief: *seen* = ``detected`` and ``confidence >= release_confidence``;
+*active* = seen, within ``max_relevant_distance_m`` (an unknown distance counts as within), and
+showing lights **or** siren (an EV that switches its siren off but keeps its lights on is still
+active; ``signals_required=False`` drops the signal test for producers that do not report them);
+*strong* = active with ``confidence >= confirm_confidence``. Confirmation (hysteresis on) needs strong
+beliefs without a break for ``confirm_time_s``, so a single-frame spike confirms nothing. Once
+confirmed, the EV is released (hysteresis off) only by the rules below: a dip under
+``confirm_confidence`` changes nothing, a gap (not seen) shorter than ``dropout_timeout_s`` changes
+nothing.
+
+**Approaching.** ``belief.approaching`` when given; when ``None``, the sign of the change of
+``distance_m`` since the previous seen belief; ``None`` (unknown) when neither is available.
+
+**Decision table** (while an EV is confirmed; *approaching* as above, "unknown" = ``None``):
+
+=================  ==========================  ==============================  ==========================
+relation           approaching                 action                          why
+=================  ==========================  ==============================  ==========================
+BEHIND             yes / unknown               ``pull_over_and_stop``          it comes up behind us: the
+                                                                               law's case
+BEHIND             no (falling back)           ``continue`` (no yield yet)     it is not closing in; yield
+                                                                               once it does
+AHEAD              no / unknown                ``follow``: target speed ≤      it drives away in front:
+                                               current, no pull-over           do not overtake it
+AHEAD              yes (stopped, slower,       ``pull_over_and_stop``          it closes in on us: treat
+                   reversing)                                                  like BEHIND
+ONCOMING           yes / unknown               ``pull_over_and_stop``          the law asks it for any
+                                                                               approaching EV (undivided
+                                                                               road; ``yield_to_oncoming``
+                                                                               =False for divided ones)
+ONCOMING           no                          ``continue``                    it has gone by
+CROSSING           yes / unknown               ``stop_before_intersection``    never enter the
+                                               (stop at start − margin; pull   intersection it heads for
+                                               over only with room for it)
+CROSSING, ego      yes / unknown               ``clear_intersection``, then    never stop inside an
+inside the box                                 pull over and stop after it     intersection
+CROSSING           no                          ``continue``                    it has crossed / gone
+UNKNOWN (heard,    yes / unknown               ``pull_over_and_stop``          conservative: the siren
+not placed)                                                                    is real, its place is not
+UNKNOWN            no                          ``continue``                    a receding siren
+=================  ==========================  ==============================  ==========================
+
+By state: NO_EV ``continue`` at the speed limit; EV_CONFIRMED the table (the confirming decision
+already starts the manoeuvre); MOVING_OVER the table's manoeuvre with a latched stop point;
+STOPPED_WAITING and EV_PASSED ``wait`` at 0 m/s; RESUMING ``resume`` at ``resume_speed_mps``
+(default: the speed limit).
+
+**Stop point** (``stop_s_m``, arc length along the ego path, same frame as ``RoadContext.s_m``),
+chosen once when the manoeuvre starts and kept (re-chosen only when the EV changes from crossing to
+same-road or back, or when the ego finds itself inside an intersection short of it; a new EV
+confirmed while we still wait in EV_PASSED keeps the stop point we are standing at):
+
+* pull over: ``s + v·reaction_time_s + max(v²/(2·comfort_decel), lane-change length)``, the
+  lane-change length being that of a quintic lateral move to ``right_edge_offset_m`` with peak lateral
+  acceleration ``max_lat_accel_mps2`` at ``max(v, lane_change_min_speed_mps)``;
+* crossing: ``start − intersection_margin_m`` of the first intersection not behind the ego;
+* then :func:`clear_stop_point` moves it out of every intersection (widened by the margins): before
+  the intersection when the ego can stop there at ``comfort_decel_mps2`` (with the full margin, or at
+  least ``intersection_min_margin_m`` before the start), otherwise after its end;
+* a stop point beyond an intersection the ego still has to cross is put at least a lane-change
+  length past that intersection (plus the exit margin), so the car crosses in its lane
+  (``clear_intersection``, no pull-over) and then has room to move over. When the stop point lies
+  before an intersection without room for the lane change, the car stops in its lane
+  (``stop_before_intersection``, ``pull_over=False``).
+
+An ego inside an intersection always gets a stop point past it and a target speed above zero until
+it has cleared it; it never stops inside one.
+
+Target speed while moving over: ``min(speed limit, √(2·comfort_decel·(stop − s)), max(v, creep))`` —
+never faster than now (except creeping up to the stop point), zero at the stop point.
+
+**Leaving the yield** (STOPPED_WAITING → EV_PASSED), first rule that holds:
+
+1. the EV has gone by: AHEAD and more than ``passed_margin_m`` ahead and receding (an EV from
+   behind overtook us); ONCOMING and receding; BEHIND, receding, more than ``passed_margin_m``
+   behind after having been seen ahead (an oncoming EV went by); CROSSING or UNKNOWN and receding;
+2. lost (not seen) for longer than ``dropout_timeout_s`` with its last known distance within
+   ``close_distance_m`` (it went past, out of the sensors' view);
+3. no *active* EV for ``siren_off_hold_s``: it switched lights and siren off (it may still pass, so we
+   keep yielding that long), or it was lost far away, or it went out of ``max_relevant_distance_m``.
+
+An EV that passes (by these rules) while we are still moving over is noted, and the stop is
+completed all the same — the car is half-way to the edge, and a second EV often follows — so the
+sequence is always MOVING_OVER → STOPPED_WAITING → EV_PASSED. The car reaches STOPPED_WAITING when
+its speed is under ``stopped_speed_mps`` within ``arrive_tolerance_m`` of the stop point (or stuck
+short of it for ``stuck_timeout_s``), never while inside an intersection. EV_PASSED lasts
+``passed_hold_s``; RESUMING ends (NO_EV) when the speed is back to ``resumed_speed_fraction`` of the
+resume speed or after ``resume_timeout_s``. A confirmed EV that needs a yield during EV_PASSED or
+RESUMING goes back to EV_CONFIRMED.
+
+Every transition is appended to :attr:`YieldStateMachine.history` as ``(time, from, to, reason)``.
+
+    fsm = YieldStateMachine()
+    decision = fsm.update(belief, ego_state, road_context)
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable
+from dataclasses import dataclass, fields
+
+from makeway.messages import EVBelief, EVRelation, RoadContext, VehicleState, YieldDecision, YieldState
+
+__all__ = [
+    "YieldConfig",
+    "YieldStateMachine",
+    "clear_stop_point",
+    "lane_change_length_m",
+    "needs_yield",
+]
+
+_EPS = 1e-9
+# peak of the quintic smoothstep's second derivative, d''(u) = offset · 10/√3 at u = (3 − √3)/6
+_QUINTIC_PEAK = 10.0 / math.sqrt(3.0)
+
+
+@dataclass(frozen=True)
+class YieldConfig:
+    """Thresholds and timings of :class:`YieldStateMachine` (the module docstring says how each acts).
+
+    Perception and hysteresis:
+        confirm_confidence: belief confidence needed, without a break for ``confirm_time_s``, to
+            confirm an EV (hysteresis on).
+        confirm_time_s: how long the confidence must stay at or above ``confirm_confidence``.
+        release_confidence: below this a belief counts as "EV not seen" (hysteresis off).
+        dropout_timeout_s: gaps in perception shorter than this change nothing.
+        siren_off_hold_s: with no active EV (lights and siren off, or lost far away) keep yielding this
+            long before resuming: it may still pass.
+        max_relevant_distance_m: an EV farther than this is not acted on.
+        signals_required: an EV counts as active only with lights or siren perceived.
+        yield_to_oncoming: pull over for an approaching oncoming EV (undivided roads; set ``False``
+            for a divided one).
+
+    Passing and resuming:
+        passed_hold_s: wait this long after the EV passed before resuming.
+        close_distance_m: an EV lost for longer than ``dropout_timeout_s`` within this distance is
+            taken to have passed.
+        passed_margin_m: an EV that went by must be this far ahead (or behind) and receding.
+        resume_speed_mps: the speed to get back to (default ``None``: the road's speed limit).
+        resumed_speed_fraction: RESUMING ends at this fraction of the resume speed.
+        resume_timeout_s: RESUMING ends at the latest after this long.
+
+    Manoeuvre:
+        stopped_speed_mps: below this the ego counts as stopped.
+        comfort_decel_mps2: the deceleration stops are planned with.
+        max_lat_accel_mps2: peak lateral acceleration of the lane change to the right edge.
+        lane_change_min_speed_mps: lane changes are sized at no less than this speed.
+        reaction_time_s: the manoeuvre starts this long after the decision (actuation delay).
+        creep_speed_mps: a (nearly) stopped ego may creep up to its stop point at this speed.
+        intersection_margin_m: gap between a stop point and an intersection's start; the stop point
+            is the ego's reference point (rear axle), so this covers the front of the car.
+        intersection_min_margin_m: the smallest such gap accepted when the full one cannot be
+            reached at ``comfort_decel_mps2`` (the ego is already close to the intersection).
+        intersection_exit_margin_m: how far past an intersection's end a stop point must be.
+        pull_over_before_intersection: for a crossing EV, also move to the right edge when there is
+            room before the intersection (``False``: stop in lane).
+        arrive_tolerance_m: stopped within this distance of the stop point counts as arrived.
+        stuck_timeout_s: stopped short of the stop point for this long counts as arrived too.
+    """
+
+    confirm_confidence: float = 0.6
+    confirm_time_s: float = 0.3
+    release_confidence: float = 0.3
+    dropout_timeout_s: float = 2.0
+    siren_off_hold_s: float = 5.0
+    passed_hold_s: float = 2.0
+    stopped_speed_mps: float = 0.2
+    resume_speed_mps: float | None = None
+    max_relevant_distance_m: float = 150.0
+    signals_required: bool = True
+    yield_to_oncoming: bool = True
+    close_distance_m: float = 30.0
+    passed_margin_m: float = 10.0
+    resumed_speed_fraction: float = 0.9
+    resume_timeout_s: float = 20.0
+    comfort_decel_mps2: float = 3.0
+    max_lat_accel_mps2: float = 1.5
+    lane_change_min_speed_mps: float = 5.0
+    reaction_time_s: float = 0.2
+    creep_speed_mps: float = 3.0
+    intersection_margin_m: float = 5.0
+    intersection_min_margin_m: float = 1.0
+    intersection_exit_margin_m: float = 5.0
+    pull_over_before_intersection: bool = True
+    arrive_tolerance_m: float = 3.0
+    stuck_timeout_s: float = 3.0
+
+    def __post_init__(self) -> None:
+        for f in fields(self):
+            value = getattr(self, f.name)
+            if isinstance(value, bool) or value is None:
+                continue
+            if not (math.isfinite(value) and value >= 0.0):
+                raise ValueError(f"YieldConfig.{f.name} must be finite and >= 0, got {value}")
+        if not 0.0 <= self.release_confidence <= self.confirm_confidence <= 1.0:
+            raise ValueError(
+                "need 0 <= release_confidence <= confirm_confidence <= 1, got "
+                f"{self.release_confidence} and {self.confirm_confidence}"
+            )
+        if self.comfort_decel_mps2 <= 0.0 or self.max_lat_accel_mps2 <= 0.0:
+            raise ValueError("comfort_decel_mps2 and max_lat_accel_mps2 must be > 0")
+        if not 0.0 < self.resumed_speed_fraction <= 1.0:
+            raise ValueError(f"resumed_speed_fraction must lie in (0, 1], got {self.resumed_speed_fraction}")
+        if self.intersection_min_margin_m > self.intersection_margin_m:
+            raise ValueError("intersection_min_margin_m must not exceed intersection_margin_m")
+
+
+# ------------------------------------------------------------------------------------ pure helpers
+
+
+def needs_yield(relation: EVRelation, approaching: bool | None, *, yield_to_oncoming: bool = True) -> bool:
+    """Whether an active EV in ``relation`` asks us to pull over / stop (the module's decision table).
+
+    ``approaching`` is ``None`` when unknown; unknown counts as approaching except for an EV ahead
+    (which by default drives away from us).
+    """
+    if relation is EVRelation.AHEAD:
+        return approaching is True
+    if relation is EVRelation.ONCOMING:
+        return yield_to_oncoming and approaching is not False
+    return approaching is not False  # BEHIND, CROSSING, UNKNOWN
+
+
+def lane_change_length_m(
+    speed_mps: float, offset_m: float, max_lat_accel_mps2: float, min_speed_mps: float = 0.0
+) -> float:
+    """Length of a quintic-smoothstep lateral move by ``offset_m`` at ``speed_mps`` whose peak lateral
+    acceleration is ``max_lat_accel_mps2``: ``L = v·√(10·|offset| / (√3·a_lat))`` with
+    ``v = max(speed, min_speed)``."""
+    if max_lat_accel_mps2 <= 0.0:
+        raise ValueError(f"max_lat_accel_mps2 must be > 0, got {max_lat_accel_mps2}")
+    v = max(speed_mps, min_speed_mps, 0.0)
+    return v * math.sqrt(_QUINTIC_PEAK * abs(offset_m) / max_lat_accel_mps2)
+
+
+def _zones(
+    intersections: Iterable[tuple[float, float]], margin_m: float, exit_margin_m: float
+) -> list[tuple[float, float, float]]:
+    """Intersections widened to ``(start − margin, end + exit_margin)``, sorted and merged; each zone
+    also keeps the start of its first intersection."""
+    raw = []
+    for pair in intersections:
+        a, b = float(pair[0]), float(pair[1])
+        if not (math.isfinite(a) and math.isfinite(b)) or b < a:
+            raise ValueError(f"intersection interval {pair} must be finite with start <= end")
+        raw.append((a - margin_m, b + exit_margin_m, a))
+    merged: list[tuple[float, float, float]] = []
+    for lo, hi, a in sorted(raw):
+        if merged and lo <= merged[-1][1]:
+            plo, phi, pa = merged[-1]
+            merged[-1] = (plo, max(phi, hi), min(pa, a))
+        else:
+            merged.append((lo, hi, a))
+    return merged
+
+
+def clear_stop_point(
+    s_m: float,
+    speed_mps: float,
+    desired_s_m: float,
+    intersections: Iterable[tuple[float, float]],
+    *,
+    decel_mps2: float = 3.0,
+    margin_m: float = 5.0,
+    min_margin_m: float = 1.0,
+    exit_margin_m: float = 5.0,
+) -> float:
+    """A stop point at or after ``desired_s_m`` (never closer than the ego can stop at ``decel_mps2``)
+    that lies in no intersection.
+
+    Each intersection ``(start, end)`` is a keep-out zone ``(start − margin_m, end + exit_margin_m)``.
+    A stop point inside one moves **before** it, to ``start − margin_m``, when the ego (at ``s_m``,
+    ``speed_mps``) can stop there at ``decel_mps2``; failing that to the ego's earliest comfortable stop
+    if that is still ``min_margin_m`` before ``start``; otherwise **after** it, to
+    ``end + exit_margin_m`` (checked again against the intersections further on). An ego inside an
+    intersection therefore always gets a stop point past it.
+    """
+    if decel_mps2 <= 0.0:
+        raise ValueError(f"decel_mps2 must be > 0, got {decel_mps2}")
+    v = max(float(speed_mps), 0.0)
+    floor = float(s_m) + v * v / (2.0 * decel_mps2)  # nothing closer than comfortable braking allows
+    stop = max(float(desired_s_m), floor)
+    for lo, hi, start in _zones(intersections, margin_m, exit_margin_m):
+        if stop <= lo:
+            break  # zones are sorted: every later one is further on
+        if stop >= hi:
+            continue
+        if lo >= floor:
+            return lo
+        if floor <= start - min_margin_m:
+            return floor
+        stop = floor = hi  # cannot stop before it: clear it first
+    return stop
+
+
+def _containing(s_m: float, intersections: Iterable[tuple[float, float]]) -> tuple[float, float] | None:
+    for a, b in intersections:
+        if a <= s_m <= b:
+            return (float(a), float(b))
+    return None
+
+
+def _finite(x: float) -> bool:
+    return isinstance(x, (int, float)) and math.isfinite(x)
+
+
+def _distance(b: EVBelief) -> float:
+    if _finite(b.distance_m):
+        return float(b.distance_m)
+    if _finite(b.rel_x_m) and _finite(b.rel_y_m):
+        return math.hypot(b.rel_x_m, b.rel_y_m)
+    return math.nan
+
+
+def _rel_x(b: EVBelief) -> float:
+    if _finite(b.rel_x_m):
+        return float(b.rel_x_m)
+    if _finite(b.distance_m) and _finite(b.bearing_rad):
+        return float(b.distance_m) * math.cos(b.bearing_rad)
+    return math.nan
+
+
+_WHERE = {
+    EVRelation.BEHIND: "behind",
+    EVRelation.AHEAD: "ahead",
+    EVRelation.ONCOMING: "oncoming",
+    EVRelation.CROSSING: "on a crossing road",
+    EVRelation.UNKNOWN: "not yet placed",
+}
+
+
+def _describe(b: EVBelief | None, approaching: bool | None) -> str:
+    """``"emergency vehicle behind (42 m away, approaching)"`` (no article)."""
+    if b is None:
+        return "emergency vehicle"
+    d = _distance(b)
+    details = [f"{d:.0f} m away"] if _finite(d) else []
+    if approaching is not None:
+        details.append("approaching" if approaching else "moving away")
+    text = f"emergency vehicle {_WHERE.get(b.relation, str(b.relation))}"
+    return f"{text} ({', '.join(details)})" if details else text
+
+
+@dataclass(frozen=True, slots=True)
+class _Plan:
+    """The latched manoeuvre: where to stop and whether to move to the right edge on the way."""
+
+    crossing: bool  # planned for a crossing EV (stop before the intersection it heads for)
+    stop_s_m: float
+    pull_over_ok: bool  # room to move over before the stop point
+    before_intersection: bool  # the stop point is just before an intersection
+
+
+# ---------------------------------------------------------------------------------- state machine
+
+
+class YieldStateMachine:
+    """Decides, each period, how to give way to an emergency vehicle (see the module docstring).
+
+    Args:
+        config: thresholds and timings (default :class:`YieldConfig`).
+
+    Attributes:
+        history: every transition as ``(time_s, from_state, to_state, reason)``.
+    """
+
+    def __init__(self, config: YieldConfig | None = None) -> None:
+        self.config = config if config is not None else YieldConfig()
+        self.history: list[tuple[float, YieldState, YieldState, str]] = []
+        self.reset()
+
+    # -------------------------------------------------------------------------------------- public
+
+    @property
+    def state(self) -> YieldState:
+        """The current state."""
+        return self._state
+
+    def reset(self) -> None:
+        """Back to NO_EV with no memory of any EV; the history is cleared."""
+        self._state = YieldState.NO_EV
+        self._entered_s = -math.inf
+        self.history.clear()
+        self._last_time: float | None = None
+        # perception memory
+        self._belief: EVBelief | None = None  # the last seen belief
+        self._approach: bool | None = None
+        self._seen_now = False
+        self._last_seen_s = -math.inf
+        self._last_active_s = -math.inf
+        self._last_distance = math.nan
+        self._run_since: float | None = None  # strong beliefs without a break since
+        self._yield_run_since: float | None = None  # … that also need a yield
+        self._ev_was_ahead = False
+        # manoeuvre memory
+        self._plan: _Plan | None = None
+        self._plan_note = ""
+        self._stopped_since: float | None = None
+        self._passed_note: str | None = None  # the EV passed while we were still moving over
+        self._pull_over = False
+
+    def update(self, belief: EVBelief, ego: VehicleState, road: RoadContext) -> YieldDecision:
+        """Take this period's belief, ego state and road; return the decision (stamped "now").
+
+        "Now" is the later of ``ego.time_s`` and ``belief.time_s``: a belief may be older than the
+        vehicle state (perception latency, a message held between measurements).
+
+        Raises:
+            ValueError: "now" is earlier than the previous update's.
+        """
+        stamps = [float(x) for x in (ego.time_s, belief.time_s) if _finite(x)]
+        if not stamps:
+            raise ValueError("ego.time_s and belief.time_s are both not finite")
+        now = max(stamps)
+        if self._last_time is not None and now < self._last_time - _EPS:
+            raise ValueError(f"time went backwards: {now} after {self._last_time} (call reset() first)")
+        self._last_time = now
+        self._observe(belief, now)
+        self._step(now, ego, road)
+        return self._decide(now, ego, road)
+
+    # ------------------------------------------------------------------------------- perception
+
+    def _observe(self, b: EVBelief, now: float) -> None:
+        cfg = self.config
+        conf = float(b.confidence) if _finite(b.confidence) else 0.0
+        seen = bool(b.detected) and conf >= cfg.release_confidence
+        self._seen_now = seen
+        if not seen:
+            self._run_since = self._yield_run_since = None
+            return
+        dist = _distance(b)
+        approach = b.approaching
+        held = self._belief is not None and self._belief.time_s == b.time_s  # the same message again
+        if approach is None and held:
+            approach = self._approach
+        elif approach is None and _finite(dist) and _finite(self._last_distance):
+            change = dist - self._last_distance
+            approach = None if abs(change) < 1e-6 else change < 0.0
+        self._belief, self._approach, self._last_seen_s = b, approach, now
+        if _finite(dist):
+            self._last_distance = dist
+        rel_x = _rel_x(b)
+        if _finite(rel_x) and rel_x > cfg.passed_margin_m:
+            self._ev_was_ahead = True
+        relevant = not _finite(dist) or dist <= cfg.max_relevant_distance_m
+        signals = b.lights or b.siren or not cfg.signals_required
+        active = relevant and signals
+        if active:
+            self._last_active_s = now
+        strong = active and conf >= cfg.confirm_confidence
+        self._run_since = (self._run_since if self._run_since is not None else now) if strong else None
+        wants = strong and needs_yield(b.relation, approach, yield_to_oncoming=cfg.yield_to_oncoming)
+        self._yield_run_since = (
+            (self._yield_run_since if self._yield_run_since is not None else now) if wants else None
+        )
+
+    def _confirmed(self, since: float | None, now: float) -> bool:
+        return since is not None and now - since >= self.config.confirm_time_s - _EPS
+
+    def _wants_yield(self) -> bool:
+        b = self._belief
+        return b is not None and needs_yield(
+            b.relation, self._approach, yield_to_oncoming=self.config.yield_to_oncoming
+        )
+
+    def _gone_reason(self, now: float) -> str | None:
+        """Why the EV no longer counts (lost or inactive too long), or ``None``."""
+        cfg = self.config
+        unseen = now - self._last_seen_s
+        inactive = now - self._last_active_s
+        if unseen > cfg.dropout_timeout_s:
+            return f"the emergency vehicle has not been perceived for {unseen:.1f} s"
+        if inactive >= cfg.siren_off_hold_s - _EPS:
+            return f"no lights or siren (or out of range) for {inactive:.1f} s"
+        return None
+
+    def _passed_reason(self, now: float) -> str | None:
+        """Why the EV has passed (rules 1–3 of the module docstring), or ``None``."""
+        cfg = self.config
+        b = self._belief
+        if self._seen_now and b is not None and self._approach is False:
+            rel_x = _rel_x(b)
+            r = b.relation
+            gap = f" {abs(rel_x):.0f} m" if _finite(rel_x) else ""
+            if r is EVRelation.AHEAD and not (_finite(rel_x) and rel_x <= cfg.passed_margin_m):
+                return f"the emergency vehicle is{gap} ahead and pulling away: it has passed"
+            if r is EVRelation.ONCOMING:
+                return "the oncoming emergency vehicle is moving away: it has gone by"
+            if (
+                r is EVRelation.BEHIND
+                and self._ev_was_ahead
+                and not (_finite(rel_x) and rel_x >= -cfg.passed_margin_m)
+            ):
+                return f"the emergency vehicle went by and is{gap} behind, moving away"
+            if r in (EVRelation.CROSSING, EVRelation.UNKNOWN):
+                return "the emergency vehicle is moving away: it has crossed or gone"
+        unseen = now - self._last_seen_s
+        if unseen > cfg.dropout_timeout_s and self._last_distance <= cfg.close_distance_m:
+            return (
+                f"the emergency vehicle was lost {unseen:.1f} s ago "
+                f"{self._last_distance:.0f} m away: taken to have passed"
+            )
+        inactive = now - self._last_active_s
+        if inactive >= cfg.siren_off_hold_s - _EPS:
+            if self._seen_now:
+                return f"the emergency vehicle has shown no lights or siren for {inactive:.1f} s"
+            return f"no active emergency vehicle perceived for {inactive:.1f} s"
+        return None
+
+    # ------------------------------------------------------------------------------ transitions
+
+    def _go(self, to: YieldState, now: float, reason: str) -> None:
+        came_from = self._state
+        self.history.append((now, came_from, to, reason))
+        self._state = to
+        self._entered_s = now
+        plan = self._plan
+        if to is YieldState.EV_CONFIRMED and came_from is YieldState.EV_PASSED and plan is not None:
+            # still stopped clear of intersections at the edge: wait for the new EV right here
+            crossing = self._belief is not None and self._belief.relation is EVRelation.CROSSING
+            self._plan = _Plan(crossing, plan.stop_s_m, plan.pull_over_ok, plan.before_intersection)
+        elif to in (YieldState.EV_CONFIRMED, YieldState.NO_EV, YieldState.RESUMING):
+            self._plan = None
+        if to is YieldState.EV_CONFIRMED:
+            b = self._belief
+            rel_x = _rel_x(b) if b is not None and self._seen_now else math.nan
+            self._ev_was_ahead = _finite(rel_x) and rel_x > self.config.passed_margin_m
+        if to is YieldState.MOVING_OVER:
+            self._stopped_since = None
+            self._passed_note = None
+
+    def _step(self, now: float, ego: VehicleState, road: RoadContext) -> None:
+        cfg = self.config
+        st = self._state
+        what = _describe(self._belief, self._approach)
+        if st is YieldState.NO_EV:
+            if self._confirmed(self._run_since, now):
+                self._go(YieldState.EV_CONFIRMED, now, f"confirmed an {what}")
+        elif st is YieldState.EV_CONFIRMED:
+            gone = self._gone_reason(now)
+            if gone is not None:
+                self._go(YieldState.NO_EV, now, gone)
+            elif self._wants_yield():
+                self._ensure_plan(ego, road)
+                self._go(YieldState.MOVING_OVER, now, f"yielding to the {what}")
+        elif st is YieldState.MOVING_OVER:
+            # an EV that passes before we are stopped is noted; the stop is completed all the same
+            passed = self._passed_reason(now)
+            if passed is not None:
+                self._passed_note = self._passed_note or passed
+            elif self._seen_now and self._wants_yield():
+                self._passed_note = None  # it is back and still needs a yield: it had not passed
+            self._ensure_plan(ego, road)
+            arrived = self._arrived(now, ego, road)
+            if arrived is not None:
+                if self._passed_note is not None:
+                    arrived += " (the emergency vehicle has already passed)"
+                self._go(YieldState.STOPPED_WAITING, now, arrived)
+        elif st is YieldState.STOPPED_WAITING:
+            passed = self._passed_note or self._passed_reason(now)
+            if passed is not None:
+                self._go(YieldState.EV_PASSED, now, passed)
+        elif st is YieldState.EV_PASSED:
+            if self._confirmed(self._yield_run_since, now):
+                self._go(YieldState.EV_CONFIRMED, now, f"confirmed an {what} needing a yield")
+            elif now - self._entered_s >= cfg.passed_hold_s - _EPS:
+                self._go(YieldState.RESUMING, now, f"held {cfg.passed_hold_s:g} s after the EV passed")
+        elif st is YieldState.RESUMING:
+            target = self._resume_speed(road)
+            if self._confirmed(self._yield_run_since, now):
+                self._go(YieldState.EV_CONFIRMED, now, f"confirmed an {what} needing a yield while resuming")
+            elif ego.vx_mps >= cfg.resumed_speed_fraction * target - _EPS:
+                self._go(YieldState.NO_EV, now, f"back to {ego.vx_mps:.1f} m/s")
+            elif now - self._entered_s >= cfg.resume_timeout_s - _EPS:
+                self._go(YieldState.NO_EV, now, f"resuming took longer than {cfg.resume_timeout_s:g} s")
+
+    def _arrived(self, now: float, ego: VehicleState, road: RoadContext) -> str | None:
+        cfg = self.config
+        if ego.vx_mps >= cfg.stopped_speed_mps or _containing(road.s_m, road.intersections) is not None:
+            self._stopped_since = None
+            return None
+        if self._stopped_since is None:
+            self._stopped_since = now
+        left = self._plan.stop_s_m - road.s_m if self._plan is not None else 0.0
+        if left <= cfg.arrive_tolerance_m:
+            return f"stopped at s={road.s_m:.1f} m, {max(left, 0.0):.1f} m from the stop point"
+        if now - self._stopped_since >= cfg.stuck_timeout_s - _EPS:
+            return f"stopped {left:.1f} m short of the stop point for {now - self._stopped_since:.1f} s"
+        return None
+
+    def _resume_speed(self, road: RoadContext) -> float:
+        speed = self.config.resume_speed_mps
+        return max(float(road.speed_limit_mps if speed is None else speed), 0.0)
+
+    # --------------------------------------------------------------------------------- the plan
+
+    def _ensure_plan(self, ego: VehicleState, road: RoadContext) -> None:
+        """Make the latched plan, or re-make it when the EV changed between crossing and same-road or
+        the ego is inside an intersection short of its stop point."""
+        b = self._belief
+        plan = self._plan
+        crossing_now: bool | None = None
+        if b is not None and b.relation is not EVRelation.UNKNOWN and self._wants_yield():
+            crossing_now = b.relation is EVRelation.CROSSING
+        inside = _containing(road.s_m, road.intersections)
+        if plan is None:
+            self._plan = self._make_plan(ego, road, bool(crossing_now))
+            self._plan_note = ""
+        elif crossing_now is not None and crossing_now != plan.crossing:
+            self._plan = self._make_plan(ego, road, crossing_now)
+            self._plan_note = " (re-planned: the EV's direction changed)"
+        elif inside is not None and plan.stop_s_m < inside[1] + self.config.intersection_exit_margin_m:
+            self._plan = self._make_plan(ego, road, plan.crossing)
+            self._plan_note = " (re-planned: inside an intersection)"
+
+    def _make_plan(self, ego: VehicleState, road: RoadContext, crossing: bool) -> _Plan:
+        cfg = self.config
+        s = float(road.s_m)
+        v = max(float(ego.vx_mps), 0.0)
+        lead = v * cfg.reaction_time_s
+        change = lane_change_length_m(
+            v, road.right_edge_offset_m, cfg.max_lat_accel_mps2, cfg.lane_change_min_speed_mps
+        )
+        brake = v * v / (2.0 * cfg.comfort_decel_mps2)
+        boxes = sorted((float(a), float(b)) for a, b in road.intersections)
+        target = next(((a, b) for a, b in boxes if b >= s), None) if crossing else None
+
+        def clear(desired: float) -> float:
+            return clear_stop_point(
+                s,
+                v,
+                desired,
+                boxes,
+                decel_mps2=cfg.comfort_decel_mps2,
+                margin_m=cfg.intersection_margin_m,
+                min_margin_m=cfg.intersection_min_margin_m,
+                exit_margin_m=cfg.intersection_exit_margin_m,
+            )
+
+        if target is None:  # pull over; also a crossing EV with no intersection on the map
+            desired = s + lead + max(brake, change)
+        elif target[0] <= s:  # inside the intersection it heads for: clear it first
+            desired = s
+        else:
+            desired = target[0] - cfg.intersection_margin_m
+        stop = clear(desired)
+        # an intersection to cross before the stop point: leave room to move over after it
+        crossed = [b for a, b in boxes if s < b < stop]
+        if crossed and stop < max(crossed) + cfg.intersection_exit_margin_m + change:
+            stop = clear(max(crossed) + cfg.intersection_exit_margin_m + change)
+        room = stop - s >= lead + change
+        if target is not None and stop < target[0]:
+            return _Plan(True, stop, room and cfg.pull_over_before_intersection, True)
+        return _Plan(crossing, stop, True if stop >= desired - _EPS else room, stop < desired - _EPS)
+
+    def _motion(self, ego: VehicleState, road: RoadContext) -> tuple[str, bool, float, float, str]:
+        """This period's manoeuvre under the plan: action, pull_over, target speed, stop point, note."""
+        cfg = self.config
+        plan = self._plan
+        assert plan is not None
+        s = float(road.s_m)
+        v = max(float(ego.vx_mps), 0.0)
+        stop = plan.stop_s_m
+        left = max(stop - s, 0.0)
+        target = min(
+            max(float(road.speed_limit_mps), 0.0),
+            math.sqrt(2.0 * cfg.comfort_decel_mps2 * left),
+            max(v, cfg.creep_speed_mps),
+        )
+        inside = _containing(s, road.intersections)
+        in_way = any(a < stop and b > s for a, b in road.intersections)
+        if inside is not None or in_way:
+            where = "inside an intersection" if inside is not None else "short of an intersection"
+            note = f"{where}: clearing it before stopping at s={stop:.1f} m"
+            return "clear_intersection", False, target, stop, note
+        if plan.before_intersection:
+            pull = plan.pull_over_ok
+            action = "stop_before_intersection" if (plan.crossing or not pull) else "pull_over_and_stop"
+            edge = "at the right edge " if pull else "in lane "
+            return action, pull, target, stop, f"stopping {edge}before the intersection at s={stop:.1f} m"
+        return "pull_over_and_stop", True, target, stop, f"pulling over to stop at s={stop:.1f} m"
+
+    # ------------------------------------------------------------------------------- decisions
+
+    def _decide(self, now: float, ego: VehicleState, road: RoadContext) -> YieldDecision:
+        st = self._state
+        limit = max(float(road.speed_limit_mps), 0.0)
+        v = max(float(ego.vx_mps), 0.0)
+        what = _describe(self._belief, self._approach)
+        if st is YieldState.NO_EV:
+            if self._run_since is not None:
+                why = f"Possible {what} for {now - self._run_since:.2f} s: confirming, driving on."
+            else:
+                why = "No active emergency vehicle: driving normally."
+            return YieldDecision(now, st, "continue", False, limit, None, why)
+        if st is YieldState.RESUMING:
+            back = self._resume_speed(road)
+            why = f"Emergency vehicle gone: back into the lane and up to {back:.1f} m/s."
+            return YieldDecision(now, st, "resume", False, back, None, why)
+        if st is YieldState.EV_CONFIRMED and not self._wants_yield():
+            b = self._belief
+            if b is not None and b.relation is EVRelation.AHEAD:
+                why = f"Following the {what} without overtaking it."
+                return YieldDecision(now, st, "follow", False, min(v, limit), None, why)
+            return YieldDecision(now, st, "continue", False, limit, None, f"No yield needed for the {what}.")
+        if st in (YieldState.STOPPED_WAITING, YieldState.EV_PASSED):
+            stop = self._plan.stop_s_m if self._plan is not None else float(road.s_m)
+            if st is YieldState.STOPPED_WAITING:
+                why = f"Stopped, waiting for the {what} to pass."
+            else:
+                why = f"Emergency vehicle passed: waiting {self.config.passed_hold_s:g} s before resuming."
+            return YieldDecision(now, st, "wait", self._pull_over, 0.0, stop, why)
+        # EV_CONFIRMED needing a yield, MOVING_OVER
+        self._ensure_plan(ego, road)
+        action, pull, target, stop, note = self._motion(ego, road)
+        self._pull_over = pull
+        if self._passed_note is not None:
+            why = f"The emergency vehicle has passed: completing the stop, {note}."
+        else:
+            why = f"Yielding to the {what}: {note}{self._plan_note}."
+        return YieldDecision(now, st, action, pull, target, stop, why)

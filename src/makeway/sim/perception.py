@@ -1,0 +1,159 @@
+"""Simulated EV perception for closed-loop scenarios (SPEC §6–7).
+
+Until the siren detector (audio issue) and the crop classifier (vision issue) run inside the loop,
+the decision stage is fed by this model of them. It turns the true ego and EV states into the
+:class:`~makeway.messages.EVBelief` a perception stack would publish, with the imperfections that
+matter for the decision:
+
+* **latency** — a measurement describes the world ``latency_s`` earlier (default 0.3 s: a 0.5 s
+  audio window or a few video frames plus smoothing);
+* **rate** — new measurements arrive at ``rate_hz`` (default 10 Hz); between them the last one is held;
+* **range** — an EV with signals on is perceived within ``range_m`` (sirens carry ~100–150 m in
+  traffic; default 120 m);
+* **dropouts** — each measurement is lost with probability ``dropout_prob``, and bursts of
+  ``burst_s`` start with probability ``burst_prob`` per second (occlusion, wind noise);
+* **noise** — bearing error (degrees, Gaussian), distance error proportional to distance, and a
+  range-rate error (the Doppler shift or a track gives it) for approaching/receding;
+* **confidence** — rises with proximity, drops to 0 when nothing is perceived.
+
+The relation (behind, ahead, oncoming, crossing) is classified from the (noisy) relative position and
+the EV's heading, as a fused tracker would. Deterministic for a seed.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+
+from makeway.messages import EVBelief, EVRelation
+
+
+@dataclass(frozen=True)
+class PerceptionConfig:
+    """Imperfections of the simulated EV perception (see the module docstring)."""
+
+    latency_s: float = 0.3
+    rate_hz: float = 10.0
+    range_m: float = 120.0
+    dropout_prob: float = 0.05
+    burst_prob_per_s: float = 0.02
+    burst_s: float = 1.0
+    bearing_noise_deg: float = 4.0
+    distance_noise_frac: float = 0.08
+    range_rate_noise_mps: float = 1.0
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        if self.latency_s < 0 or self.rate_hz <= 0 or self.range_m <= 0:
+            raise ValueError("latency_s must be >= 0, rate_hz and range_m > 0")
+        if not (0.0 <= self.dropout_prob < 1.0 and self.burst_prob_per_s >= 0.0):
+            raise ValueError("dropout_prob must lie in [0, 1) and burst_prob_per_s be >= 0")
+
+
+@dataclass(frozen=True)
+class EVTruth:
+    """The true state of one EV at one instant (world frame)."""
+
+    time_s: float
+    x_m: float
+    y_m: float
+    heading_rad: float
+    speed_mps: float
+    lights: bool
+    siren: bool
+
+
+def classify_relation(
+    rel_x: float, rel_y: float, rel_heading: float, *, same_road_half_width_m: float = 6.0
+) -> EVRelation:
+    """Where an EV is relative to the ego: from its position in the ego frame and its heading.
+
+    Same direction (|Δheading| < 45°): behind or ahead by the sign of ``rel_x``. Opposite direction
+    (|Δheading| > 135°) and ahead: oncoming (behind and opposite: it has gone, called AHEAD-like
+    "receding" by the caller through ``approaching``). Otherwise crossing.
+    """
+    d = math.atan2(math.sin(rel_heading), math.cos(rel_heading))
+    if abs(d) < math.radians(45):
+        return EVRelation.BEHIND if rel_x < 0 else EVRelation.AHEAD
+    if abs(d) > math.radians(135):
+        return EVRelation.ONCOMING if rel_x > 0 else EVRelation.BEHIND
+    if abs(rel_y) < same_road_half_width_m and abs(rel_x) < 10.0:
+        return EVRelation.UNKNOWN
+    return EVRelation.CROSSING
+
+
+class SimulatedPerception:
+    """Turns true states into delayed, noisy, dropped-out :class:`EVBelief` messages.
+
+    Call :meth:`update` every simulation step with the current time, the ego pose and the EV truth
+    (or ``None`` when the scenario has no EV); it returns the belief published at that time.
+    """
+
+    def __init__(self, config: PerceptionConfig | None = None) -> None:
+        self.config = config if config is not None else PerceptionConfig()
+        self._rng = np.random.default_rng(self.config.seed)
+        self._pending: deque[tuple[float, EVBelief]] = deque()
+        self._next_sample_s = 0.0
+        self._burst_until_s = -1.0
+        self._last: EVBelief | None = None
+        self._prev_distance: tuple[float, float] | None = None
+
+    def update(
+        self, time_s: float, ego_x: float, ego_y: float, ego_yaw: float, ev: EVTruth | None
+    ) -> EVBelief:
+        cfg = self.config
+        while time_s + 1e-9 >= self._next_sample_s:
+            sample_t = self._next_sample_s
+            self._next_sample_s += 1.0 / cfg.rate_hz
+            belief = self._measure(sample_t, ego_x, ego_y, ego_yaw, ev)
+            self._pending.append((sample_t + cfg.latency_s, belief))
+        while self._pending and self._pending[0][0] <= time_s + 1e-9:
+            _, self._last = self._pending.popleft()
+        if self._last is None:
+            return EVBelief.nothing(time_s)
+        return self._last
+
+    def _measure(self, t: float, ego_x: float, ego_y: float, ego_yaw: float, ev: EVTruth | None) -> EVBelief:
+        cfg = self.config
+        rng = self._rng
+        if rng.random() < cfg.burst_prob_per_s / cfg.rate_hz:
+            self._burst_until_s = t + cfg.burst_s
+        if ev is None or not (ev.lights or ev.siren):
+            self._prev_distance = None
+            return EVBelief.nothing(t)
+        dx, dy = ev.x_m - ego_x, ev.y_m - ego_y
+        c, s = math.cos(ego_yaw), math.sin(ego_yaw)
+        rel_x, rel_y = c * dx + s * dy, -s * dx + c * dy
+        distance = math.hypot(rel_x, rel_y)
+        if distance > cfg.range_m or t < self._burst_until_s or rng.random() < cfg.dropout_prob:
+            return EVBelief.nothing(t)
+        bearing = math.atan2(rel_y, rel_x) + math.radians(cfg.bearing_noise_deg) * rng.standard_normal()
+        dist_m = max(1.0, distance * (1.0 + cfg.distance_noise_frac * rng.standard_normal()))
+        approaching: bool | None = None
+        if self._prev_distance is not None:  # range rate as a Doppler/track estimate: truth + noise
+            t0, d0 = self._prev_distance
+            if t - t0 > 0:
+                rate = (distance - d0) / (t - t0) + cfg.range_rate_noise_mps * rng.standard_normal()
+                approaching = rate < 0.0
+        self._prev_distance = (t, distance)
+        relation = classify_relation(
+            dist_m * math.cos(bearing), dist_m * math.sin(bearing), ev.heading_rad - ego_yaw
+        )
+        confidence = float(np.clip(0.55 + 0.45 * (1.0 - distance / cfg.range_m), 0.0, 1.0))
+        return EVBelief(
+            time_s=t,
+            detected=True,
+            confidence=confidence,
+            relation=relation,
+            rel_x_m=dist_m * math.cos(bearing),
+            rel_y_m=dist_m * math.sin(bearing),
+            distance_m=dist_m,
+            bearing_rad=math.atan2(math.sin(bearing), math.cos(bearing)),
+            approaching=approaching,
+            lights=ev.lights,
+            siren=ev.siren,
+            source="simulated",
+        )

@@ -1,0 +1,237 @@
+"""Built-in closed-loop scenarios: roads, the ego's start, and what the emergency vehicle does (SPEC §6).
+
+Each :class:`Scenario` is pure data: the ego lane's centre line, lane geometry, intersections, the
+ego's start speed, and an :class:`EVPlan` (the EV's own path, speed, and when its signals are on).
+:func:`makeway.pipeline.closed_loop.run_scenario` drives them.
+
+=================  ============================================================  ======================
+name               situation                                                     right action
+=================  ============================================================  ======================
+``seed003``        seed 003's field test: ego at 13.4 m/s in the left lane of a   pull over one lane to
+                   straight two-lane road; an EV 50 m behind switches lights and  the right edge, stop
+                   siren on and closes at 20 m/s
+``curve_behind``   the same on a left curve (R = 250 m) with clothoid entry        pull over and stop
+``oncoming``       undivided two-way road; an EV comes the other way at 20 m/s    pull over and stop
+``crossing``       an EV on a crossing road heads for the intersection ahead      stop before the
+                                                                                  intersection
+``signals_off``    EV from behind switches lights and siren off after 4 s and     yield, then resume
+                   slows down (it was not called after all)
+``no_ev``          an ordinary drive                                             continue
+=================  ============================================================  ======================
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from makeway.messages import ReferencePath
+from makeway.plan.path import curved_road, make_path, straight_road
+
+LANE_WIDTH_M = 3.5
+
+
+@dataclass(frozen=True)
+class EVPlan:
+    """What the emergency vehicle does: its path, speed, and signal timing.
+
+    ``speed_mps(t)`` is the speed it wants; it keeps a ``min_gap_m`` behind a vehicle in its lane
+    (an EV driver does not ram a car that has not yet moved over). Signals are on during
+    ``[signals_on_s, signals_off_s)``.
+    """
+
+    path: ReferencePath
+    start_s_m: float
+    speed_mps: Callable[[float], float]
+    signals_on_s: float
+    signals_off_s: float = math.inf
+    siren: bool = True
+    lights: bool = True
+    min_gap_m: float = 8.0
+    length_m: float = 6.0
+    width_m: float = 2.2
+
+
+@dataclass(frozen=True)
+class Scenario:
+    """A closed-loop scenario (see the module table)."""
+
+    name: str
+    description: str
+    lane: ReferencePath  # the ego's lane centre line, direction of travel
+    ego_speed_mps: float
+    duration_s: float
+    expected_action: str
+    right_edge_offset_m: float
+    speed_limit_mps: float
+    intersections: tuple[tuple[float, float], ...] = ()
+    ev: EVPlan | None = None
+    ego_start_s_m: float = 0.0
+    road_lines: tuple[ReferencePath, ...] = field(default_factory=tuple)  # for plots: lane edges
+
+
+def _const(v: float) -> Callable[[float], float]:
+    return lambda t: v
+
+
+def _lane_lines(lane: ReferencePath, offsets: list[float]) -> tuple[ReferencePath, ...]:
+    from makeway.plan.path import offset_path
+
+    return tuple(offset_path(lane, o) for o in offsets)
+
+
+def seed003() -> Scenario:
+    """Seed 003's field test: straight two-lane road, EV 50 m behind switches on (SPEC §6)."""
+    lane = straight_road(600.0)
+    ev_path = straight_road(800.0, start=(-200.0, 0.0))
+    ev = EVPlan(
+        path=ev_path,
+        start_s_m=150.0,  # 50 m behind the ego at t = 0
+        speed_mps=lambda t: 13.4 if t < 2.0 else 20.0,
+        signals_on_s=2.0,
+    )
+    return Scenario(
+        name="seed003",
+        description="ego 13.4 m/s in the left lane of a straight two-lane road; EV 50 m behind switches "
+        "lights and siren on at t = 2 s and closes at 20 m/s",
+        lane=lane,
+        ego_speed_mps=13.4,
+        duration_s=30.0,
+        expected_action="pull_over_and_stop",
+        right_edge_offset_m=-LANE_WIDTH_M - 0.5,
+        speed_limit_mps=13.4,
+        ev=ev,
+        road_lines=_lane_lines(lane, [LANE_WIDTH_M / 2, -LANE_WIDTH_M / 2, -1.5 * LANE_WIDTH_M]),
+    )
+
+
+def curve_behind() -> Scenario:
+    """EV from behind on a left curve (R = 250 m) of a two-lane road."""
+    lane = curved_road(60.0, 250.0, math.radians(70.0), after_m=200.0)
+    ev_path = make_path(
+        np.concatenate([np.linspace(-150.0, -1.0, 150), lane.x_m]),
+        np.concatenate([np.zeros(150), lane.y_m]),
+    )
+    ev = EVPlan(
+        path=ev_path, start_s_m=100.0, speed_mps=lambda t: 15.0 if t < 1.5 else 21.0, signals_on_s=1.5
+    )
+    return Scenario(
+        name="curve_behind",
+        description="ego 15 m/s in the left lane entering a left curve (R = 250 m); EV 50 m behind "
+        "switches on at t = 1.5 s and closes at 21 m/s",
+        lane=lane,
+        ego_speed_mps=15.0,
+        duration_s=30.0,
+        expected_action="pull_over_and_stop",
+        right_edge_offset_m=-LANE_WIDTH_M - 0.5,
+        speed_limit_mps=15.0,
+        ev=ev,
+        road_lines=_lane_lines(lane, [LANE_WIDTH_M / 2, -LANE_WIDTH_M / 2, -1.5 * LANE_WIDTH_M]),
+    )
+
+
+def oncoming() -> Scenario:
+    """Undivided two-way road; the EV approaches in the opposite lane."""
+    lane = straight_road(500.0)
+    ev_path = straight_road(600.0, start=(400.0, LANE_WIDTH_M), heading_rad=math.pi)
+    ev = EVPlan(path=ev_path, start_s_m=0.0, speed_mps=_const(20.0), signals_on_s=0.5)
+    return Scenario(
+        name="oncoming",
+        description="ego 13.4 m/s on an undivided two-way road; an EV 400 m ahead comes the other way "
+        "at 20 m/s with lights and siren on",
+        lane=lane,
+        ego_speed_mps=13.4,
+        duration_s=30.0,
+        expected_action="pull_over_and_stop",
+        right_edge_offset_m=-1.3,
+        speed_limit_mps=13.4,
+        ev=ev,
+        road_lines=_lane_lines(lane, [LANE_WIDTH_M / 2, -LANE_WIDTH_M / 2, 1.5 * LANE_WIDTH_M]),
+    )
+
+
+def crossing() -> Scenario:
+    """An EV on a crossing road heads for the intersection the ego approaches."""
+    lane = straight_road(400.0)
+    box = (160.0, 174.0)  # the crossing road occupies s = 160 … 174 m of the ego's path
+    centre_x = 0.5 * (box[0] + box[1])
+    ev_path = straight_road(400.0, start=(centre_x - 1.75, -200.0), heading_rad=math.pi / 2)
+    ev = EVPlan(path=ev_path, start_s_m=60.0, speed_mps=_const(10.0), signals_on_s=0.5)
+    return Scenario(
+        name="crossing",
+        description="ego 13.4 m/s towards an intersection 160 m ahead; an EV on the crossing road, "
+        "140 m from it, heads for it at 10 m/s with lights and siren on",
+        lane=lane,
+        ego_speed_mps=13.4,
+        duration_s=35.0,
+        expected_action="stop_before_intersection",
+        right_edge_offset_m=-1.3,
+        speed_limit_mps=13.4,
+        intersections=(box,),
+        ev=ev,
+        road_lines=_lane_lines(lane, [LANE_WIDTH_M / 2, -LANE_WIDTH_M / 2]),
+    )
+
+
+def signals_off() -> Scenario:
+    """EV from behind switches its signals off after 4 s and falls back: yield, then resume."""
+    base = seed003()
+    assert base.ev is not None
+    ev = EVPlan(
+        path=base.ev.path,
+        start_s_m=150.0,
+        speed_mps=lambda t: 13.4 if t < 2.0 else (18.0 if t < 6.0 else 8.0),
+        signals_on_s=2.0,
+        signals_off_s=6.0,
+    )
+    return Scenario(
+        name="signals_off",
+        description="as seed003, but the EV switches lights and siren off at t = 6 s and slows to 8 m/s "
+        "(call cancelled): the ego yields, waits, then resumes",
+        lane=base.lane,
+        ego_speed_mps=13.4,
+        duration_s=35.0,
+        expected_action="pull_over_and_stop",
+        right_edge_offset_m=base.right_edge_offset_m,
+        speed_limit_mps=13.4,
+        ev=ev,
+        road_lines=base.road_lines,
+    )
+
+
+def no_ev() -> Scenario:
+    """An ordinary drive: nothing to yield to."""
+    base = seed003()
+    return Scenario(
+        name="no_ev",
+        description="ego 13.4 m/s on the straight two-lane road, no emergency vehicle",
+        lane=base.lane,
+        ego_speed_mps=13.4,
+        duration_s=20.0,
+        expected_action="continue",
+        right_edge_offset_m=base.right_edge_offset_m,
+        speed_limit_mps=13.4,
+        road_lines=base.road_lines,
+    )
+
+
+#: Built-in scenarios by name (``makeway simulate NAME``).
+SCENARIOS: dict[str, Callable[[], Scenario]] = {
+    "seed003": seed003,
+    "curve_behind": curve_behind,
+    "oncoming": oncoming,
+    "crossing": crossing,
+    "signals_off": signals_off,
+    "no_ev": no_ev,
+}
+
+
+def get_scenario(name: str) -> Scenario:
+    """The built-in scenario ``name``; ``ValueError`` lists the names when unknown."""
+    try:
+        return SCENARIOS[name]()
+    except KeyError:
+        raise ValueError(f"unknown scenario {name!r}; built-in: {', '.join(SCENARIOS)}") from None
