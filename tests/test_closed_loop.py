@@ -153,3 +153,23 @@ def test_demo_writes_the_report(tmp_path: Path) -> None:
     assert (out / "tracking" / "summary.json").exists()
     assert s.seed003["max_abs_e_lat_m"] <= 0.25
     assert not any(p.name.endswith(".partial") for p in tmp_path.iterdir())
+
+
+def test_cli_simulate_on_a_recorded_path(tmp_path: Path) -> None:
+    from makeway.plan.path import curved_road, save_path_csv
+
+    rec = tmp_path / "recorded.csv"
+    save_path_csv(rec, curved_road(100.0, 300.0, 0.6, after_m=150.0))
+    r = runner.invoke(app, ["simulate", "--path", str(rec), "--json"])
+    assert r.exit_code == 0, r.output
+    m = json.loads(r.stdout.strip().splitlines()[-1])
+    assert m["scenario"] == "recorded_path" and m["action"] == "pull_over_and_stop" and not m["collision"]
+    assert m["max_abs_e_lat_m"] < 0.25
+    short = tmp_path / "short.csv"
+    short.write_text("x,y\n0,0\n1,0\n2,0\n")
+    r = runner.invoke(app, ["simulate", "--path", str(short)])
+    assert r.exit_code == 2 and "short.csv" in r.stderr and "needs at least" in r.stderr
+    bad = tmp_path / "bad.csv"
+    bad.write_text("a,b\n1,2\n")
+    r = runner.invoke(app, ["simulate", "--path", str(bad)])
+    assert r.exit_code == 2 and "bad.csv" in r.stderr

@@ -20,7 +20,7 @@ from rich.console import Console
 from rich.table import Table
 
 from makeway import __version__
-from makeway.errors import MakewayError
+from makeway.errors import InputError, MakewayError
 
 app = typer.Typer(
     name="makeway",
@@ -255,6 +255,10 @@ def simulate(
         typer.Option("--out", "-o", help="Write plots (as seed 003 Figs. 12–16) and metrics.json here."),
     ] = None,
     seed: Annotated[int, typer.Option(help="Perception noise seed.")] = 0,
+    path: Annotated[
+        Path | None,
+        typer.Option(help="Recorded path (CSV with x,y columns, metres) to drive seed003's situation on."),
+    ] = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print the metrics as one JSON line last.")] = False,
 ) -> None:
     """Run a built-in closed-loop scenario: perceived EV → yield decision → path → control → vehicle.
@@ -266,7 +270,16 @@ def simulate(
     from makeway.sim.perception import PerceptionConfig
     from makeway.sim.scenarios import get_scenario
 
-    scenario = get_scenario(name)
+    if path is not None:
+        from makeway.plan.path import load_path_csv
+        from makeway.sim.scenarios import on_recorded_path
+
+        try:
+            scenario = on_recorded_path(load_path_csv(path))
+        except ValueError as exc:
+            raise InputError(path, str(exc)) from None
+    else:
+        scenario = get_scenario(name)
     result = run_scenario(scenario, controller=controller, perception=PerceptionConfig(seed=seed))
     files: dict[str, str] = {}
     if out is not None:
@@ -276,15 +289,15 @@ def simulate(
     if as_json:
         _print_json_line(result.metrics)
         return
-    table = Table(title=f"makeway simulate {name} ({controller})", show_header=False)
+    table = Table(title=f"makeway simulate {scenario.name} ({controller})", show_header=False)
     for key, value in result.metrics.items():
         if isinstance(value, float):
             value = f"{value:.3f}"
         elif isinstance(value, list):
             value = "[" + ", ".join(f"{v:.3f}" for v in value) + "]"
         table.add_row(key, str(value))
-    for key, path in files.items():
-        table.add_row(f"→ {key}", path)
+    for key, file in files.items():
+        table.add_row(f"→ {key}", file)
     console.print(table)
 
 

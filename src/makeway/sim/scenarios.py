@@ -218,6 +218,38 @@ def no_ev() -> Scenario:
     )
 
 
+def on_recorded_path(lane: ReferencePath, *, ego_speed_mps: float = 13.4, ev_gap_m: float = 50.0) -> Scenario:
+    """seed003's situation on a recorded path (as the seeds replayed one): the ego starts
+    ``ev_gap_m + 10`` m along it, the EV ``ev_gap_m`` behind on the same path, switching on at 2 s.
+    """
+    start = ev_gap_m + 10.0
+    if float(lane.s_m[-1]) < start + 150.0:
+        raise ValueError(
+            f"the recorded path is {lane.s_m[-1]:.0f} m long; it needs at least {start + 150.0:.0f} m "
+            f"(the EV starts {ev_gap_m:.0f} m behind the ego and the pull-over needs ~150 m)"
+        )
+    ev = EVPlan(
+        path=lane,
+        start_s_m=start - ev_gap_m,
+        speed_mps=lambda t: ego_speed_mps if t < 2.0 else ego_speed_mps + 6.6,
+        signals_on_s=2.0,
+    )
+    return Scenario(
+        name="recorded_path",
+        description=f"seed003 on a recorded path ({lane.s_m[-1]:.0f} m): ego {ego_speed_mps:g} m/s, EV "
+        f"{ev_gap_m:g} m behind switches on at t = 2 s",
+        lane=lane,
+        ego_speed_mps=ego_speed_mps,
+        duration_s=30.0,
+        expected_action="pull_over_and_stop",
+        right_edge_offset_m=-LANE_WIDTH_M - 0.5,
+        speed_limit_mps=ego_speed_mps,
+        ev=ev,
+        ego_start_s_m=start,
+        road_lines=_lane_lines(lane, [LANE_WIDTH_M / 2, -LANE_WIDTH_M / 2, -1.5 * LANE_WIDTH_M]),
+    )
+
+
 #: Built-in scenarios by name (``makeway simulate NAME``).
 SCENARIOS: dict[str, Callable[[], Scenario]] = {
     "seed003": seed003,
