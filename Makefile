@@ -5,7 +5,7 @@ BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 OUT    ?= reports/demo
 
-.PHONY: venv demo test lint typecheck bench bench-sort bench-video clean
+.PHONY: venv demo test lint typecheck bench bench-sort bench-video bench-pull-over clean
 
 venv: $(STAMP)
 
@@ -39,7 +39,10 @@ bench-sort: $(VENV)/.bench
 bench-video: venv
 	$(BIN)/python benchmarks/bench_video_pipeline.py
 
-bench: bench-sort bench-video
+bench-pull-over: venv
+	$(BIN)/python benchmarks/bench_pull_over.py
+
+bench: bench-sort bench-video bench-pull-over
 
 clean:
 	rm -rf $(VENV) reports .pytest_cache .mypy_cache .ruff_cache
