@@ -18,22 +18,12 @@ from makeway.plan.curvefit import (
     window,
     wrap_angle,
 )
+from makeway.plan.path import make_path
 
 
 def _path(x: np.ndarray, y: np.ndarray) -> ReferencePath:
-    """A ReferencePath from points (finite-difference heading and curvature; enough for tests)."""
-    x = np.asarray(x, dtype=float)
-    y = np.asarray(y, dtype=float)
-    dx, dy = np.gradient(x), np.gradient(y)
-    ddx, ddy = np.gradient(dx), np.gradient(dy)
-    s = np.concatenate([[0.0], np.cumsum(np.hypot(np.diff(x), np.diff(y)))])
-    return ReferencePath(
-        x_m=x,
-        y_m=y,
-        s_m=s,
-        heading_rad=np.arctan2(dy, dx),
-        curvature_1pm=(dx * ddy - dy * ddx) / (dx * dx + dy * dy) ** 1.5,
-    )
+    """A ReferencePath from points (the planner's own constructor)."""
+    return make_path(x, y)
 
 
 def _arc(

@@ -21,6 +21,7 @@ from makeway.control import (
     path_error_model,
 )
 from makeway.messages import ControlCommand, ReferencePath, TrackingErrors, VehicleState
+from makeway.plan.path import make_path
 from makeway.sim.vehicle import SingleTrackModel, VehicleParams, lateral_dynamics_matrices
 
 P = VehicleParams()
@@ -28,19 +29,8 @@ DT = 0.01
 
 
 def _path(x: np.ndarray, y: np.ndarray) -> ReferencePath:
-    """A ReferencePath from points (finite-difference heading and curvature; enough for tests)."""
-    x = np.asarray(x, dtype=float)
-    y = np.asarray(y, dtype=float)
-    dx, dy = np.gradient(x), np.gradient(y)
-    ddx, ddy = np.gradient(dx), np.gradient(dy)
-    s = np.concatenate([[0.0], np.cumsum(np.hypot(np.diff(x), np.diff(y)))])
-    return ReferencePath(
-        x_m=x,
-        y_m=y,
-        s_m=s,
-        heading_rad=np.arctan2(dy, dx),
-        curvature_1pm=(dx * ddy - dy * ddx) / (dx * dx + dy * dy) ** 1.5,
-    )
+    """A ReferencePath from points (the planner's own constructor)."""
+    return make_path(x, y)
 
 
 def _straight(length: float = 400.0, spacing: float = 0.5) -> ReferencePath:

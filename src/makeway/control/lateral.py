@@ -59,7 +59,7 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from functools import lru_cache
-from typing import Protocol
+from typing import Any, Protocol
 
 import numpy as np
 from scipy.linalg import solve_continuous_lyapunov
@@ -356,18 +356,9 @@ class Stanley(_LocalFitController):
         *,
         k: float = 2.5,
         k_soft: float = 1.0,
-        n_points: int = 10,
-        line_tolerance_m: float = 0.02,
-        point_spacing_m: float | None = 1.0,
-        ahead: bool = False,
+        **fit: Any,
     ) -> None:
-        super().__init__(
-            params,
-            n_points=n_points,
-            line_tolerance_m=line_tolerance_m,
-            point_spacing_m=point_spacing_m,
-            ahead=ahead,
-        )
+        super().__init__(params, **fit)  # n_points, line_tolerance_m, point_spacing_m, ahead
         self.k = k
         self.k_soft = k_soft
 
@@ -394,18 +385,9 @@ class PurePursuit(_LocalFitController):
         *,
         lookahead_time_s: float = 0.8,
         min_lookahead_m: float = 4.0,
-        n_points: int = 10,
-        line_tolerance_m: float = 0.02,
-        point_spacing_m: float | None = 1.0,
-        ahead: bool = False,
+        **fit: Any,
     ) -> None:
-        super().__init__(
-            params,
-            n_points=n_points,
-            line_tolerance_m=line_tolerance_m,
-            point_spacing_m=point_spacing_m,
-            ahead=ahead,
-        )
+        super().__init__(params, **fit)  # n_points, line_tolerance_m, point_spacing_m, ahead
         self.lookahead_time_s = lookahead_time_s
         self.min_lookahead_m = min_lookahead_m
 
