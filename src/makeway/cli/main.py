@@ -7,58 +7,23 @@ and no half-written outputs.
 
 from __future__ import annotations
 
-import functools
-import json
 import sys
-from collections.abc import Callable
 from pathlib import Path
-from typing import Annotated, Any, TypeVar
+from typing import Annotated
 
 import numpy as np
 import typer
-from rich.console import Console
 from rich.table import Table
 
 from makeway import __version__
+from makeway.cli.common import console, err_console, friendly_errors, new_app, print_json_line
 from makeway.errors import InputError, MakewayError
 
-app = typer.Typer(
-    name="makeway",
-    help=(
-        "makeway — notice an active emergency vehicle, localize it, keep the belief stable, "
-        "and make way.\n\n"
-        "Start with `makeway demo` (no data needed), then `makeway detect VIDEO` on a road video."
-    ),
-    no_args_is_help=True,
-    add_completion=False,
-    pretty_exceptions_enable=False,
+app = new_app(
+    "makeway",
+    "makeway — notice an active emergency vehicle, localize it, keep the belief stable, and make way.\n\n"
+    "Start with `makeway demo` (no data needed), then `makeway detect VIDEO` on a road video.",
 )
-console = Console()
-err_console = Console(stderr=True)
-
-F = TypeVar("F", bound=Callable[..., Any])
-
-
-def _friendly_errors(func: F) -> F:
-    """Turn makeway's own errors into one red line and exit code 2."""
-
-    @functools.wraps(func)
-    def wrapper(*args: Any, **kwargs: Any) -> Any:
-        try:
-            return func(*args, **kwargs)
-        except MakewayError as exc:
-            err_console.print(f"[bold red]error:[/] {exc}", highlight=False, soft_wrap=True)
-            raise typer.Exit(code=2) from None
-        except ValueError as exc:
-            err_console.print(f"[bold red]error:[/] {exc}", highlight=False, soft_wrap=True)
-            raise typer.Exit(code=2) from None
-
-    return wrapper  # type: ignore[return-value]
-
-
-def _print_json_line(obj: Any) -> None:
-    sys.stdout.write(json.dumps(obj, separators=(", ", ": ")) + "\n")
-    sys.stdout.flush()
 
 
 @app.callback(invoke_without_command=True)
@@ -72,7 +37,7 @@ def _main(
 
 # ------------------------------------------------------------------------------------------- detect
 @app.command()
-@_friendly_errors
+@friendly_errors
 def detect(
     video: Annotated[Path, typer.Argument(help="Road video (any format OpenCV/FFmpeg reads).")],
     out: Annotated[
@@ -123,12 +88,12 @@ def detect(
     if not as_json:
         console.print(table)
     else:
-        _print_json_line(summary.to_json())
+        print_json_line(summary.to_json())
 
 
 # -------------------------------------------------------------------------------------------- track
 @app.command()
-@_friendly_errors
+@friendly_errors
 def track(
     mot_det: Annotated[Path, typer.Option("--mot-det", help="MOTChallenge detection file (det.txt).")],
     out: Annotated[Path, typer.Option("--out", "-o", help="Where to write the MOTChallenge tracks.")],
@@ -167,11 +132,11 @@ def track(
     )
     if truth is not None:
         metrics = evaluate_mot(truth, tracks).summary()
-        _print_json_line({"sequence": str(mot_det), **metrics})
+        print_json_line({"sequence": str(mot_det), **metrics})
 
 
 @app.command("mot-eval")
-@_friendly_errors
+@friendly_errors
 def mot_eval(
     gt: Annotated[Path, typer.Argument(help="Ground truth (gt.txt).")],
     tracks: Annotated[Path, typer.Argument(help="Tracker output in MOTChallenge format.")],
@@ -182,12 +147,12 @@ def mot_eval(
     from makeway.sense.motfile import read_mot
 
     metrics = evaluate_mot(read_mot(gt, kind="gt"), read_mot(tracks, kind="tracks"), iou_threshold=iou)
-    _print_json_line(metrics.summary())
+    print_json_line(metrics.summary())
 
 
 # --------------------------------------------------------------------------------------------- demo
 @app.command()
-@_friendly_errors
+@friendly_errors
 def demo(
     out: Annotated[Path, typer.Option("--out", "-o", help="Report folder.")] = Path("reports/demo"),
     no_video: Annotated[bool, typer.Option("--no-video", help="Skip the annotated mp4.")] = False,
@@ -204,7 +169,7 @@ def demo(
 
     summary = run_demo(out, write_video=not no_video, progress=not as_json)
     if as_json:
-        _print_json_line(summary.to_json())
+        print_json_line(summary.to_json())
         return
     m = summary.seed003
     table = Table(title="makeway demo — make way for an emergency vehicle (simulated)")
@@ -241,7 +206,7 @@ def demo(
 
 # ----------------------------------------------------------------------------------------- simulate
 @app.command()
-@_friendly_errors
+@friendly_errors
 def simulate(
     name: Annotated[
         str,
@@ -287,7 +252,7 @@ def simulate(
 
         files = write_closed_loop_report(result, scenario, out)
     if as_json:
-        _print_json_line(result.metrics)
+        print_json_line(result.metrics)
         return
     table = Table(title=f"makeway simulate {scenario.name} ({controller})", show_header=False)
     for key, value in result.metrics.items():
@@ -330,6 +295,10 @@ def info() -> None:
         table.add_row("h264 encoder", f"none ({exc})")
     console.print(table)
 
+
+from makeway.cli.audio import audio_app  # noqa: E402  (sub-apps register after the main commands)
+
+app.add_typer(audio_app, name="audio")
 
 if __name__ == "__main__":  # pragma: no cover
     app()
