@@ -1,4 +1,4 @@
-"""Sensor input: video files (audio readers join here later)."""
+"""Sensor input: video files, MOTChallenge files (`sense.motfile`), array recordings (`sense.recording`)."""
 
 from makeway.sense.video import DEFAULT_FPS, VideoInfo, VideoReader, probe_video
 
