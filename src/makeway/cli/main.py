@@ -297,7 +297,9 @@ def info() -> None:
 
 
 from makeway.cli.audio import audio_app  # noqa: E402  (sub-apps register after the main commands)
+from makeway.cli.classify import classify_app  # noqa: E402
 
+app.add_typer(classify_app, name="classify")
 app.add_typer(audio_app, name="audio")
 
 if __name__ == "__main__":  # pragma: no cover

@@ -1,0 +1,307 @@
+"""``makeway classify …``: crop data sets and the classical classifier study (issue 3, SPEC §1–2).
+
+Commands:
+
+* ``study --data DIR`` — every feature × classifier of SPEC §2 on a crop folder; writes
+  ``OUT/study.md`` and ``OUT/study.csv``. On ``ev_crops`` it evaluates on the committed held-out
+  part (``makeway/data/ev_crops_holdout.txt``); on any other folder on a seeded 20 % group split.
+* ``holdout --data DIR --out FILE`` — write a held-out split file (how the committed one was made)::
+
+      makeway classify holdout --data ../shared/data/vision/ev_crops \\
+          --out src/makeway/data/ev_crops_holdout.txt
+
+* ``build-ambulance-crops --out DIR`` — a crop folder from a YOLO ambulance set
+  (default ``<shared data>/vision/ambulance_yolo/valid``): every labelled ambulance box is a
+  positive; every YOLOX-nano vehicle detection (car, motorcycle, bus, truck) whose IoU with all
+  ambulance boxes is below 0.1 (and that is not mostly — half its area or more — inside one, such
+  as a detection of an ambulance's light bar) is a negative. Crops are squares around the box with
+  10 % context per side, 224×224, boxes under 18 px wide skipped (SPEC §1). ``labels.csv`` gets a ``group``
+  column with the source photo (Roboflow copies of one photo share it), so splits keep a photo on
+  one side. Caveat: some ambulances in that set are unlabelled and come out as negatives when the
+  detector finds them; the label means "ambulance", not "lights on"::
+
+      makeway classify build-ambulance-crops --out ../work/ambulance_crops
+
+Registered by the main app as ``app.add_typer(classify_app, name="classify")``; also runnable as
+``python -m makeway.cli.classify``.
+"""
+
+from __future__ import annotations
+
+import os
+import platform
+import shlex
+import sys
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import Annotated, Any
+
+import numpy as np
+import typer
+from rich.table import Table
+
+from makeway.cli.common import console, err_console, friendly_errors, new_app
+from makeway.errors import InputError
+
+classify_app = new_app(
+    "classify", "Emergency-vehicle crop classifiers: data sets, held-out split, the classical study."
+)
+_STUDY_OUT = Path("docs/study")
+
+
+def _split_names(values: list[str] | None, default: list[str]) -> list[str]:
+    if not values:
+        return default
+    return [v.strip() for item in values for v in item.split(",") if v.strip()]
+
+
+def _command_line() -> str:
+    prog = Path(sys.argv[0]).name if sys.argv else "makeway"
+    if prog in ("__main__.py", "classify.py"):
+        prog = "python -m makeway.cli.classify"
+    return " ".join([prog, *(shlex.quote(a) for a in sys.argv[1:])])
+
+
+def _versions() -> str:
+    out = []
+    for mod in ("sklearn", "xgboost", "skimage", "cv2"):
+        try:
+            out.append(f"{mod} {__import__(mod).__version__}")
+        except ImportError:
+            continue
+    return ", ".join(out)
+
+
+# -------------------------------------------------------------------------------------------- study
+@classify_app.command()
+@friendly_errors
+def study(
+    data: Annotated[
+        Path, typer.Option("--data", help="Crop folder: images/ + labels.csv (image,emergency).")
+    ],
+    out: Annotated[Path, typer.Option("--out", "-o", help="Where study.md and study.csv go.")] = _STUDY_OUT,
+    features: Annotated[
+        list[str] | None, typer.Option(help="Features, repeated or comma-separated (default: all).")
+    ] = None,
+    classifiers: Annotated[
+        list[str] | None, typer.Option(help="Classifiers, repeated or comma-separated (default: all).")
+    ] = None,
+    skip: Annotated[
+        list[str] | None,
+        typer.Option(
+            help="FEATURE:CLASSIFIER pairs not to run (repeat or comma-separate), e.g. pixels:adaboost."
+        ),
+    ] = None,
+    holdout: Annotated[
+        Path | None,
+        typer.Option(
+            help="Holdout file to evaluate on (default: the committed ev_crops one when it matches)."
+        ),
+    ] = None,
+    fraction: Annotated[float, typer.Option(help="Held-out fraction when splitting here.")] = 0.2,
+    seed: Annotated[int, typer.Option(help="Seed of the split and of the classifiers.")] = 0,
+    threads: Annotated[int, typer.Option(min=1, help="Threads for classifiers that use several.")] = 1,
+    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")] = False,
+) -> None:
+    """Run the classical study (SPEC §2): features × classifiers, fitted on the training part and
+    scored on the held-out part; writes OUT/study.md (sorted table) and OUT/study.csv."""
+    from makeway.perceive.vision.features import FEATURES
+    from makeway.sense.crops import (
+        EV_CROPS_HOLDOUT,
+        holdout_split,
+        read_crop_folder,
+        read_holdout,
+        split_holdout,
+    )
+    from makeway.train.classical import CLASSIFIERS, StudyRow, run_study, write_study
+
+    feats = _split_names(features, list(FEATURES))
+    clfs = _split_names(classifiers, list(CLASSIFIERS))
+    skipped: list[tuple[str, str]] = []
+    for pair in _split_names(skip, []):
+        feat, sep, clf = pair.partition(":")
+        if not sep or feat not in FEATURES or clf not in CLASSIFIERS:
+            raise ValueError(f"--skip takes FEATURE:CLASSIFIER with registered names, got {pair!r}")
+        skipped.append((feat, clf))
+    n_runs = sum(1 for f in feats for c in clfs if (f, c) not in skipped)
+    crops = read_crop_folder(data)
+    if holdout is not None:
+        train_idx, test_idx = holdout_split(crops, read_holdout(holdout))
+        split = f"holdout {holdout.name}"
+        how = f"the held-out names listed in `{holdout}`"
+    else:
+        committed = read_holdout(EV_CROPS_HOLDOUT) if EV_CROPS_HOLDOUT.is_file() else None
+        if committed is not None and committed.matches(crops):
+            train_idx, test_idx = holdout_split(crops, committed)
+            split = "ev_crops holdout"
+            how = (
+                "the committed ev_crops holdout (`src/makeway/data/ev_crops_holdout.txt`: "
+                f"{committed.meta.get('method', 'group split')})"
+            )
+        else:
+            train_idx, test_idx = split_holdout(crops, fraction=fraction, seed=seed)
+            by = "the folder's group column" if crops.groups is not None else "near-duplicate clusters"
+            split = f"group split {fraction:g} seed {seed}"
+            how = f"a {fraction:.0%} split by {by}, stratified by label, seed {seed}"
+    train_set, test_set = crops.subset(train_idx), crops.subset(test_idx)
+    notes = [
+        f"Data: `{data}` — {len(crops)} crops, {crops.n_positive} positive (emergency vehicle).",
+        f"Train: {len(train_set)} crops ({train_set.n_positive} positive); test: {len(test_set)} crops "
+        f"({test_set.n_positive} positive), {how}. Nothing was tuned on the test part.",
+        "Accuracy, precision, recall and F1 at each classifier's own decision rule; max-F1 and precision "
+        "at recall 0.8 (P@R0.8) over thresholds of its score. Times: fit on the whole training part; "
+        "predict and feature extraction per 100 test crops (one batch), "
+        f"{threads} thread(s) on {os.cpu_count()} CPU(s) ({platform.machine()}), {_versions()}.",
+        f"Command: `{_command_line()}`",
+    ]
+    if skipped:
+        notes.append(f"Not run (too slow for this machine): {', '.join(f'{f} × {c}' for f, c in skipped)}.")
+    rows: list[StudyRow] = []
+
+    def partial(row: StudyRow) -> None:  # keep what is done if a long run is interrupted
+        rows.append(row)
+        write_study(rows, out, notes=[*notes, f"(partial: {len(rows)} of {n_runs} done)"])
+
+    run_study(
+        train_set,
+        test_set,
+        feats,
+        clfs,
+        split=split,
+        n_jobs=threads,
+        seed=seed,
+        progress=not quiet,
+        on_row=partial,
+        skip=skipped,
+    )
+    md_path, csv_path = write_study(rows, out, notes=notes)
+    table = Table(title=f"classical study — {split} ({len(test_set)} test crops)")
+    for col in ("feature", "classifier", "accuracy", "F1", "max-F1", "fit s", "predict ms/100"):
+        table.add_column(col)
+    for r in sorted(rows, key=lambda r: -r.accuracy)[:8]:
+        table.add_row(
+            r.feature,
+            r.classifier,
+            f"{r.accuracy:.3f}",
+            f"{r.f1:.3f}",
+            f"{r.max_f1:.3f}",
+            f"{r.fit_s:.1f}",
+            f"{r.predict_ms_per_100:.1f}",
+        )
+    console.print(table)
+    err_console.print(f"→ {md_path}\n→ {csv_path}", highlight=False)
+
+
+# ------------------------------------------------------------------------------------------ holdout
+@classify_app.command()
+@friendly_errors
+def holdout(
+    data: Annotated[Path, typer.Option("--data", help="Crop folder: images/ + labels.csv.")],
+    out: Annotated[Path, typer.Option("--out", "-o", help="Holdout file to write (image names).")],
+    fraction: Annotated[float, typer.Option(help="Fraction of crops held out.")] = 0.2,
+    seed: Annotated[int, typer.Option(help="Seed of the split.")] = 0,
+) -> None:
+    """Write a held-out split: the names of about FRACTION of the crops, whole groups (or
+    near-duplicate clusters) at a time, stratified by label."""
+    from makeway.sense.crops import read_crop_folder, split_holdout, write_holdout
+
+    crops = read_crop_folder(data)
+    _, test_idx = split_holdout(crops, fraction=fraction, seed=seed)
+    if crops.groups is not None:
+        method = "split by the group column of labels.csv"
+    else:
+        method = (
+            "split by near-duplicate clusters (grey 32x32 thumbnails, mirror-aware correlation >= 0.85 "
+            "or identical 8x8 average hash; makeway.sense.crops.near_duplicate_groups)"
+        )
+    meta = {
+        "method": f"{method}, stratified by label",
+        "fraction": f"{fraction:g}",
+        "seed": str(seed),
+        "command": (
+            f"makeway classify holdout --data {data} --out {out} --fraction {fraction:g} --seed {seed}"
+        ),
+    }
+    write_holdout(out, crops, test_idx, meta=meta)
+    n_pos = int(crops.labels[test_idx].sum())
+    err_console.print(
+        f"held out {len(test_idx)} of {len(crops)} crops ({n_pos} positive) → {out}", highlight=False
+    )
+
+
+# ---------------------------------------------------------------------------- build-ambulance-crops
+@classify_app.command("build-ambulance-crops")
+@friendly_errors
+def build_ambulance_crops(
+    out: Annotated[Path, typer.Option("--out", "-o", help="Crop folder to write (images/ + labels.csv).")],
+    data: Annotated[
+        Path | None,
+        typer.Option("--data", help="YOLO set (default: <shared data>/vision/ambulance_yolo/valid)."),
+    ] = None,
+    ambulance_class: Annotated[int, typer.Option(help="YOLO class id of the ambulance boxes.")] = 0,
+    detector: Annotated[str, typer.Option(help="Vehicle detector: yolox_nano or nanodet_m.")] = "yolox_nano",
+    model: Annotated[Path | None, typer.Option(help="ONNX weights for the detector.")] = None,
+    score_threshold: Annotated[float, typer.Option(help="Detector score threshold.")] = 0.3,
+    max_iou: Annotated[
+        float, typer.Option(help="A detection is a negative below this IoU with all ambulances.")
+    ] = 0.1,
+    max_inside: Annotated[
+        float, typer.Option(help="…and lies less than this fraction of its area inside one.")
+    ] = 0.5,
+    margin: Annotated[
+        float, typer.Option(help="Context per side, as a fraction of the box's longer side.")
+    ] = 0.1,
+    size: Annotated[int, typer.Option(min=8, help="Crop side in pixels.")] = 224,
+    threads: Annotated[int, typer.Option(min=1, help="Detector threads.")] = 1,
+    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")] = False,
+) -> None:
+    """Build a crop folder from a YOLO ambulance set: ambulance boxes → positives, detector vehicles
+    that overlap no ambulance (IoU < MAX_IOU) → negatives; group = source photo."""
+    import cv2
+
+    from makeway.paths import data_dir
+    from makeway.perceive.vision.crops import detection_crop_items
+    from makeway.perceive.vision.detectors import create_detector
+    from makeway.progress import progress_bar
+    from makeway.sense.crops import read_yolo_set, roboflow_source, write_crop_folder
+
+    if data is None:
+        base = data_dir()
+        if base is None:
+            raise InputError(
+                "../shared/data", "shared data folder not found; pass --data or set MAKEWAY_DATA"
+            )
+        data = base / "vision" / "ambulance_yolo" / "valid"
+    images = read_yolo_set(data)
+    det = create_detector(
+        detector, model, score_threshold=score_threshold, class_agnostic=True, num_threads=threads
+    )
+    counts = {"positive": 0, "negative": 0, "boxes": 0}
+
+    def items(advance: Callable[[int], Any]) -> Iterator[tuple[str, np.ndarray, int, str | None]]:
+        for item in images:
+            image = cv2.imread(str(item.path), cv2.IMREAD_COLOR)
+            if image is None:
+                raise InputError(item.path, "OpenCV could not decode this image")
+            positives = item.boxes_of(ambulance_class)
+            counts["boxes"] += len(positives)
+            boxes, _, _ = det.detect_arrays(image)
+            group = roboflow_source(item.path.stem)
+            for tag, crop, label in detection_crop_items(
+                image, positives, boxes, max_iou=max_iou, max_inside=max_inside, margin=margin, size=size
+            ):
+                counts["positive" if label else "negative"] += 1
+                yield f"{item.path.stem}_{tag}.jpg", crop, label, group
+            advance(1)
+
+    with progress_bar("crops from images", len(images), enabled=not quiet, unit="images") as adv:
+        n = write_crop_folder(out, items(adv))
+    err_console.print(
+        f"{len(images)} images: {counts['positive']} ambulance crops (of {counts['boxes']} boxes; "
+        f"narrower than 18 px skipped), {counts['negative']} other-vehicle crops → {n} crops in {out}",
+        highlight=False,
+    )
+
+
+if __name__ == "__main__":
+    classify_app()
