@@ -18,7 +18,7 @@ from makeway.cli.common import err_console, friendly_errors, new_app, print_json
 from makeway.errors import InputError
 
 audio_app = new_app(
-    "audio", "Siren recordings from the car-roof microphone array: simulate them, label them."
+    "audio", "Siren recordings from the car-roof microphone array: simulate, label, evaluate."
 )
 
 
@@ -144,6 +144,85 @@ def label(
             f"{max_distance:g} m → {target}",
             highlight=False,
         )
+
+
+@audio_app.command("eval")
+@friendly_errors
+def eval_cmd(
+    data: Annotated[
+        Path, typer.Option("--data", help="A recording folder, or a folder of recording folders.")
+    ],
+    baseline: Annotated[
+        str | None,
+        typer.Option(
+            help="Classical method instead of the trained model: gccphat, srp or normmusic "
+            "(with the band-energy siren detector)."
+        ),
+    ] = None,
+    fit: Annotated[
+        Path | None,
+        typer.Option(
+            help="Fit the baseline detector's two logistic constants on these recordings first "
+            "[default: the shipped constants]."
+        ),
+    ] = None,
+    as_json: Annotated[bool, typer.Option("--json", help="Print only the JSON line.")] = False,
+    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")] = False,
+) -> None:
+    """Evaluate siren detection and localization on labelled recordings (one JSON line, last).
+
+    Keys: recall, false_alarm_rate (per window), accuracy, angle_median_deg, angle_mean_deg (wrapped),
+    distance_median_m, distance_mean_m (null for the baselines), the same inside "range_10_50", and
+    "by_distance" (10 m bins).
+    """
+    from makeway.perceive.audio.doa import DOA_METHODS
+
+    choices = "|".join(DOA_METHODS)
+    if baseline is None:
+        raise ValueError(f"no trained siren model yet; use --baseline {choices}")
+    if baseline not in DOA_METHODS:
+        raise ValueError(f"--baseline must be one of {choices}, not {baseline!r}")
+    from makeway.perceive.audio.doa import SirenEnergyDetector
+    from makeway.perceive.audio.evaluate import evaluate
+    from makeway.perceive.audio.features import window_batch
+    from makeway.perceive.audio.labels import label_recording
+    from makeway.progress import progress_bar
+    from makeway.sense.recording import read_recording
+
+    recs = _recording_folders(data)
+    detector = None
+    if fit is not None:
+        import numpy as np
+
+        detector = SirenEnergyDetector()
+        scores, ys = [], []
+        for path in _recording_folders(fit):
+            rec = read_recording(path)
+            labels = label_recording(rec)
+            detector.sample_rate = rec.sample_rate
+            scores.append(detector.scores(window_batch(rec, labels)))
+            ys.append(labels.siren)
+        detector.fit_scores(np.concatenate(scores), np.concatenate(ys))
+    t0 = time.perf_counter()
+    with progress_bar(f"eval {baseline}", len(recs), enabled=not quiet, unit="rec") as advance:
+        result = evaluate(recs, baseline, detector=detector, on_recording=advance)
+    result["data"] = str(data)
+    result["seconds"] = round(time.perf_counter() - t0, 2)
+    if detector is not None:
+        result["detector"] = {"slope": round(detector.slope, 6), "offset": round(detector.offset, 6)}
+    if not as_json:
+        r = result["range_10_50"]
+
+        def pct(v: float | None) -> str:
+            return "n/a" if v is None else f"{100 * v:.2f} %"
+
+        err_console.print(
+            f"{baseline}: {result['windows']} windows; recall {pct(result['recall'])}, false alarms "
+            f"{pct(result['false_alarm_rate'])}; 10–50 m: recall {pct(r['recall'])}, angle error median "
+            f"{r['angle_median_deg']}° mean {r['angle_mean_deg']}°",
+            highlight=False,
+        )
+    print_json_line(result)
 
 
 if __name__ == "__main__":
