@@ -287,6 +287,7 @@ def test_project_box3d_rejects() -> None:
 def test_feature_shapes_on_real_crops(ev_crops: CropSet) -> None:
     images = ev_crops.subset([0, 1, 2, 3]).load_images(224)
     expected = {"pixels": 128 * 128 * 3, "hog": 10 * 10 * 3 * 3 * 8, "rgb_hist": 32**3, "hsv8": 8}
+    expected["yolox"] = 2 * (128 + 256 + 256)  # tests/test_backbone_features.py
     assert set(FEATURES) == set(expected)
     for name, fn in FEATURES.items():
         x = fn(images)
@@ -322,7 +323,8 @@ def test_tiny_study_writes_sane_table(ev_crops: CropSet, tmp_path: Path) -> None
     rng = np.random.default_rng(0)
     train = ev_crops.subset(np.sort(rng.choice(train_idx, 200, replace=False)))
     test = ev_crops.subset(np.sort(rng.choice(test_idx, 100, replace=False)))
-    assert {"svm", "adaboost", "random_forest", "gradient_boosting", "xgboost", "knn"} == set(CLASSIFIERS)
+    known = {"svm", "adaboost", "random_forest", "gradient_boosting", "xgboost", "knn", "logreg"}
+    assert known == set(CLASSIFIERS)
     rows = run_study(train, test, ["rgb_hist", "hog"], ["knn", "random_forest"], split="tiny", progress=False)
     assert len(rows) == 4
     for r in rows:

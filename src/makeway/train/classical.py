@@ -14,6 +14,9 @@ random_forest      ``RandomForestClassifier(n_estimators=10)``
 gradient_boosting  ``GradientBoostingClassifier(n_estimators=100, learning_rate=1.0, max_depth=1)``
 xgboost            ``XGBClassifier()`` with XGBoost's defaults (package ``xgboost-cpu``)
 knn                ``KNeighborsClassifier(n_neighbors=3)``
+logreg             ``StandardScaler`` → ``LogisticRegressionCV(Cs=10⁻⁴…10¹, cv=5, max_iter=2000)``:
+                   L2 logistic regression whose C is chosen by a stratified 5-fold CV inside
+                   ``fit``, i.e. on the training part only (added for the ``yolox`` features)
 =================  ==============================================================================
 
 :func:`run_study` fits every pair on a training set and scores the test set: accuracy, precision,
@@ -94,6 +97,17 @@ def _knn(n_jobs: int, seed: int) -> Any:
     return KNeighborsClassifier(n_neighbors=3, n_jobs=n_jobs)
 
 
+def _logreg(n_jobs: int, seed: int) -> Any:
+    from sklearn.linear_model import LogisticRegressionCV
+    from sklearn.model_selection import StratifiedKFold
+    from sklearn.pipeline import make_pipeline
+    from sklearn.preprocessing import StandardScaler
+
+    inner = StratifiedKFold(n_splits=5, shuffle=True, random_state=seed)
+    model = LogisticRegressionCV(Cs=np.logspace(-4, 1, 6), cv=inner, max_iter=2000, n_jobs=n_jobs)
+    return make_pipeline(StandardScaler(), model)
+
+
 #: Classifier factories by name: ``factory(n_jobs, seed)`` → an unfitted estimator (module docstring).
 CLASSIFIERS: dict[str, Callable[[int, int], Any]] = {
     "svm": _svm,
@@ -102,6 +116,7 @@ CLASSIFIERS: dict[str, Callable[[int, int], Any]] = {
     "gradient_boosting": _gradient_boosting,
     "xgboost": _xgboost,
     "knn": _knn,
+    "logreg": _logreg,
 }
 
 

@@ -13,6 +13,8 @@ hog        7200    scikit-image HOG of the 128×128 grey crop: 8 orientations, 1
 rgb_hist   32768   3-D colour histogram, 32 bins per channel (OpenCV ``calcHist``; channel order
                    B, G, R as decoded), divided by the pixel count so it sums to 1
 hsv8       8       the custom red/blue light vector (:func:`hsv_red_blue`)
+yolox      1280    pooled YOLOX-nano feature maps (:mod:`makeway.perceive.vision.backbone`; needs
+                   ``yolox_nano.onnx`` and the ``onnx`` package; the extractor is built on first use)
 =========  ======  ==================================================================================
 
 ``hsv8`` per colour *c* of the colour set (default: blue, red): area of the colour's HSV mask and
@@ -36,6 +38,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Mapping, Sequence
 from functools import partial
+from typing import Any
 
 import cv2
 import numpy as np
@@ -50,6 +53,7 @@ __all__ = [
     "hsv_red_blue",
     "pixels",
     "rgb_histogram",
+    "yolox_backbone",
 ]
 
 HSVRange = tuple[tuple[int, int, int], tuple[int, int, int]]
@@ -179,12 +183,27 @@ def hsv_red_blue(
     return out
 
 
+_EXTRACTORS: dict[str, Any] = {}
+
+
+def yolox_backbone(images: np.ndarray) -> np.ndarray:
+    """Pooled YOLOX-nano feature maps with the default layers (one cached extractor per process)."""
+    arr = _check_batch(images)
+    extractor = _EXTRACTORS.get("yolox")
+    if extractor is None:
+        from makeway.perceive.vision.backbone import BackboneFeatures
+
+        extractor = _EXTRACTORS["yolox"] = BackboneFeatures()
+    return np.asarray(extractor.transform(arr), dtype=np.float32)
+
+
 #: The study's features by name (see the module docstring).
 FEATURES: dict[str, Callable[[np.ndarray], np.ndarray]] = {
     "pixels": pixels,
     "hog": hog_features,
     "rgb_hist": rgb_histogram,
     "hsv8": partial(hsv_red_blue, colours=DEFAULT_LIGHT_COLOURS),
+    "yolox": yolox_backbone,
 }
 
 

@@ -1,0 +1,93 @@
+"""YOLOX-nano backbone features of crops (issue 3, transfer route without ImageNet weights).
+
+Runs on the real ev_crops and the real yolox_nano.onnx in ../shared/data (fixture ``data_root``).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from makeway.errors import InputError
+from makeway.perceive.vision.backbone import DEFAULT_LAYERS, BackboneFeatures
+from makeway.perceive.vision.features import FEATURES
+from makeway.sense.crops import EV_CROPS_HOLDOUT, CropSet, holdout_split, read_crop_folder, read_holdout
+from makeway.train.classical import run_study
+
+
+@pytest.fixture(scope="module")
+def ev_crops(data_root: Path) -> CropSet:
+    root = data_root / "vision" / "ev_crops"
+    if not root.is_dir():
+        pytest.fail(f"{root} missing from the shared data")
+    return read_crop_folder(root)
+
+
+@pytest.fixture(scope="module")
+def model_path(data_root: Path) -> Path:
+    path = data_root / "models" / "yolox_nano.onnx"
+    if not path.is_file():
+        pytest.fail(f"{path} missing from the shared data")
+    return path
+
+
+@pytest.fixture(scope="module")
+def extractor(model_path: Path) -> BackboneFeatures:
+    return BackboneFeatures(model_path, num_threads=2)
+
+
+def test_shape_and_determinism(extractor: BackboneFeatures, ev_crops: CropSet) -> None:
+    images = ev_crops.subset(range(8)).load_images(224)
+    assert extractor.layers == DEFAULT_LAYERS
+    assert extractor.dim == 2 * (128 + 256 + 256)
+    x = extractor.transform(images)
+    assert x.shape == (8, extractor.dim) and x.dtype == np.float32
+    assert np.all(np.isfinite(x))
+    assert np.array_equal(x, extractor.transform(images))
+    assert not np.allclose(x[0], x[1])  # different crops, different features
+    # The registered feature is the same extractor with the defaults.
+    y = FEATURES["yolox"](images)
+    assert y.shape == x.shape and np.allclose(x, y, rtol=1e-4, atol=1e-4)
+
+
+def test_batch_of_one_equals_batch_of_eight(extractor: BackboneFeatures, ev_crops: CropSet) -> None:
+    images = ev_crops.subset(range(8)).load_images(224)
+    batch = extractor.transform(images)
+    single = np.concatenate([extractor.transform(images[i : i + 1]) for i in range(8)])
+    assert np.allclose(batch, single, rtol=1e-4, atol=1e-4)
+
+
+def test_other_sizes_layers_and_grid(model_path: Path, ev_crops: CropSet) -> None:
+    images = ev_crops.subset(range(2)).load_images(100)  # resized inside to input_size
+    ext = BackboneFeatures(model_path, layers=("dark3", "pan4"), input_size=160, grid=2, num_threads=2)
+    x = ext.transform(images)
+    assert x.shape == (2, 6 * (64 + 128)) == (2, ext.dim)
+    with pytest.raises(InputError, match="no tensor for nope"):
+        BackboneFeatures(model_path, layers=("nope",))
+    with pytest.raises(ValueError):
+        BackboneFeatures(model_path, input_size=100)
+    with pytest.raises(ValueError):
+        ext.transform(np.zeros((2, 32, 32), dtype=np.uint8))
+
+
+def test_missing_model_names_where_it_looked(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    missing = tmp_path / "nowhere" / "yolox_nano.onnx"
+    with pytest.raises(InputError, match="looked at") as info:
+        BackboneFeatures(missing)
+    assert str(missing) in str(info.value)
+    monkeypatch.setattr("makeway.perceive.vision.detectors.models_candidates", lambda: [tmp_path])
+    with pytest.raises(InputError, match="looked in") as info:
+        BackboneFeatures()
+    assert str(tmp_path / "yolox_nano.onnx") in str(info.value)
+
+
+def test_tiny_study_beats_hand_made_features(ev_crops: CropSet) -> None:
+    train_idx, test_idx = holdout_split(ev_crops, read_holdout(EV_CROPS_HOLDOUT))
+    rng = np.random.default_rng(0)
+    train = ev_crops.subset(np.sort(rng.choice(train_idx, 150, replace=False)))
+    test = ev_crops.subset(np.sort(rng.choice(test_idx, 60, replace=False)))
+    rows = run_study(train, test, ["yolox"], ["logreg"], split="tiny", progress=False)
+    assert len(rows) == 1
+    assert rows[0].accuracy > 0.7, rows[0]
