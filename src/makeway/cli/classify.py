@@ -22,6 +22,15 @@ Commands:
 
       makeway classify build-ambulance-crops --out ../work/ambulance_crops
 
+* ``train --data DIR [--data DIR2 ...] [--out FILE]`` — train the EV crop classifier head
+  (:class:`~makeway.perceive.vision.ev_classifier.EVCropClassifier`: YOLOX-nano features +
+  standardised logistic regression) and write it as ``.npz`` (default: the shipped
+  ``makeway/models/ev_head_yolox_logreg.npz``). On ev_crops only the training part is used, and the
+  held-out metrics are printed as a JSON line.
+* ``eval --data DIR [--model FILE]`` — score a head (default: the shipped one) on a crop folder;
+  on ev_crops only the committed held-out part. Prints one JSON line last:
+  accuracy, precision, recall, f1, max_f1, p_at_r80, n.
+
 Registered by the main app as ``app.add_typer(classify_app, name="classify")``; also runnable as
 ``python -m makeway.cli.classify``.
 """
@@ -40,7 +49,7 @@ import numpy as np
 import typer
 from rich.table import Table
 
-from makeway.cli.common import console, err_console, friendly_errors, new_app
+from makeway.cli.common import console, err_console, friendly_errors, new_app, print_json_line
 from makeway.errors import InputError
 
 classify_app = new_app(
@@ -301,6 +310,114 @@ def build_ambulance_crops(
         f"narrower than 18 px skipped), {counts['negative']} other-vehicle crops → {n} crops in {out}",
         highlight=False,
     )
+
+
+# -------------------------------------------------------------------------------------- train/eval
+def _ev_crops_split(crops: Any) -> tuple[np.ndarray, np.ndarray] | None:
+    """``(train_idx, test_idx)`` when ``crops`` is the ev_crops set of the committed holdout."""
+    from makeway.sense.crops import EV_CROPS_HOLDOUT, holdout_split, read_holdout
+
+    if not EV_CROPS_HOLDOUT.is_file():
+        return None
+    committed = read_holdout(EV_CROPS_HOLDOUT)
+    if not committed.matches(crops):
+        return None
+    return holdout_split(crops, committed)
+
+
+def _metrics(probs: np.ndarray, labels: np.ndarray, threshold: float) -> dict[str, Any]:
+    from makeway.eval.classification import precision_recall_f1, threshold_metrics
+
+    y = np.asarray(labels).astype(bool)
+    pred = probs >= threshold
+    prf = precision_recall_f1(int(np.sum(pred & y)), int(np.sum(pred & ~y)), int(np.sum(~pred & y)))
+    thr = threshold_metrics(probs, y, recall_at=0.8)
+    return {
+        "accuracy": round(float(np.mean(pred == y)), 4),
+        "precision": round(float(prf["precision"]), 4),
+        "recall": round(float(prf["recall"]), 4),
+        "f1": round(float(prf["f1"]), 4),
+        "max_f1": round(float(thr["max_f1"]), 4),
+        "p_at_r80": round(float(thr["precision_at_recall_0.8"]), 4),
+        "n": int(len(y)),
+    }
+
+
+@classify_app.command()
+@friendly_errors
+def train(
+    data: Annotated[
+        list[Path],
+        typer.Option("--data", help="Crop folder(s): images/ + labels.csv; repeat for several."),
+    ],
+    out: Annotated[
+        Path | None, typer.Option("--out", "-o", help="Head .npz to write [default: the shipped model].")
+    ] = None,
+    threshold: Annotated[float, typer.Option(help="Decision threshold stored with the head.")] = 0.5,
+    seed: Annotated[int, typer.Option(help="Seed of the inner CV that picks C.")] = 0,
+) -> None:
+    """Train the EV crop classifier head (YOLOX-nano features + standardised logistic regression).
+
+    On ev_crops only the training part (the complement of the committed holdout) is used, and the
+    held-out metrics are printed (one JSON line last)."""
+    from makeway.perceive.vision.ev_classifier import DEFAULT_MODEL, EVCropClassifier
+    from makeway.sense.crops import read_crop_folder
+
+    target = out if out is not None else DEFAULT_MODEL
+    clf = EVCropClassifier(threshold=threshold, seed=seed)
+    sets = [(folder, read_crop_folder(folder)) for folder in data]  # all read before any work
+    xs: list[np.ndarray] = []
+    ys: list[np.ndarray] = []
+    parts: list[str] = []
+    held: list[tuple[Any, Path]] = []
+    for folder, crops in sets:
+        split = _ev_crops_split(crops)
+        if split is not None:
+            train_idx, test_idx = split
+            held.append((crops.subset(test_idx), folder))
+            crops = crops.subset(train_idx)
+            what = "training part (committed holdout excluded)"
+        else:
+            what = "all"
+        err_console.print(f"{folder.name}: {what}, {len(crops)} crops ({crops.n_positive} positive)")
+        parts.append(f"{folder.name}: {what}, {len(crops)} crops, {crops.n_positive} positive")
+        xs.append(clf.transform(crops.load_images(clf.input_size, cache=False)))
+        ys.append(crops.labels)
+    clf.fit_features(np.concatenate(xs), np.concatenate(ys), training="; ".join(parts))
+    clf.save(target)
+    err_console.print(f"C = {clf.C:g}; head → {target} ({target.stat().st_size} bytes)", highlight=False)
+    for test_set, folder in held:
+        probs = clf.predict_proba(test_set.load_images(clf.input_size, cache=False))
+        err_console.print(f"held-out metrics on {folder.name} (committed holdout):", highlight=False)
+        print_json_line(_metrics(probs, test_set.labels, clf.threshold))
+
+
+@classify_app.command("eval")
+@friendly_errors
+def eval_cmd(
+    data: Annotated[Path, typer.Option("--data", help="Crop folder: images/ + labels.csv (any image size).")],
+    model: Annotated[
+        Path | None, typer.Option("--model", help="Head .npz [default: the shipped model].")
+    ] = None,
+) -> None:
+    """Score an EV crop classifier head on a crop folder; prints one JSON line last.
+
+    On ev_crops only the committed held-out part is scored."""
+    from makeway.perceive.vision.ev_classifier import DEFAULT_MODEL, EVCropClassifier
+    from makeway.sense.crops import read_crop_folder
+
+    clf = EVCropClassifier.load(model if model is not None else DEFAULT_MODEL)
+    crops = read_crop_folder(data)
+    split = _ev_crops_split(crops)
+    if split is not None:
+        crops = crops.subset(split[1])
+        err_console.print(
+            f"ev_crops: scoring the committed held-out part only ({len(crops)} crops)", highlight=False
+        )
+    else:
+        err_console.print(f"scoring all {len(crops)} crops of {data}", highlight=False)
+    probs = clf.predict_proba(crops.load_images(clf.input_size, cache=False))
+    print_json_line(_metrics(probs, crops.labels, clf.threshold))
 
 
 if __name__ == "__main__":

@@ -56,16 +56,30 @@ def detect(
     stride: Annotated[int, typer.Option(min=1, help="Process every N-th frame.")] = 1,
     max_frames: Annotated[int | None, typer.Option(min=1, help="Stop after N processed frames.")] = None,
     no_video: Annotated[bool, typer.Option("--no-video", help="Skip the annotated mp4.")] = False,
+    classifier: Annotated[
+        str,
+        typer.Option(
+            help="Per-track EV crop classifier: a head .npz, 'default' (the shipped one) or 'none'. "
+            "With one, tracks get smoothed EV states (slower: see docs/model_card_ev_head.md)."
+        ),
+    ] = "none",
     as_json: Annotated[bool, typer.Option("--json", help="Print the run summary as one JSON line.")] = False,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")] = False,
 ) -> None:
-    """Detect and track vehicles in a video (Framework B: detector → SORT → smoother).
+    """Detect and track vehicles in a video (Framework B: detector → SORT → [classifier] → smoother).
 
     Writes OUT/annotated.mp4 (H.264, boxes, ids, EV state colours, FPS), OUT/tracks.jsonl (one JSON
     object per frame) and OUT/summary.json (timings per stage, real-time factor).
     """
     from makeway.pipeline.video import run_video
 
+    track_classifier = None
+    if classifier.strip().lower() != "none":
+        from makeway.perceive.vision.ev_classifier import DEFAULT_MODEL, EVCropClassifier, EVTrackClassifier
+
+        head = DEFAULT_MODEL if classifier.strip().lower() == "default" else Path(classifier)
+        track_classifier = EVTrackClassifier(EVCropClassifier.load(head))
+        track_classifier.classifier.features  # noqa: B018 - build the extractor now: bad weights fail early
     out_dir = out if out is not None else Path("makeway_out") / video.stem
     summary = run_video(
         video,
@@ -76,6 +90,7 @@ def detect(
         stride=stride,
         max_frames=max_frames,
         write_video=not no_video,
+        classifier=track_classifier,
         progress=not quiet,
     )
     table = Table(title=f"makeway detect — {video.name}", show_header=False)

@@ -1,0 +1,298 @@
+"""The shipped per-track EV crop classifier (issue 3, SPEC §1): YOLOX-nano features + logistic head.
+
+:class:`EVCropClassifier` is a scikit-learn style estimator: pooled YOLOX-nano backbone features
+(:class:`~makeway.perceive.vision.backbone.BackboneFeatures`, ``d = 1280`` at 160 px) followed by a
+head of standardisation + logistic regression (``C`` picked by an inner 5-fold CV). The
+feature extractor is the detector's own ONNX file, so only the head is stored — as a plain ``.npz``
+(no pickle): ``mean``, ``scale``, ``coef``, ``intercept`` plus metadata (feature layers, input
+size, ``C``, decision threshold, a description of the training data, format version).
+
+:data:`DEFAULT_MODEL` is the head shipped inside the package (``makeway/models``), trained with
+``makeway classify train`` (see ``docs/model_card_ev_head.md``). The label it learnt is "this crop
+shows an emergency vehicle", not "its lights are on".
+
+:class:`EVTrackClassifier` adapts it to :class:`~makeway.pipeline.video.TrackClassifier`: square
+crops of every track of a frame (10 % context per side), one batch, one
+:class:`~makeway.messages.EVObservation` per track (``probability=None`` for tracks under 18 px
+wide or outside the image).
+"""
+
+from __future__ import annotations
+
+import warnings
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from makeway.atomic import atomic_path
+from makeway.errors import InputError
+from makeway.messages import EVObservation, Track
+from makeway.perceive.vision.backbone import DEFAULT_LAYERS, BackboneFeatures
+from makeway.perceive.vision.crops import MIN_CROP_WIDTH_PX, crops_for_tracks
+
+__all__ = ["DEFAULT_MODEL", "FORMAT_VERSION", "EVCropClassifier", "EVTrackClassifier"]
+
+#: The head shipped with the package (trained on the ev_crops training part; see the model card).
+DEFAULT_MODEL = Path(__file__).resolve().parents[2] / "models" / "ev_head_yolox_logreg.npz"
+
+#: Version of the ``.npz`` layout written by :meth:`EVCropClassifier.save`.
+FORMAT_VERSION = 1
+
+_ARRAYS = ("mean", "scale", "coef", "intercept")
+_META = ("format_version", "layers", "input_size", "threshold", "C", "training")
+
+
+class EVCropClassifier:
+    """YOLOX-nano backbone features + standardised logistic regression on square vehicle crops.
+
+    Args:
+        layers: backbone layers (names of :data:`~makeway.perceive.vision.backbone.LAYERS`).
+        input_size: side of the square the crops are resized to (a multiple of 32).
+        threshold: decision threshold of :meth:`predict` on the probability.
+        Cs: inverse regularisation strengths tried by the inner 5-fold CV of :meth:`fit`.
+        model_path: ``yolox_nano.onnx`` or its folder (``None`` searches as the detectors do).
+        num_threads: ONNX Runtime threads of the feature extractor (``None``: all cores).
+        seed: seed of the inner CV folds.
+
+    The feature extractor is built on first use. Images are ``uint8`` BGR ``(n, H, W, 3)`` of any
+    square-ish size (they are stretched to ``input_size``).
+    """
+
+    def __init__(
+        self,
+        *,
+        layers: Sequence[str] = DEFAULT_LAYERS,
+        input_size: int = 160,
+        threshold: float = 0.5,
+        Cs: Sequence[float] = (1e-4, 1e-3, 1e-2, 1e-1, 1.0),
+        model_path: str | Path | None = None,
+        num_threads: int | None = None,
+        seed: int = 0,
+    ) -> None:
+        if not 0.0 < threshold < 1.0:
+            raise ValueError(f"threshold must be in (0, 1), got {threshold}")
+        self.layers = tuple(layers)
+        self.input_size = int(input_size)
+        self.threshold = float(threshold)
+        self.Cs = tuple(float(c) for c in Cs)
+        self.model_path = model_path
+        self.num_threads = num_threads
+        self.seed = int(seed)
+        self.training = ""
+        self.C: float | None = None
+        self.mean_: np.ndarray | None = None
+        self.scale_: np.ndarray | None = None
+        self.coef_: np.ndarray | None = None
+        self.intercept_: float | None = None
+        self._features: BackboneFeatures | None = None
+
+    def __repr__(self) -> str:
+        state = f"C={self.C:g}" if self.C is not None else "unfitted"
+        return (
+            f"{type(self).__name__}(layers={self.layers}, input_size={self.input_size}, "
+            f"threshold={self.threshold:g}, {state})"
+        )
+
+    # -------------------------------------------------------------------------------- features
+
+    @property
+    def features(self) -> BackboneFeatures:
+        """The YOLOX-nano feature extractor (built on first use)."""
+        if self._features is None:
+            self._features = BackboneFeatures(
+                self.model_path, layers=self.layers, input_size=self.input_size, num_threads=self.num_threads
+            )
+        return self._features
+
+    def transform(self, images: np.ndarray) -> np.ndarray:
+        """Backbone features ``(n, d)`` of ``uint8`` BGR crops ``(n, H, W, 3)``."""
+        arr = np.asarray(images)
+        if arr.ndim != 4 or arr.shape[3] != 3 or arr.dtype != np.uint8:
+            raise ValueError(f"expected uint8 BGR images (n, H, W, 3), got {arr.dtype} {arr.shape}")
+        if len(arr) == 0:
+            return np.empty((0, self.features.dim), dtype=np.float32)
+        return self.features.transform(arr)
+
+    # ------------------------------------------------------------------------------------- fit
+
+    def fit(self, images: np.ndarray, labels: np.ndarray, *, training: str = "") -> EVCropClassifier:
+        """Fit the head on crops and 0/1 labels; ``training`` describes the data (stored on save)."""
+        return self.fit_features(self.transform(images), labels, training=training)
+
+    def fit_features(self, x: np.ndarray, labels: np.ndarray, *, training: str = "") -> EVCropClassifier:
+        """Fit the head on precomputed features ``(n, d)`` (as :meth:`transform` returns them)."""
+        from sklearn.linear_model import LogisticRegressionCV
+        from sklearn.model_selection import StratifiedKFold
+
+        x = np.asarray(x, dtype=np.float64)
+        y = np.asarray(labels).astype(np.int64).ravel()
+        if x.ndim != 2 or len(x) != len(y):
+            raise ValueError(f"{len(x)} feature rows but {len(y)} labels")
+        if set(np.unique(y).tolist()) != {0, 1}:
+            raise ValueError("labels must contain both classes 0 and 1")
+        mean = x.mean(axis=0)
+        scale = x.std(axis=0)
+        scale[scale < 1e-12] = 1.0
+        z = (x - mean) / scale
+        folds = StratifiedKFold(n_splits=5, shuffle=True, random_state=self.seed)
+        model = LogisticRegressionCV(Cs=list(self.Cs), cv=folds, max_iter=5000, scoring="accuracy")
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", FutureWarning)  # scikit-learn 1.8 API transition notices
+            model.fit(z, y)
+        self.C = float(np.ravel(model.C_)[0])
+        self.mean_ = mean
+        self.scale_ = scale
+        self.coef_ = np.asarray(model.coef_, dtype=np.float64).ravel()
+        self.intercept_ = float(np.ravel(model.intercept_)[0])
+        self.training = training
+        return self
+
+    def _check_fitted(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+        if self.mean_ is None or self.scale_ is None or self.coef_ is None or self.intercept_ is None:
+            raise ValueError("this EVCropClassifier is not fitted; call fit() or load()")
+        return self.mean_, self.scale_, self.coef_, self.intercept_
+
+    def decision_function_features(self, x: np.ndarray) -> np.ndarray:
+        """Logit ``(n,)`` of precomputed features."""
+        mean, scale, coef, intercept = self._check_fitted()
+        x = np.asarray(x, dtype=np.float64)
+        if x.ndim != 2 or x.shape[1] != len(coef):
+            raise ValueError(f"expected features (n, {len(coef)}), got {x.shape}")
+        result: np.ndarray = ((x - mean) / scale) @ coef + intercept
+        return result
+
+    def predict_proba_features(self, x: np.ndarray) -> np.ndarray:
+        """P(emergency vehicle) ``(n,)`` of precomputed features."""
+        logit = np.clip(self.decision_function_features(x), -50.0, 50.0)
+        result: np.ndarray = 1.0 / (1.0 + np.exp(-logit))
+        return result
+
+    def predict_proba(self, images: np.ndarray) -> np.ndarray:
+        """P(emergency vehicle) ``(n,)`` of ``uint8`` BGR crops ``(n, H, W, 3)``.
+
+        (Unlike scikit-learn's two-column output: one probability per crop.)
+        """
+        self._check_fitted()
+        return self.predict_proba_features(self.transform(images))
+
+    def predict(self, images: np.ndarray) -> np.ndarray:
+        """0/1 ``(n,)``: probability at or above :attr:`threshold`."""
+        return (self.predict_proba(images) >= self.threshold).astype(np.int64)
+
+    # ---------------------------------------------------------------------------------- storage
+
+    def save(self, path: str | Path) -> Path:
+        """Write the head as ``.npz`` (no pickle), all-or-nothing; returns the path."""
+        mean, scale, coef, intercept = self._check_fitted()
+        path = Path(path)
+        arrays: dict[str, Any] = {
+            "mean": mean.astype(np.float64),
+            "scale": scale.astype(np.float64),
+            "coef": coef.astype(np.float64),
+            "intercept": np.float64(intercept),
+            "format_version": np.int64(FORMAT_VERSION),
+            "layers": np.asarray(self.layers, dtype=str),
+            "input_size": np.int64(self.input_size),
+            "threshold": np.float64(self.threshold),
+            "C": np.float64(self.C if self.C is not None else np.nan),
+            "training": np.asarray(self.training, dtype=str),
+        }
+        with atomic_path(path) as tmp, tmp.open("wb") as fh:
+            np.savez_compressed(fh, **arrays)
+        return path
+
+    @classmethod
+    def load(
+        cls, path: str | Path = DEFAULT_MODEL, *, model_path: str | Path | None = None, **kwargs: Any
+    ) -> EVCropClassifier:
+        """Read a head written by :meth:`save`.
+
+        ``model_path`` and other keyword arguments (``num_threads``) go to the constructor; layers,
+        input size and threshold come from the file.
+
+        Raises:
+            InputError: the file is missing, not an ``.npz``, or lacks / has malformed entries
+                (names the file).
+        """
+        path = Path(path)
+        if not path.is_file():
+            raise InputError(path, "EV classifier head not found (train one with `makeway classify train`)")
+        try:
+            with np.load(path, allow_pickle=False) as npz:
+                data = {key: npz[key] for key in npz.files}
+        except Exception as exc:  # zipfile / numpy raise several types on a bad file
+            raise InputError(
+                path, f"not a readable EV classifier head .npz ({type(exc).__name__}: {exc})"
+            ) from None
+        missing = [k for k in (*_ARRAYS, *_META) if k not in data]
+        if missing:
+            raise InputError(path, f"not an EV classifier head: missing {', '.join(missing)}")
+        try:
+            version = int(data["format_version"])
+            if version != FORMAT_VERSION:
+                raise ValueError(f"format version {version}, this makeway reads {FORMAT_VERSION}")
+            mean = np.asarray(data["mean"], dtype=np.float64).ravel()
+            scale = np.asarray(data["scale"], dtype=np.float64).ravel()
+            coef = np.asarray(data["coef"], dtype=np.float64).ravel()
+            intercept = float(data["intercept"])
+            if not (len(mean) == len(scale) == len(coef)) or len(coef) == 0:
+                raise ValueError(f"mean/scale/coef lengths differ ({len(mean)}, {len(scale)}, {len(coef)})")
+            if not all(np.all(np.isfinite(a)) for a in (mean, scale, coef)) or not np.isfinite(intercept):
+                raise ValueError("non-finite values")
+            if np.any(scale <= 0):
+                raise ValueError("scale must be positive")
+            layers = tuple(str(v) for v in np.atleast_1d(data["layers"]).tolist())
+            clf = cls(
+                layers=layers,
+                input_size=int(data["input_size"]),
+                threshold=float(data["threshold"]),
+                model_path=model_path,
+                **kwargs,
+            )
+        except (ValueError, TypeError) as exc:
+            raise InputError(path, f"malformed EV classifier head ({exc})") from None
+        c = float(data["C"])
+        clf.C = c if np.isfinite(c) else None
+        clf.training = str(data["training"])
+        clf.mean_, clf.scale_, clf.coef_, clf.intercept_ = mean, scale, coef, intercept
+        return clf
+
+
+class EVTrackClassifier:
+    """:class:`~makeway.pipeline.video.TrackClassifier` over an :class:`EVCropClassifier`.
+
+    Every track of a frame gets a square crop of its box with ``margin`` context per side; all
+    crops go through the classifier in one batch. Tracks narrower than ``min_width`` pixels (SPEC
+    §1: 18) or off the image get ``probability=None``.
+    """
+
+    def __init__(
+        self, classifier: EVCropClassifier, margin: float = 0.1, *, min_width: float = MIN_CROP_WIDTH_PX
+    ) -> None:
+        if margin < 0:
+            raise ValueError(f"margin must be >= 0, got {margin}")
+        self.classifier = classifier
+        self.margin = float(margin)
+        self.min_width = float(min_width)
+
+    def classify(
+        self, image_bgr: np.ndarray, tracks: Sequence[Track], frame_index: int, time_s: float
+    ) -> list[EVObservation]:
+        probs: list[float | None] = [None] * len(tracks)
+        if tracks:
+            crops, kept = crops_for_tracks(
+                image_bgr,
+                [t.box for t in tracks],
+                margin=self.margin,
+                size=self.classifier.input_size,
+                min_width=self.min_width,
+            )
+            if len(kept):
+                for i, p in zip(kept.tolist(), self.classifier.predict_proba(crops).tolist(), strict=True):
+                    probs[i] = float(p)
+        return [
+            EVObservation(t.track_id, frame_index, time_s, p, source="vision")
+            for t, p in zip(tracks, probs, strict=True)
+        ]
