@@ -12,6 +12,7 @@ from pathlib import Path
 import pytest
 
 from makeway.paths import data_candidates, data_dir
+from makeway.sense.crops import CropSet
 
 
 def _require_data() -> Path:
@@ -45,3 +46,14 @@ def video_dir(data_root: Path) -> Path:
     if not root.is_dir():
         pytest.fail(f"{root} missing from the shared data")
     return root
+
+
+@pytest.fixture(scope="session")
+def ev_crops(data_root: Path) -> CropSet:
+    """The labelled ev_crops folder (1246 crops), read once per test session."""
+    from makeway.sense.crops import read_crop_folder
+
+    root = data_root / "vision" / "ev_crops"
+    if not root.is_dir():
+        pytest.fail(f"{root} missing from the shared data")
+    return read_crop_folder(root)

@@ -13,16 +13,8 @@ import pytest
 from makeway.errors import InputError
 from makeway.perceive.vision.backbone import DEFAULT_LAYERS, BackboneFeatures
 from makeway.perceive.vision.features import FEATURES
-from makeway.sense.crops import EV_CROPS_HOLDOUT, CropSet, holdout_split, read_crop_folder, read_holdout
+from makeway.sense.crops import EV_CROPS_HOLDOUT, CropSet, holdout_split, read_holdout
 from makeway.train.classical import run_study
-
-
-@pytest.fixture(scope="module")
-def ev_crops(data_root: Path) -> CropSet:
-    root = data_root / "vision" / "ev_crops"
-    if not root.is_dir():
-        pytest.fail(f"{root} missing from the shared data")
-    return read_crop_folder(root)
 
 
 @pytest.fixture(scope="module")

@@ -44,14 +44,6 @@ runner = CliRunner()
 
 
 @pytest.fixture(scope="module")
-def ev_crops(data_root: Path) -> CropSet:
-    root = data_root / "vision" / "ev_crops"
-    if not root.is_dir():
-        pytest.fail(f"{root} missing from the shared data")
-    return read_crop_folder(root)
-
-
-@pytest.fixture(scope="module")
 def yolo_root(data_root: Path) -> Path:
     root = data_root / "vision" / "ambulance_yolo" / "valid"
     if not root.is_dir():
