@@ -225,5 +225,59 @@ def eval_cmd(
     print_json_line(result)
 
 
+@audio_app.command()
+@friendly_errors
+def listen(
+    path: Annotated[Path, typer.Argument(help="A recording folder.")],
+    method: Annotated[str, typer.Option(help="Bearing method: gccphat, srp or normmusic.")] = "gccphat",
+    plot: Annotated[
+        Path | None, typer.Option("--plot", help="Write a spectrogram + polar bearing plot (PNG).")
+    ] = None,
+    jsonl: Annotated[
+        Path | None,
+        typer.Option("--jsonl", help="Write the messages to this JSONL file and print a summary instead."),
+    ] = None,
+    window: Annotated[float, typer.Option(min=0.05, help="Window length (s).")] = 0.5,
+    hop: Annotated[float, typer.Option(min=0.01, help="Hop between windows (s).")] = 0.17,
+) -> None:
+    """Slide over a recording: one JSON line per hop (is_siren, probability, sources with bearing,
+    distance — null without a trained model — and approaching/receding)."""
+    from makeway.perceive.audio.doa import DOA_METHODS
+    from makeway.perceive.audio.stream import listen as listen_stream
+    from makeway.perceive.audio.stream import plot_listen
+    from makeway.sense.recording import read_recording
+
+    if method not in DOA_METHODS:
+        raise ValueError(f"--method must be one of {'|'.join(DOA_METHODS)}, not {method!r}")
+    if not path.exists():
+        raise InputError(path, "no such folder")
+    rec = read_recording(path)
+    t0 = time.perf_counter()
+    messages = []
+    for msg in listen_stream(rec, window_s=window, hop_s=hop, method=method):
+        messages.append(msg)
+        if jsonl is None:
+            print_json_line(msg)
+    wall = time.perf_counter() - t0
+    if jsonl is not None:
+        from makeway.atomic import write_text_atomic
+
+        write_text_atomic(jsonl, "".join(json.dumps(m, separators=(",", ":")) + "\n" for m in messages))
+    if plot is not None:
+        plot_listen(messages, rec, plot, window_s=window)
+    if jsonl is not None:
+        n_siren = sum(1 for m in messages if m["is_siren"])
+        print_json_line(
+            {
+                "recording": str(path),
+                "messages": len(messages),
+                "siren_messages": n_siren,
+                "ms_per_hop": round(1000.0 * wall / max(len(messages), 1), 2),
+                "jsonl": str(jsonl),
+                "plot": None if plot is None else str(plot),
+            }
+        )
+
+
 if __name__ == "__main__":
     audio_app()

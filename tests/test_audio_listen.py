@@ -1,0 +1,117 @@
+"""Issue 4, items 3 and 6: the approaching/receding estimator and streaming ``makeway audio listen``."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from makeway.cli.audio import audio_app
+from makeway.perceive.audio.doa import wrap_angle
+from makeway.perceive.audio.features import window_batch
+from makeway.perceive.audio.labels import label_recording
+from makeway.perceive.audio.motion import ApproachEstimator
+from makeway.perceive.audio.stream import listen, plot_listen
+from makeway.sense.recording import Recording, write_recording
+from makeway.sim.audio_scenarios import simulate_recording
+
+MESSAGE_KEYS = {"t_end", "is_siren", "probability", "sources"}
+SOURCE_KEYS = {"bearing_rad", "bearing_deg", "distance_m", "approaching"}
+
+
+@pytest.fixture(scope="module")
+def pass_rec() -> Recording:
+    """An EV closing from behind and overtaking (passes the array at ~7.5 s of 12 s)."""
+    return simulate_recording("from_behind", 12.0, seed=3, siren="synth", noise="generated")
+
+
+@pytest.fixture(scope="module")
+def messages(pass_rec: Recording) -> list[dict]:
+    return list(listen(pass_rec))
+
+
+def test_one_message_per_window_with_keys(pass_rec: Recording, messages: list[dict]) -> None:
+    labels = label_recording(pass_rec)
+    assert len(messages) == len(labels) > 0
+    np.testing.assert_allclose([m["t_end"] for m in messages], labels.t_end, atol=1e-6)
+    for m in messages:
+        assert set(m) == MESSAGE_KEYS
+        assert 0.0 <= m["probability"] <= 1.0 and m["is_siren"] == (m["probability"] >= 0.5)
+        assert len(m["sources"]) == (1 if m["is_siren"] else 0)
+        for s in m["sources"]:
+            assert set(s) == SOURCE_KEYS and s["distance_m"] is None
+            assert s["approaching"] in (True, False, None)
+            assert s["bearing_deg"] == pytest.approx(math.degrees(s["bearing_rad"]), abs=1e-3)
+    json.dumps(messages)  # JSON-ready
+
+
+def test_bearings_follow_the_labels(pass_rec: Recording, messages: list[dict]) -> None:
+    labels = label_recording(pass_rec)
+    theta, _ = labels.nearest()
+    errs = [
+        abs(math.degrees(float(wrap_angle(m["sources"][0]["bearing_rad"] - theta[i]))))
+        for i, m in enumerate(messages)
+        if m["is_siren"] and labels.siren[i]
+    ]
+    assert len(errs) >= 0.5 * labels.siren.sum()
+    assert np.mean(np.array(errs) <= 15.0) >= 0.6
+
+
+def test_plot_is_written(pass_rec: Recording, messages: list[dict], tmp_path: Path) -> None:
+    out = plot_listen(messages, pass_rec, tmp_path / "sub" / "listen.png")
+    assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert [p.name for p in out.parent.iterdir()] == ["listen.png"]
+
+
+def test_approach_estimator_on_clear_segments(pass_rec: Recording) -> None:
+    labels = label_recording(pass_rec)
+    batch = window_batch(pass_rec, labels)
+    est = ApproachEstimator()
+    out = [est.update(batch[w], pass_rec.sample_rate, float(labels.t_end[w])) for w in range(len(labels))]
+    assert out[0] == (None, None)  # not enough history yet
+    rate = labels.range_rate[:, 0]
+    clear = np.abs(rate) > 3.0
+    truth = rate < 0
+    decided = np.array([a is not None for a, _ in out])
+    pred = np.array([bool(a) for a, _ in out])
+    acc = np.mean(pred[clear & decided] == truth[clear & decided])
+    assert np.sum(clear & decided) >= 0.8 * np.sum(clear)
+    assert acc >= 0.8
+    # both phases are recognised: the approach early on, the recession at the end
+    assert pred[clear & truth & decided].mean() > 0.7 and (~pred[clear & ~truth & decided]).mean() > 0.7
+    est.reset()
+    assert est.state_ is None and not est.frames_
+
+
+def test_approach_estimator_checks_settings() -> None:
+    with pytest.raises(ValueError):
+        ApproachEstimator(history_s=1.0, min_history_s=2.0)
+    with pytest.raises(ValueError):
+        ApproachEstimator(on_db_s=0.1, off_db_s=0.5)
+
+
+def test_cli_listen(tmp_path: Path) -> None:
+    rec = simulate_recording("crossing", 1.5, seed=1, siren="synth", noise="generated")
+    folder = write_recording(tmp_path / "rec", rec)
+    runner = CliRunner()
+    res = runner.invoke(audio_app, ["listen", str(folder)])
+    assert res.exit_code == 0, res.output
+    lines = [json.loads(x) for x in res.stdout.splitlines() if x.strip()]
+    assert len(lines) == len(label_recording(rec)) and set(lines[0]) == MESSAGE_KEYS
+
+    out, png = tmp_path / "o" / "msgs.jsonl", tmp_path / "o" / "plot.png"
+    res = runner.invoke(audio_app, ["listen", str(folder), "--jsonl", str(out), "--plot", str(png)])
+    assert res.exit_code == 0, res.output
+    summary = json.loads(res.stdout.strip().splitlines()[-1])
+    assert summary["messages"] == len(lines) and png.exists()
+    assert [json.loads(x) for x in out.read_text().splitlines()] == lines
+
+    missing = tmp_path / "nope"
+    res = runner.invoke(audio_app, ["listen", str(missing)])
+    assert res.exit_code == 2 and "nope" in res.output
+    res = runner.invoke(audio_app, ["listen", str(folder), "--method", "bogus"])
+    assert res.exit_code == 2
