@@ -9,13 +9,13 @@ against time with the field-test bounds), ``states.png`` (yield state and percep
 from __future__ import annotations
 
 import json
-import math
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from makeway.atomic import atomic_path, write_text_atomic
+from makeway.jsonable import to_jsonable
 from makeway.messages import YieldState
 from makeway.pipeline.closed_loop import ClosedLoopResult
 from makeway.sim.scenarios import Scenario
@@ -146,7 +146,7 @@ def write_closed_loop_report(
         "scenario": scenario.name,
         "description": scenario.description,
         "controller": result.controller,
-        "metrics": _clean(result.metrics),
+        "metrics": to_jsonable(result.metrics, digits=5),
         "transitions": [
             {"time_s": round(tt, 3), "from": a, "to": b, "reason": why}
             for tt, a, b, why in result.transitions
@@ -156,13 +156,3 @@ def write_closed_loop_report(
     write_text_atomic(out / "metrics.json", json.dumps(doc, indent=2) + "\n")
     files["metrics"] = str(out / "metrics.json")
     return files
-
-
-def _clean(value: Any) -> Any:
-    if isinstance(value, float):
-        return round(value, 5) if math.isfinite(value) else None
-    if isinstance(value, dict):
-        return {k: _clean(v) for k, v in value.items()}
-    if isinstance(value, list | tuple):
-        return [_clean(v) for v in value]
-    return value

@@ -25,7 +25,7 @@ import numpy as np
 from makeway.control import LATERAL_CONTROLLERS, LongitudinalController
 from makeway.decide import YieldConfig, YieldStateMachine
 from makeway.messages import ControlCommand, RoadContext, VehicleState, YieldState
-from makeway.plan.path import nearest_index, point_at
+from makeway.plan.path import lateral_offsets, nearest_index, point_at
 from makeway.plan.planner import YieldPlanner
 from makeway.sim.perception import EVTruth, PerceptionConfig, SimulatedPerception
 from makeway.sim.scenarios import EVPlan, Scenario
@@ -334,13 +334,9 @@ def compute_metrics(
     gap = log["gap_to_ev"]
     stopped = t_stop is not None
     action = _action(actions)
-    inter_ok = True
-    for s0, s1 in scenario.intersections:
-        rest = speeds < 0.2
-        lane_s = log["lane_s"]
-        inside = (lane_s + 0.5 * EGO_LENGTH_M > s0) & (lane_s - 0.5 * EGO_LENGTH_M < s1)
-        if np.any(rest & inside):
-            inter_ok = False
+    rest = speeds < 0.2
+    front, rear = log["lane_s"] + 0.5 * EGO_LENGTH_M, log["lane_s"] - 0.5 * EGO_LENGTH_M
+    inter_ok = not any(np.any(rest & (front > s0) & (rear < s1)) for s0, s1 in scenario.intersections)
     return {
         "scenario": scenario.name,
         "max_abs_e_lat_m": float(np.max(np.abs(log["e_lat"][man]))),
@@ -363,7 +359,9 @@ def compute_metrics(
         "action_ok": action == scenario.expected_action,
         "final_state": transitions[-1][2] if transitions else YieldState.NO_EV.value,
         "final_speed_mps": float(speeds[-1]),
-        "max_offset_from_lane_m": _max_offset_from_lane(scenario, log),
+        "max_offset_from_lane_m": float(
+            np.max(np.abs(lateral_offsets(scenario.lane, log["x"][::20], log["y"][::20])))
+        ),
         "transitions": len(transitions),
     }
 
@@ -376,14 +374,3 @@ def _action(actions: list[tuple[float, str, str]]) -> str:
         return moving[-1]
     others = [a for _, _, a in actions if a not in ("continue", "resume", "wait")]
     return others[0] if others else "continue"
-
-
-def _max_offset_from_lane(scenario: Scenario, log: dict[str, np.ndarray]) -> float:
-    lane = scenario.lane
-    best = 0.0
-    for x, y in zip(log["x"][::20], log["y"][::20], strict=True):
-        k = nearest_index(lane, float(x), float(y))
-        h = lane.heading_rad[k]
-        off = -math.sin(h) * (x - lane.x_m[k]) + math.cos(h) * (y - lane.y_m[k])
-        best = max(best, abs(float(off)))
-    return best

@@ -16,14 +16,14 @@ folder appears complete or not at all.
 from __future__ import annotations
 
 import json
-import shutil
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from makeway.errors import InputError
+from makeway.atomic import atomic_dir
 from makeway.eval.closed_loop_report import FIELD_TEST, write_closed_loop_report
+from makeway.jsonable import to_jsonable
 from makeway.pipeline.closed_loop import ClosedLoopResult, run_scenario
 from makeway.pipeline.tracking_demo import run_tracking_demo
 from makeway.progress import progress_bar
@@ -56,23 +56,13 @@ class DemoSummary:
         }
 
 
-def _check_target(out: Path) -> None:
-    if out.exists() and any(out.iterdir()) and not (out / "summary.json").exists():
-        raise InputError(out, "exists and is not an earlier makeway demo report; choose another --out")
-
-
 def run_demo(
     out_dir: str | Path, *, write_video: bool = True, progress: bool = True, tracking_duration_s: float = 20.0
 ) -> DemoSummary:
     """Run the three parts of the demo into ``out_dir`` (see the module docstring)."""
     out = Path(out_dir)
-    _check_target(out)
-    stage = out.parent / f".{out.name}.partial"
-    if stage.exists():
-        shutil.rmtree(stage)
-    stage.mkdir(parents=True)
     t0 = time.perf_counter()
-    try:
+    with atomic_dir(out, marker="summary.json") as stage:
         names = list(SCENARIOS)
         runs: dict[str, ClosedLoopResult] = {}
         baselines: dict[str, dict[str, Any]] = {}
@@ -109,14 +99,8 @@ def run_demo(
         )
         (stage / "report.md").write_text(_report(summary), encoding="utf-8")
         (stage / "summary.json").write_text(
-            json.dumps(_jsonable(summary.to_json()), indent=2) + "\n", encoding="utf-8"
+            json.dumps(to_jsonable(summary.to_json()), indent=2) + "\n", encoding="utf-8"
         )
-        if out.exists():
-            shutil.rmtree(out)
-        stage.rename(out)
-    except BaseException:
-        shutil.rmtree(stage, ignore_errors=True)
-        raise
     summary.files = {
         "report": str(out / "report.md"),
         "summary": str(out / "summary.json"),
@@ -125,16 +109,6 @@ def run_demo(
     }
     summary.tracking["out_dir"] = str(out / "tracking")
     return summary
-
-
-def _jsonable(value: Any) -> Any:
-    if isinstance(value, float):
-        return round(value, 5) if value == value and abs(value) != float("inf") else None
-    if isinstance(value, dict):
-        return {str(k): _jsonable(v) for k, v in value.items()}
-    if isinstance(value, list | tuple):
-        return [_jsonable(v) for v in value]
-    return value
 
 
 def _f(v: Any, digits: int = 3) -> str:

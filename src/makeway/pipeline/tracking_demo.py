@@ -28,8 +28,6 @@ from __future__ import annotations
 import contextlib
 import json
 import math
-import shutil
-import tempfile
 import time
 from collections import Counter, defaultdict
 from collections.abc import Sequence
@@ -40,9 +38,10 @@ from typing import Any
 import numpy as np
 
 from makeway import __version__
-from makeway.errors import InputError
+from makeway.atomic import atomic_dir
 from makeway.eval.classification import precision_recall_f1, threshold_metrics
 from makeway.eval.mot import evaluate_mot
+from makeway.jsonable import to_jsonable
 from makeway.messages import Box, EVObservation, EVState, EVTrackState, PerceptionFrame, Track
 from makeway.progress import progress_bar
 from makeway.sense.motfile import MotData
@@ -104,28 +103,12 @@ class TrackingDemoSummary:
             "num_frames",
             "elapsed_s",
         ):
-            out[key] = _clean(getattr(self, key))
-        out.update(_clean(self.extra))
+            out[key] = to_jsonable(getattr(self, key))
+        out.update(to_jsonable(self.extra))
         return out
 
 
 # ---------------------------------------------------------------------------------------- helpers
-
-
-def _clean(value: Any) -> Any:
-    """Make ``value`` strict-JSON friendly: NaN/inf → None, floats rounded, tuples → lists."""
-    if isinstance(value, float | np.floating):
-        v = float(value)
-        return round(v, 6) if math.isfinite(v) else None
-    if isinstance(value, np.integer):
-        return int(value)
-    if isinstance(value, dict):
-        return {str(k): _clean(v) for k, v in value.items()}
-    if isinstance(value, list | tuple):
-        return [_clean(v) for v in value]
-    if isinstance(value, Path):
-        return str(value)
-    return value
 
 
 @dataclass
@@ -164,36 +147,8 @@ def run_tracking_demo(
     """
     t_start = time.perf_counter()
     out = Path(out_dir).expanduser().absolute()
-    _check_target(out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    stage = Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".partial", dir=out.parent))
-    stage.chmod(0o755)  # mkdtemp makes it private; the published report folder should not be
-    try:
-        summary = _run(out, stage, seed, duration_s, write_video, progress, t_start)
-        _publish(stage, out)
-    except BaseException:
-        shutil.rmtree(stage, ignore_errors=True)
-        raise
-    return summary
-
-
-def _check_target(out: Path) -> None:
-    if out.exists() and not out.is_dir():
-        raise InputError(out, "exists and is not a folder; choose another output folder")
-    if out.is_dir() and any(out.iterdir()) and not (out / "summary.json").is_file():
-        raise InputError(out, "is a non-empty folder that is not a makeway demo output; choose another")
-
-
-def _publish(stage: Path, out: Path) -> None:
-    """Rename ``stage`` to ``out``, replacing an earlier demo output there."""
-    old: Path | None = None
-    if out.exists():
-        _check_target(out)
-        old = out.with_name(f".{out.name}.old.{stage.name.rsplit('.', 2)[-2]}")
-        out.rename(old)
-    stage.rename(out)
-    if old is not None:
-        shutil.rmtree(old, ignore_errors=True)
+    with atomic_dir(out, marker="summary.json") as stage:
+        return _run(out, stage, seed, duration_s, write_video, progress, t_start)
 
 
 def _run(
@@ -254,7 +209,7 @@ def _run(
         "evs": metrics["evs"],
         "timing_s": timing,
     }
-    (stage / "summary.json").write_text(json.dumps(_clean(doc), indent=2) + "\n", encoding="utf-8")
+    (stage / "summary.json").write_text(json.dumps(to_jsonable(doc), indent=2) + "\n", encoding="utf-8")
     (stage / "report.md").write_text(_report(summary, doc, write_video), encoding="utf-8")
     return summary
 

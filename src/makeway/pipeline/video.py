@@ -15,6 +15,7 @@ leaves nothing half-written.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import queue
@@ -356,7 +357,7 @@ def run_video(
     recent: deque[float] = deque(maxlen=26)  # completion times of the last frames, for the FPS overlay
 
     with progress_bar(f"detect {Path(video).name}", total, enabled=progress) as advance:
-        jsonl_ctx = atomic_path(out / "tracks.jsonl") if out is not None else _null_path()
+        jsonl_ctx = atomic_path(out / "tracks.jsonl") if out is not None else contextlib.nullcontext()
         with jsonl_ctx as jsonl_tmp:
             jsonl = jsonl_tmp.open("w", encoding="utf-8") if jsonl_tmp is not None else None
             writer: H264Writer | None = None
@@ -441,11 +442,3 @@ def run_video(
         summary.outputs["summary"] = str(out / "summary.json")
         write_text_atomic(out / "summary.json", json.dumps(summary.to_json(), indent=2) + "\n")
     return summary
-
-
-class _null_path:  # noqa: N801 - used like a context-manager function
-    def __enter__(self) -> None:
-        return None
-
-    def __exit__(self, *exc: object) -> None:
-        return None

@@ -18,6 +18,7 @@ from makeway.plan.curvefit import (
 from makeway.plan.path import (
     MIN_TRANSITION_M,
     curved_road,
+    lateral_offsets,
     load_path_csv,
     make_path,
     min_transition_m,
@@ -36,6 +37,7 @@ __all__ = [
     "curved_road",
     "fit_circle",
     "fit_local",
+    "lateral_offsets",
     "load_path_csv",
     "make_path",
     "min_transition_m",

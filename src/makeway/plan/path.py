@@ -554,6 +554,18 @@ def nearest_index(path: ReferencePath, x: float, y: float, hint: int | None = No
     return lo + int(np.argmin(dx * dx + dy * dy))
 
 
+def lateral_offsets(path: ReferencePath, xs: np.ndarray, ys: np.ndarray) -> np.ndarray:
+    """Signed lateral offset of each point ``(xs[i], ys[i])`` from ``path`` (left positive, SPEC §6
+    sign convention), measured from the nearest path point along its left normal."""
+    out = np.empty(len(xs))
+    hint: int | None = None
+    for i, (x, y) in enumerate(zip(xs, ys, strict=True)):
+        hint = nearest_index(path, float(x), float(y), hint)
+        h = path.heading_rad[hint]
+        out[i] = -math.sin(h) * (x - path.x_m[hint]) + math.cos(h) * (y - path.y_m[hint])
+    return out
+
+
 def point_at(path: ReferencePath, s_m: float) -> tuple[float, float, float]:
     """``(x, y, heading)`` at arc length ``s_m`` by linear interpolation between path points (SPEC §6).
 

@@ -10,8 +10,6 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
-import numpy as np
-
 from makeway.messages import ReferencePath, YieldDecision, YieldState
 from makeway.plan.path import min_transition_m, nearest_index, offset_path, pull_over_path
 
@@ -110,13 +108,3 @@ class YieldPlanner:
             return None
         k = nearest_index(self.path, x, y, hint)
         return float(self.path.stop_s_m - self.path.s_m[k])
-
-
-def path_offsets(path: ReferencePath, lane: ReferencePath) -> np.ndarray:
-    """Signed lateral offset of each path point from the lane (left positive), for plots."""
-    out = np.empty(len(path))
-    for i, (px, py) in enumerate(zip(path.x_m, path.y_m, strict=True)):
-        k = nearest_index(lane, float(px), float(py))
-        h = lane.heading_rad[k]
-        out[i] = -np.sin(h) * (px - lane.x_m[k]) + np.cos(h) * (py - lane.y_m[k])
-    return out

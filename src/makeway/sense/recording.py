@@ -27,10 +27,7 @@ positions in that gap are held at the end value).
 from __future__ import annotations
 
 import math
-import os
 import re
-import shutil
-import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -38,6 +35,7 @@ from typing import Any
 import numpy as np
 import yaml
 
+from makeway.atomic import atomic_dir
 from makeway.errors import InputError
 
 AUDIO_FILE = "audio.flac"
@@ -387,9 +385,7 @@ def write_recording(folder: str | Path, rec: Recording, *, overwrite: bool = Tru
     if target.exists() and not overwrite:
         raise FileExistsError(target)
 
-    target.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{target.name}.", suffix=".partial", dir=target.parent))
-    try:
+    with atomic_dir(target) as tmp:
         sf.write(str(tmp / AUDIO_FILE), audio, int(rec.sample_rate), format="FLAC", subtype="PCM_24")
         array_doc = {
             "sample_rate": int(rec.sample_rate),
@@ -401,25 +397,8 @@ def write_recording(folder: str | Path, rec: Recording, *, overwrite: bool = Tru
             _write_csv(tmp / f"source_{k}.csv", SOURCE_COLUMNS, (src.t, src.x, src.y))
         if rec.meta:
             (tmp / META_FILE).write_text(yaml.safe_dump(_plain(rec.meta), sort_keys=False), encoding="utf-8")
-        os.chmod(tmp, 0o755 & ~_umask())
-        if target.exists():
-            old = Path(tempfile.mkdtemp(prefix=f".{target.name}.", suffix=".old", dir=target.parent))
-            os.replace(target, old / "x")
-            os.replace(tmp, target)
-            shutil.rmtree(old, ignore_errors=True)
-        else:
-            os.replace(tmp, target)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
     rec.path = target
     return target
-
-
-def _umask() -> int:
-    mask = os.umask(0)
-    os.umask(mask)
-    return mask
 
 
 def _write_csv(path: Path, columns: tuple[str, ...], arrays: tuple[np.ndarray | None, ...]) -> None:

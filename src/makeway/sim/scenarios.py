@@ -29,7 +29,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from makeway.messages import ReferencePath
-from makeway.plan.path import curved_road, make_path, straight_road
+from makeway.plan.path import curved_road, make_path, offset_path, straight_road
 
 LANE_WIDTH_M = 3.5
 
@@ -78,8 +78,6 @@ def _const(v: float) -> Callable[[float], float]:
 
 
 def _lane_lines(lane: ReferencePath, offsets: list[float]) -> tuple[ReferencePath, ...]:
-    from makeway.plan.path import offset_path
-
     return tuple(offset_path(lane, o) for o in offsets)
 
 
