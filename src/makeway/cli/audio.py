@@ -10,7 +10,7 @@ from __future__ import annotations
 import json
 import time
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
 
@@ -48,6 +48,13 @@ def simulate(
     two_siren_fraction: Annotated[
         float, typer.Option(min=0.0, max=1.0, help="Share of siren recordings with two EVs.")
     ] = 0.1,
+    split: Annotated[
+        str,
+        typer.Option(
+            help="Real ingredients to draw from: all, train or test (siren models, clip blocks and "
+            "street recordings are split by a fixed hash of their group, 80/20)."
+        ),
+    ] = "all",
     as_json: Annotated[bool, typer.Option("--json", help="Print the summary as one JSON line.")] = False,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")] = False,
 ) -> None:
@@ -57,11 +64,17 @@ def simulate(
     real siren clips/tones and street recordings from ../shared/data when present, the procedural
     siren synthesizer and generated noise otherwise.
     """
+    from makeway.paths import data_dir
+    from makeway.sim.acoustics import load_street_noise_sources
     from makeway.sim.audio_scenarios import AUDIO_SCENARIOS, generate_recordings
+    from makeway.sim.siren import load_siren_sources, split_sources
 
     scenarios = tuple(scenario) if scenario else AUDIO_SCENARIOS
     if siren not in ("auto", "synth", "real"):
         raise ValueError(f"--siren must be auto, synth or real, not {siren!r}")
+    root = data_dir()
+    siren_pool = split_sources(load_siren_sources(root), split) if root is not None else []
+    noise_pool = split_sources(load_street_noise_sources(root), split) if root is not None else []
     t0 = time.perf_counter()
     paths = generate_recordings(
         out,
@@ -73,11 +86,14 @@ def simulate(
         noise=noise,
         no_siren_fraction=no_siren_fraction,
         two_siren_fraction=two_siren_fraction,
+        siren_pool=siren_pool if siren != "synth" else [],
+        noise_pool=noise_pool if noise != "generated" else [],
         progress=not quiet,
     )
     wall = time.perf_counter() - t0
     summary = {
         "out": str(out),
+        "split": split,
         "recordings": len(paths),
         "duration_s": duration,
         "seconds": round(wall, 2),
@@ -166,24 +182,31 @@ def eval_cmd(
             "[default: the shipped constants]."
         ),
     ] = None,
+    model: Annotated[
+        Path | None, typer.Option("--model", help="Siren model (.onnx) [default: the shipped one].")
+    ] = None,
+    threads: Annotated[int | None, typer.Option(min=1, help="ONNX Runtime threads [default: all].")] = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print only the JSON line.")] = False,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")] = False,
 ) -> None:
     """Evaluate siren detection and localization on labelled recordings (one JSON line, last).
 
-    Keys: recall, false_alarm_rate (per window), accuracy, angle_median_deg, angle_mean_deg (wrapped),
+    Runs the shipped siren network (or --model), or with --baseline a classical method. Keys:
+    recall, false_alarm_rate (per window), accuracy, angle_median_deg, angle_mean_deg (wrapped),
     distance_median_m, distance_mean_m (null for the baselines), the same inside "range_10_50", and
     "by_distance" (10 m bins).
     """
     from makeway.perceive.audio.doa import DOA_METHODS
 
     choices = "|".join(DOA_METHODS)
-    if baseline is None:
-        raise ValueError(f"no trained siren model yet; use --baseline {choices}")
-    if baseline not in DOA_METHODS:
+    if baseline is not None and baseline not in DOA_METHODS:
         raise ValueError(f"--baseline must be one of {choices}, not {baseline!r}")
+    if baseline is not None and model is not None:
+        raise ValueError("give either --model or --baseline, not both")
+    if baseline is None and fit is not None:
+        raise ValueError("--fit fits the baseline detector; it needs --baseline")
     from makeway.perceive.audio.doa import SirenEnergyDetector
-    from makeway.perceive.audio.evaluate import evaluate
+    from makeway.perceive.audio.evaluate import evaluate, model_estimator
     from makeway.perceive.audio.features import window_batch
     from makeway.perceive.audio.labels import label_recording
     from makeway.progress import progress_bar
@@ -203,9 +226,17 @@ def eval_cmd(
             scores.append(detector.scores(window_batch(rec, labels)))
             ys.append(labels.siren)
         detector.fit_scores(np.concatenate(scores), np.concatenate(ys))
+    method: Any = baseline
+    name = baseline or "model"
+    if baseline is None:
+        from makeway.perceive.audio.siren_model import SirenModel
+
+        net = SirenModel(model, threads=threads)
+        method = model_estimator(net)
+        name = f"model:{net.path.name}"
     t0 = time.perf_counter()
-    with progress_bar(f"eval {baseline}", len(recs), enabled=not quiet, unit="rec") as advance:
-        result = evaluate(recs, baseline, detector=detector, on_recording=advance)
+    with progress_bar(f"eval {name}", len(recs), enabled=not quiet, unit="rec") as advance:
+        result = evaluate(recs, method, detector=detector, on_recording=advance, name=name)
     result["data"] = str(data)
     result["seconds"] = round(time.perf_counter() - t0, 2)
     if detector is not None:
@@ -217,7 +248,7 @@ def eval_cmd(
             return "n/a" if v is None else f"{100 * v:.2f} %"
 
         err_console.print(
-            f"{baseline}: {result['windows']} windows; recall {pct(result['recall'])}, false alarms "
+            f"{name}: {result['windows']} windows; recall {pct(result['recall'])}, false alarms "
             f"{pct(result['false_alarm_rate'])}; 10–50 m: recall {pct(r['recall'])}, angle error median "
             f"{r['angle_median_deg']}° mean {r['angle_mean_deg']}°",
             highlight=False,
@@ -227,9 +258,122 @@ def eval_cmd(
 
 @audio_app.command()
 @friendly_errors
+def train(
+    data: Annotated[
+        list[Path],
+        typer.Option("--data", help="Training recordings: a folder of recording folders (repeatable)."),
+    ],
+    out: Annotated[
+        Path | None, typer.Option("--out", "-o", help="ONNX model to write [default: the shipped model].")
+    ] = None,
+    test: Annotated[
+        Path | None,
+        typer.Option(help="Held-out recordings to evaluate the trained model on (JSON line last)."),
+    ] = None,
+    epochs: Annotated[int, typer.Option(min=1, help="Most epochs (training stops at the floor lr).")] = 30,
+    width: Annotated[int, typer.Option(min=4, help="Channel width of the network.")] = 24,
+    streams: Annotated[
+        str, typer.Option(help="Comma-separated input streams: wave, spec, gcc, level.")
+    ] = "wave,spec,gcc,level",
+    lr: Annotated[float, typer.Option(min=0.0, help="Adam learning rate.")] = 1e-3,
+    batch_size: Annotated[int, typer.Option(min=2, help="Windows per batch.")] = 64,
+    mirror: Annotated[bool, typer.Option(help="Add every window mirrored left/right.")] = True,
+    cache: Annotated[
+        Path | None, typer.Option(help="Feature cache (.npz), reused when made from the same data.")
+    ] = None,
+    threads: Annotated[int, typer.Option(min=1, help="torch threads.")] = 2,
+    seed: Annotated[int, typer.Option(help="Seed (weights, batches, validation split).")] = 0,
+) -> None:
+    """Train the siren network (SPEC §3): detection, bearing and distance heads, exported to ONNX.
+
+    Windows are auto-labelled from the trajectories; 15 % of the training recordings are held out
+    for validation (by recording). Needs torch (`pip install -e .[train]`).
+    """
+    import sys
+
+    from makeway.perceive.audio.siren_features import SirenFeatures
+    from makeway.perceive.audio.siren_model import DEFAULT_SIREN_MODEL
+    from makeway.progress import progress_bar
+
+    try:
+        from makeway.train.siren import TrainConfig, build_dataset, config_dict, export_onnx, train_siren_net
+    except ImportError as exc:
+        raise ValueError(
+            f"training needs torch ({exc}); install it with: pip install -e '.[train]'"
+        ) from None
+
+    folders = [f for d in data for f in _recording_folders(d)]
+    test_folders = _recording_folders(test) if test is not None else []
+    target = out if out is not None else DEFAULT_SIREN_MODEL
+    names = tuple(x.strip() for x in streams.split(",") if x.strip())
+    cfg = TrainConfig(
+        streams=names, width=width, epochs=epochs, lr=lr, batch_size=batch_size, seed=seed, threads=threads
+    )
+    feats = SirenFeatures()
+    with progress_bar("features", len(folders), unit="rec") as advance:
+        dataset = build_dataset(folders, feats, mirror=mirror, cache=cache, advance=advance)
+    n_pos = int(dataset.siren.sum())
+    err_console.print(
+        f"{len(folders)} recordings → {len(dataset)} windows ({n_pos} with a siren ≤ 100 m)"
+        + (" incl. mirrored copies" if mirror else ""),
+        highlight=False,
+    )
+    t0 = time.perf_counter()
+    with progress_bar("training", cfg.epochs, unit="epoch") as advance:
+
+        def on_epoch(epoch: int, row: dict[str, float]) -> None:
+            err_console.print(
+                f"epoch {epoch + 1}: lr {row['lr']:.2g} train {row['train_loss']:.3f} "
+                f"val {row['val_loss']:.3f} "
+                f"(bce {row['val_bce']:.3f}, direction {row['val_direction']:.3f}, "
+                f"distance rmse {row['val_distance_mse'] ** 0.5:.1f} m) {row['seconds']:.0f} s",
+                highlight=False,
+            )
+            advance(1)
+
+        net, history = train_siren_net(
+            dataset, feats.shapes(), cfg, n_azimuth=feats.config.n_azimuth, on_epoch=on_epoch
+        )
+    wall = time.perf_counter() - t0
+    training = {
+        "command": " ".join(["makeway audio train", *sys.argv[3:]])
+        if len(sys.argv) > 2
+        else "makeway audio train",
+        "recordings": [str(d) for d in data],
+        "n_recordings": len(folders),
+        "windows": len(dataset),
+        "positives": n_pos,
+        "mirror": mirror,
+        "config": config_dict(cfg),
+        "epochs_run": len(history),
+        "best_val_loss": round(min(h["val_loss"] for h in history), 5),
+        "train_seconds": round(wall, 1),
+    }
+    export_onnx(net, target, feats.config, extra={"training": training})
+    err_console.print(f"model → {target} ({target.stat().st_size / 1e6:.2f} MB)", highlight=False)
+    summary: dict[str, Any] = {"model": str(target), **training}
+    if test_folders:
+        from makeway.perceive.audio.evaluate import evaluate, model_estimator
+        from makeway.perceive.audio.siren_model import SirenModel
+
+        with progress_bar("test", len(test_folders), unit="rec") as advance:
+            summary["test"] = evaluate(
+                test_folders, model_estimator(SirenModel(target)), on_recording=advance, name="model"
+            )
+    print_json_line(summary)
+
+
+@audio_app.command()
+@friendly_errors
 def listen(
     path: Annotated[Path, typer.Argument(help="A recording folder.")],
-    method: Annotated[str, typer.Option(help="Bearing method: gccphat, srp or normmusic.")] = "gccphat",
+    model: Annotated[
+        Path | None, typer.Option("--model", help="Siren model (.onnx) [default: the shipped one].")
+    ] = None,
+    baseline: Annotated[
+        str | None,
+        typer.Option(help="Classical bearing + band-energy detector instead: gccphat, srp or normmusic."),
+    ] = None,
     plot: Annotated[
         Path | None, typer.Option("--plot", help="Write a spectrogram + polar bearing plot (PNG).")
     ] = None,
@@ -240,21 +384,27 @@ def listen(
     window: Annotated[float, typer.Option(min=0.05, help="Window length (s).")] = 0.5,
     hop: Annotated[float, typer.Option(min=0.01, help="Hop between windows (s).")] = 0.17,
 ) -> None:
-    """Slide over a recording: one JSON line per hop (is_siren, probability, sources with bearing,
-    distance — null without a trained model — and approaching/receding)."""
+    """Slide over a recording: one JSON line per hop (is_siren, probability, one entry per detected
+    siren with bearing, distance — null for the baselines and for further sirens — and
+    approaching/receding)."""
     from makeway.perceive.audio.doa import DOA_METHODS
+    from makeway.perceive.audio.siren_model import SirenModel
     from makeway.perceive.audio.stream import listen as listen_stream
     from makeway.perceive.audio.stream import plot_listen
     from makeway.sense.recording import read_recording
 
-    if method not in DOA_METHODS:
-        raise ValueError(f"--method must be one of {'|'.join(DOA_METHODS)}, not {method!r}")
+    if baseline is not None and baseline not in DOA_METHODS:
+        raise ValueError(f"--baseline must be one of {'|'.join(DOA_METHODS)}, not {baseline!r}")
+    if baseline is not None and model is not None:
+        raise ValueError("give either --model or --baseline, not both")
     if not path.exists():
         raise InputError(path, "no such folder")
+    net = SirenModel(model, threads=1) if baseline is None else None
     rec = read_recording(path)
     t0 = time.perf_counter()
     messages = []
-    for msg in listen_stream(rec, window_s=window, hop_s=hop, method=method):
+    method = baseline or "gccphat"
+    for msg in listen_stream(rec, window_s=window, hop_s=hop, method=method, model=net):
         messages.append(msg)
         if jsonl is None:
             print_json_line(msg)

@@ -39,8 +39,10 @@ mono audio resampled to 48 kHz with unit RMS (cached).
 from __future__ import annotations
 
 import functools
+import hashlib
 import math
 import re
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -371,3 +373,30 @@ def fit_length(
         out[pos : pos + len(seg)] += seg
         pos += len(seg) - cf
     return out[:n]
+
+
+SPLITS = ("all", "train", "test")
+TEST_GROUP_FRACTION = 0.2
+"""Share of the source groups (siren models, clip blocks, street recordings) held out for testing."""
+
+
+def group_split(group: str, test_fraction: float = TEST_GROUP_FRACTION) -> str:
+    """``"test"`` or ``"train"`` for a source group, fixed by a hash of its name.
+
+    A group's side never depends on which other groups exist, so adding data never moves a test
+    group into training. Every source of a group lands on one side (issue 4: held-out sirens and
+    noise recordings).
+    """
+    digest = hashlib.sha256(f"makeway-audio-split:{group}".encode()).digest()
+    return "test" if int.from_bytes(digest[:4], "big") / 2**32 < test_fraction else "train"
+
+
+def split_sources(
+    sources: Sequence[AudioSource], split: str, test_fraction: float = TEST_GROUP_FRACTION
+) -> list[AudioSource]:
+    """The sources of ``split`` (``"all"``, ``"train"`` or ``"test"``; see :func:`group_split`)."""
+    if split not in SPLITS:
+        raise ValueError(f"split must be one of {', '.join(SPLITS)}, not {split!r}")
+    if split == "all":
+        return list(sources)
+    return [s for s in sources if group_split(s.group, test_fraction) == split]

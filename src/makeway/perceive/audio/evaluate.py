@@ -127,43 +127,80 @@ def summarize(a: dict[str, np.ndarray], threshold: float = 0.5) -> dict[str, Any
     return out
 
 
+WindowEstimator = Callable[[Recording, np.ndarray], tuple[np.ndarray, np.ndarray, np.ndarray]]
+"""``estimate(recording, windows) -> (prob, theta_hat, distance_hat)``, each ``(n_windows,)``."""
+
+
+def baseline_estimator(method: str, detector: SirenEnergyDetector | None = None) -> WindowEstimator:
+    """A classical method (:data:`~makeway.perceive.audio.doa.DOA_METHODS` name) with ``detector``
+    (default: :class:`SirenEnergyDetector` with its shipped constants); no distance (NaN)."""
+    bearing = get_doa_method(method)
+
+    def estimate(rec: Recording, windows: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        det = detector if detector is not None else SirenEnergyDetector(rec.sample_rate)
+        prob = det.proba_from_scores(det.scores(windows)) if len(windows) else np.zeros(0)
+        theta_hat = np.array([bearing(w, rec.mics, rec.sample_rate) for w in windows])
+        return prob, theta_hat, np.full(len(windows), np.nan)
+
+    return estimate
+
+
+def model_estimator(model: Any, source: str | Path | None = None) -> WindowEstimator:
+    """The trained network (:class:`~makeway.perceive.audio.siren_model.SirenModel`); every
+    recording's array and sample rate are checked against the model's first."""
+
+    def estimate(rec: Recording, windows: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        model.check_array(rec.mics, rec.sample_rate, rec.path or source or "recording")
+        if not len(windows):
+            return np.zeros(0), np.zeros(0), np.zeros(0)
+        preds = [model.predict(windows[i : i + 64]) for i in range(0, len(windows), 64)]
+        return (
+            np.concatenate([p.prob for p in preds]),
+            np.concatenate([p.theta for p in preds]),
+            np.concatenate([p.distance for p in preds]),
+        )
+
+    return estimate
+
+
 def evaluate(
     recordings: Iterable[Recording | str | Path],
-    method: str,
+    method: str | WindowEstimator,
     *,
     detector: SirenEnergyDetector | None = None,
     threshold: float = 0.5,
     on_recording: Callable[[], None] | None = None,
+    name: str | None = None,
 ) -> dict[str, Any]:
-    """Run ``method`` (a :data:`~makeway.perceive.audio.doa.DOA_METHODS` name) with ``detector``
-    (default: :class:`SirenEnergyDetector` with its shipped constants) over every window of every
-    recording, and summarize (module docstring). ``on_recording`` is called after each recording."""
-    bearing = get_doa_method(method)
+    """Run ``method`` over every window of every recording, and summarize (module docstring).
+
+    ``method`` is a :data:`~makeway.perceive.audio.doa.DOA_METHODS` name (run with ``detector``,
+    see :func:`baseline_estimator`) or any :data:`WindowEstimator` (e.g. :func:`model_estimator`).
+    ``on_recording`` is called after each recording."""
+    estimate = baseline_estimator(method, detector) if isinstance(method, str) else method
     res = WindowResults()
     n_recs = n_windows = 0
     busy = 0.0
     for item in recordings:
         rec = item if isinstance(item, Recording) else read_recording(item)
-        det = detector if detector is not None else SirenEnergyDetector(rec.sample_rate)
         labels = label_recording(rec)
         windows = window_batch(rec, labels)
         theta, dist = labels.nearest()
         t0 = time.perf_counter()
-        scores = det.scores(windows) if len(windows) else np.zeros(0)
-        prob = det.proba_from_scores(scores)
-        theta_hat = np.array([bearing(w, rec.mics, rec.sample_rate) for w in windows])
+        prob, theta_hat, distance_hat = estimate(rec, windows)
         busy += time.perf_counter() - t0
         res.siren.append(labels.siren)
         res.theta.append(theta)
         res.distance.append(dist)
         res.prob.append(prob)
         res.theta_hat.append(theta_hat)
-        res.distance_hat.append(np.full(len(windows), np.nan))  # the baselines give no distance
+        res.distance_hat.append(distance_hat)
         n_recs += 1
         n_windows += len(windows)
         if on_recording is not None:
             on_recording()
-    out: dict[str, Any] = {"method": method, "recordings": n_recs}
+    label = name if name is not None else (method if isinstance(method, str) else "model")
+    out: dict[str, Any] = {"method": label, "recordings": n_recs}
     out.update(summarize(res.arrays(), threshold))
     out["ms_per_window"] = round(1000.0 * busy / n_windows, 2) if n_windows else None
     out["threshold"] = threshold

@@ -5,12 +5,14 @@
 and yields one message per hop::
 
     {"t_end": 1.17, "is_siren": true, "probability": 0.93,
-     "sources": [{"bearing_rad": 2.9, "bearing_deg": 166.2, "distance_m": null, "approaching": true}]}
+     "sources": [{"bearing_rad": 2.9, "bearing_deg": 166.2, "distance_m": 31.4, "approaching": true}]}
 
-``probability`` comes from the band-energy :class:`~makeway.perceive.audio.doa.SirenEnergyDetector`,
-``is_siren`` is ``probability ≥ 0.5``. With no trained model yet there is at most one source, with the
-classical bearing (``method``, vehicle frame, 0 ahead, positive left) and no distance;
-``approaching`` comes from :class:`~makeway.perceive.audio.motion.ApproachEstimator`, which sees every
+With the trained siren network (``model``, :class:`~makeway.perceive.audio.siren_model.SirenModel`;
+the CLI's default) ``probability`` is the network's, the first source is the nearest siren with
+the network's bearing (vehicle frame, 0 ahead, positive left) and distance, and further sirens are
+the other strong peaks of its bearing map (distance ``null``). Without a model, the band-energy
+:class:`~makeway.perceive.audio.doa.SirenEnergyDetector` and a classical bearing (``method``) give at
+most one source and no distance. ``approaching`` comes from :class:`~makeway.perceive.audio.motion.ApproachEstimator`, which sees every
 window (so its history is continuous) but is reported only in siren windows. ``sources`` is empty
 when there is no siren.
 
@@ -30,6 +32,7 @@ import numpy as np
 from makeway.perceive.audio.doa import SirenEnergyDetector, detector_score, get_doa_method
 from makeway.perceive.audio.labels import HOP_S, WINDOW_S, window_starts
 from makeway.perceive.audio.motion import ApproachEstimator
+from makeway.perceive.audio.siren_model import SirenModel
 from makeway.sense.recording import Recording
 
 PLOT_MAX_HZ = 4000.0
@@ -43,10 +46,21 @@ def listen(
     method: str = "gccphat",
     detector: SirenEnergyDetector | None = None,
     approach: ApproachEstimator | None = None,
+    model: SirenModel | None = None,
 ) -> Iterator[dict[str, Any]]:
-    """One message per hop over ``recording`` (see the module docstring)."""
+    """One message per hop over ``recording`` (see the module docstring).
+
+    With ``model`` (a :class:`~makeway.perceive.audio.siren_model.SirenModel`) the network gives
+    the probability, the nearest siren's bearing and distance, and further sirens as extra bearing
+    peaks (:meth:`~makeway.perceive.audio.siren_model.SirenModel.sources`); ``method`` and
+    ``detector`` are then unused. Approaching/receding always comes from the level trend and Doppler
+    (:class:`~makeway.perceive.audio.motion.ApproachEstimator`) and is given for the nearest siren."""
     doa = get_doa_method(method)
     sr = int(recording.sample_rate)
+    if model is not None:
+        model.check_array(recording.mics, sr, recording.path or "recording")
+        if abs(window_s - model.config.window_s) > 1e-9:
+            raise ValueError(f"the siren model works on {model.config.window_s:g} s windows, not {window_s:g} s")
     det = detector if detector is not None else SirenEnergyDetector(sr)
     est = approach if approach is not None else ApproachEstimator()
     est.reset()
@@ -55,18 +69,26 @@ def listen(
     for start in window_starts(recording.n_samples, sr, window_s, hop_s):
         window = np.asarray(audio[start : start + win].T, dtype=np.float64)
         t_end = (int(start) + win) / sr
-        p = float(det.proba_from_scores(np.array([detector_score(window, sr)]))[0])
         approaching, _ = est.update(window, sr, t_end)
-        is_siren = p >= 0.5
         sources: list[dict[str, Any]] = []
-        if is_siren:
-            bearing = float(doa(window, recording.mics, sr))
+        if model is not None:
+            pred = model.predict(window)
+            p = float(pred.prob[0])
+            is_siren = p >= model.threshold
+            found = model.sources(pred, 0)
+        else:
+            p = float(det.proba_from_scores(np.array([detector_score(window, sr)]))[0])
+            is_siren = p >= 0.5
+            found = [{"bearing_rad": float(doa(window, recording.mics, sr)), "distance_m": None}] if is_siren else []
+        for k, src in enumerate(found):
+            bearing = float(src["bearing_rad"])
+            dist = src["distance_m"]
             sources.append(
                 {
                     "bearing_rad": round(bearing, 6),
                     "bearing_deg": round(math.degrees(bearing), 3),
-                    "distance_m": None,
-                    "approaching": approaching,
+                    "distance_m": None if dist is None else round(float(dist), 2),
+                    "approaching": approaching if k == 0 else None,
                 }
             )
         yield {

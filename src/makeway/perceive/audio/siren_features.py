@@ -1,0 +1,238 @@
+"""Input features of the siren network (issue 4, SPEC §3): three views of one multichannel window.
+
+One 0.5 s window ``(channels, samples)`` of the roof array at 48 kHz becomes
+
+* ``wave`` ``(channels, samples / decimation)`` — the waveform stream of SPEC §3: band-passed
+  500–1800 Hz (zero phase, so inter-channel delays survive), decimated to 8 kHz (the band ends far
+  below the new Nyquist frequency, so nothing aliases and no timing information is lost), divided by
+  the window's RMS over all channels (the level travels separately, in ``level``);
+* ``spec`` ``(1, n_mels + n_mfcc, frames)`` — the spectral stream of SPEC §3: log-mel power
+  (``n_mels`` bands over ``mel_fmin``–``mel_fmax``; power averaged over the capsules, which averages
+  the uncorrelated wind noise down) stacked over its MFCCs, 25 ms frames every 10 ms. The mel range
+  reaches above the 1800 Hz band edge on purpose: siren harmonics up to 4 kHz are what tells a siren
+  from a horn or a squealing brake, and the detection stream is not used for timing;
+* ``gcc`` ``(2·pairs, azimuths)`` — makeway's addition: for every capsule pair, the GCC-PHAT of
+  the band-passed window (Welch-averaged cross-spectrum) read at the delay each candidate bearing
+  would give (far field, ground plane), on a grid of ``n_azimuth`` bearings over 360°. The first
+  ``pairs`` rows use every in-band bin, the next ``pairs`` only the bins whose cross-power stands
+  :data:`~makeway.perceive.audio.doa.GCC_SELECT_DB` above the band's median (the siren's harmonics;
+  zero rows when none does). Summing the rows gives SRP-PHAT; the network learns a better
+  combination, and the map keeps the bearing axis explicit (the model's bearing head works on it);
+* ``level`` ``(channels + 1,)`` — in-band level of each capsule and of their mean, in dB re full
+  scale, shifted by :data:`LEVEL_OFFSET_DB` to lie near 0…1. Level is the main distance cue.
+
+Everything is numpy/scipy, so the runtime needs no torch. :class:`SirenFeatures` is configured by a
+plain dict (:meth:`SirenFeatures.config`) that the trained model stores in its ONNX metadata, so the
+features at inference are exactly those of training.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+from dataclasses import asdict, dataclass
+from typing import Any
+
+import numpy as np
+from scipy.fft import dct, irfft, next_fast_len, rfft
+from scipy.signal import sosfreqz
+
+from makeway.perceive.audio.doa import GCC_SELECT_DB
+from makeway.perceive.audio.features import BAND_HZ, LOG_FLOOR, _band_sos, frame_params, mel_filterbank
+from makeway.sense.recording import REFERENCE_SAMPLE_RATE, reference_mics
+from makeway.sim.acoustics import SPEED_OF_SOUND
+
+__all__ = ["LEVEL_OFFSET_DB", "MIRROR_CHANNELS", "STREAMS", "SirenFeatureConfig", "SirenFeatures"]
+
+STREAMS = ("wave", "spec", "gcc", "level")
+MIRROR_CHANNELS = (4, 7, 6, 5, 0, 3, 2, 1)
+"""Channel permutation that mirrors the reference array about its x axis (L↔R units, each unit's
+left↔right capsules): new channel k = old channel ``MIRROR_CHANNELS[k]``; a source at θ is then
+heard at −θ."""
+LEVEL_OFFSET_DB = 100.0
+"""``level`` = (dB re full scale + 100) / 100: −100 dBFS → 0, 0 dBFS → 1."""
+
+
+@dataclass(frozen=True)
+class SirenFeatureConfig:
+    """Feature parameters (stored with a trained model; see the module docstring)."""
+
+    sample_rate: int = REFERENCE_SAMPLE_RATE
+    window_s: float = 0.5
+    band_low_hz: float = BAND_HZ[0]
+    band_high_hz: float = BAND_HZ[1]
+    decimation: int = 6
+    n_mels: int = 48
+    n_mfcc: int = 16
+    mel_fmin: float = 300.0
+    mel_fmax: float = 4000.0
+    spec_channels: tuple[int, ...] = (0, 4)
+    gcc_nfft: int = 1024
+    n_azimuth: int = 120
+    mics: tuple[tuple[float, ...], ...] = tuple(tuple(float(v) for v in m) for m in reference_mics())
+
+    @property
+    def n_channels(self) -> int:
+        return len(self.mics)
+
+    @property
+    def n_samples(self) -> int:
+        return round(self.window_s * self.sample_rate)
+
+    @property
+    def pairs(self) -> np.ndarray:
+        n = self.n_channels
+        return np.array([(i, j) for i in range(n) for j in range(i + 1, n)], dtype=np.int64)
+
+    def azimuths(self) -> np.ndarray:
+        """The bearing grid (rad), ``n_azimuth`` points from 0, counter-clockwise."""
+        return np.arange(self.n_azimuth) * (2.0 * math.pi / self.n_azimuth)
+
+    def to_dict(self) -> dict[str, Any]:
+        d = asdict(self)
+        d["mics"] = [list(m) for m in self.mics]
+        return d
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> SirenFeatureConfig:
+        known = {k: v for k, v in d.items() if k in cls.__dataclass_fields__}
+        if "mics" in known:
+            known["mics"] = tuple(tuple(float(v) for v in m) for m in known["mics"])
+        if "spec_channels" in known:
+            known["spec_channels"] = tuple(int(v) for v in known["spec_channels"])
+        return cls(**known)
+
+
+@functools.lru_cache(maxsize=8)
+def _band_mask(sample_rate: int, low_hz: float, high_hz: float, n_fft: int) -> np.ndarray:
+    """|H(f)|² of the order-4 Butterworth band-pass on the ``n_fft`` rfft grid: applying it to a
+    spectrum is the zero-phase forward-backward filter of
+    :func:`~makeway.perceive.audio.features.bandpass` (up to the edges), at a fraction of the cost."""
+    sos = _band_sos(sample_rate, low_hz, high_hz, 4)
+    _, h = sosfreqz(sos, worN=np.fft.rfftfreq(n_fft, 1.0 / sample_rate), fs=sample_rate)
+    mask = (np.abs(h) ** 2).astype(np.float32)
+    mask.setflags(write=False)
+    return mask
+
+
+@functools.lru_cache(maxsize=4)
+def _steering(config: SirenFeatureConfig) -> tuple[np.ndarray, np.ndarray]:
+    """In-band bin indices of the GCC FFT and ``exp(jωτ)`` ``(pairs, azimuths, bins)`` (complex64)."""
+    mics = np.asarray(config.mics, dtype=np.float64)
+    pairs = config.pairs
+    f = np.fft.rfftfreq(config.gcc_nfft, 1.0 / config.sample_rate)
+    sel = np.flatnonzero((f >= config.band_low_hz) & (f <= config.band_high_hz))
+    az = config.azimuths()
+    u = np.stack([np.cos(az), np.sin(az)], axis=1)
+    d = mics[pairs[:, 0], :2] - mics[pairs[:, 1], :2]
+    tau = -(d @ u.T) / SPEED_OF_SOUND  # (pairs, azimuths) seconds, as in doa._gcc_geometry
+    phase = 2.0 * math.pi * tau[:, :, None] * f[sel][None, None, :]
+    steer = np.exp(1j * phase).astype(np.complex64)
+    steer.setflags(write=False)
+    return sel, steer
+
+
+class SirenFeatures:
+    """Window → ``{"wave", "spec", "gcc", "level"}`` arrays (see the module docstring).
+
+    ``transform(windows)`` takes ``(n, channels, samples)`` (or one ``(channels, samples)``
+    window) at ``config.sample_rate`` and returns float32 arrays with a leading batch axis.
+    """
+
+    def __init__(self, config: SirenFeatureConfig | None = None) -> None:
+        self.config = config if config is not None else SirenFeatureConfig()
+
+    def __repr__(self) -> str:
+        c = self.config
+        return (
+            f"SirenFeatures({c.n_channels} ch, {c.sample_rate} Hz, {c.window_s:g} s, "
+            f"band {c.band_low_hz:g}–{c.band_high_hz:g} Hz, {c.n_azimuth} bearings)"
+        )
+
+    def shapes(self) -> dict[str, tuple[int, ...]]:
+        """Per-window shape of each stream."""
+        c = self.config
+        frame, hop, _ = frame_params(c.sample_rate)
+        n_frames = 1 + (c.n_samples - frame) // hop
+        n_wave = -(-c.n_samples // c.decimation)
+        return {
+            "wave": (c.n_channels, n_wave),
+            "spec": (1, c.n_mels + c.n_mfcc, n_frames),
+            "gcc": (2 * len(c.pairs), c.n_azimuth),
+            "level": (c.n_channels + 1,),
+        }
+
+    def _check(self, windows: np.ndarray) -> np.ndarray:
+        w = np.asarray(windows, dtype=np.float64)
+        if w.ndim == 2:
+            w = w[None]
+        c = self.config
+        if w.ndim != 3 or w.shape[1] != c.n_channels or w.shape[2] != c.n_samples:
+            raise ValueError(
+                f"windows must be (n, {c.n_channels}, {c.n_samples}) "
+                f"({c.n_channels} channels × {c.window_s:g} s at {c.sample_rate} Hz); got {w.shape}"
+            )
+        if not np.all(np.isfinite(w)):
+            raise ValueError("windows contain NaN or infinite samples")
+        return w
+
+    def transform(self, windows: np.ndarray) -> dict[str, np.ndarray]:
+        c = self.config
+        w = self._check(windows)
+        n = w.shape[-1]
+        n_fft = next_fast_len(n + 1024, real=True)  # 1024 samples of padding against circular wrap
+        mask = _band_mask(c.sample_rate, c.band_low_hz, c.band_high_hz, n_fft)
+        band = irfft(rfft(w, n=n_fft, axis=-1) * mask, n=n_fft, axis=-1)[..., :n]
+        out: dict[str, np.ndarray] = {}
+
+        # level: in-band mean power per capsule and over all capsules
+        power = np.mean(band**2, axis=-1)  # (n, ch)
+        all_power = power.mean(axis=1, keepdims=True)
+        db = 10.0 * np.log10(np.maximum(np.concatenate([power, all_power], axis=1), LOG_FLOOR))
+        out["level"] = ((db + LEVEL_OFFSET_DB) / 100.0).astype(np.float32)
+
+        # wave: band-passed, decimated, unit RMS over the window
+        dec = band[:, :, :: c.decimation]
+        rms = np.sqrt(np.maximum(all_power, LOG_FLOOR))[:, :, None]
+        out["wave"] = (dec / rms).astype(np.float32)
+
+        out["spec"] = self._spectral(w).astype(np.float32)[:, None]
+        out["gcc"] = self._gcc(band).astype(np.float32)
+        return out
+
+    def _spectral(self, w: np.ndarray) -> np.ndarray:
+        c = self.config
+        frame, hop, n_fft = frame_params(c.sample_rate)
+        n_frames = 1 + (w.shape[-1] - frame) // hop
+        x = w[:, list(c.spec_channels)].astype(np.float32)
+        frames = np.lib.stride_tricks.sliding_window_view(x, frame, axis=-1)[..., ::hop, :][..., :n_frames, :]
+        win = np.hanning(frame + 1)[:-1].astype(np.float32)
+        spec = rfft(frames * win, n=n_fft, axis=-1)
+        power = (spec.real**2 + spec.imag**2).mean(axis=1)  # mean over capsules: (n, frames, bins)
+        fb = mel_filterbank(c.sample_rate, n_fft, c.n_mels, c.mel_fmin, c.mel_fmax)
+        mel = np.log(np.maximum(np.einsum("mf,ntf->nmt", fb, power), LOG_FLOOR))
+        mfcc = dct(mel, type=2, axis=1, norm="ortho")[:, : c.n_mfcc]
+        # log-mel in natural-log units is ~ −23…0 for full-scale audio; bring it near 0…1
+        return np.concatenate([(mel + 23.0) / 10.0, mfcc / 50.0], axis=1)
+
+    def _gcc(self, band: np.ndarray) -> np.ndarray:
+        c = self.config
+        sel, steer = _steering(c)
+        nfft = c.gcc_nfft
+        hop = nfft // 2
+        n_frames = 1 + (band.shape[-1] - nfft) // hop
+        frames = np.lib.stride_tricks.sliding_window_view(band, nfft, axis=-1)[..., ::hop, :][
+            ..., :n_frames, :
+        ]
+        spec = rfft(frames * np.hanning(nfft + 1)[:-1], axis=-1)[..., sel]  # (n, ch, frames, bins)
+        pairs = c.pairs
+        cross = np.mean(spec[:, pairs[:, 0]] * np.conj(spec[:, pairs[:, 1]]), axis=2)  # (n, pairs, bins)
+        mag = np.abs(cross)
+        phat = cross / np.maximum(mag, 1e-30)
+        keep = mag > 10.0 ** (GCC_SELECT_DB / 10.0) * np.median(mag, axis=2, keepdims=True)
+        n_keep = np.maximum(keep.sum(axis=2, keepdims=True), 1)
+        sel_phat = np.where(keep, phat, 0.0) * (phat.shape[2] / n_keep)
+        both = np.concatenate([phat, sel_phat], axis=1).astype(np.complex64)  # (n, 2P, bins)
+        steer2 = np.concatenate([steer, steer], axis=0)  # (2P, A, bins)
+        gcc = np.einsum("pab,npb->npa", steer2, both).real / phat.shape[2]
+        return np.asarray(gcc)

@@ -1,0 +1,177 @@
+"""The trained siren network at run time: ONNX Runtime, no torch (issue 4, SPEC §3).
+
+:class:`SirenModel` loads an ONNX file written by ``makeway audio train`` (see
+:mod:`makeway.train.siren`), rebuilds the exact feature extractor from the file's metadata and
+answers, for a batch of 0.5 s windows of the roof array:
+
+* ``prob`` — siren probability (sigmoid of the siren logit); ``is_siren = prob ≥ threshold``;
+* ``theta`` — bearing of the nearest siren (rad, vehicle frame, 0 ahead, positive left), from the
+  (sin θ, cos θ) head normalised to unit length (SPEC §3);
+* ``distance`` — distance of the nearest siren (m, ground plane);
+* ``bearing_map`` — the per-bearing softmax of the model's bearing logits over the 360° grid, from
+  which :meth:`SirenModel.sources` reads further sirens as separate peaks.
+
+:data:`DEFAULT_SIREN_MODEL` is the model shipped in the package (``makeway/models/siren_net.onnx``;
+model card ``docs/model_card_siren_net.md``).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from makeway.errors import InputError
+from makeway.perceive.audio.siren_features import SirenFeatureConfig, SirenFeatures
+
+__all__ = ["DEFAULT_SIREN_MODEL", "SirenModel", "SirenPrediction"]
+
+DEFAULT_SIREN_MODEL = Path(__file__).resolve().parents[2] / "models" / "siren_net.onnx"
+
+SECOND_PEAK_FRACTION = 0.25
+"""A second bearing peak counts as another siren when its mass is at least this share of the first."""
+PEAK_SEPARATION_DEG = 30.0
+
+
+@dataclass(frozen=True)
+class SirenPrediction:
+    """Outputs for ``n`` windows (see the module docstring)."""
+
+    prob: np.ndarray
+    theta: np.ndarray
+    distance: np.ndarray
+    bearing_map: np.ndarray | None
+
+    def __len__(self) -> int:
+        return len(self.prob)
+
+
+class SirenModel:
+    """ONNX siren network + its feature extractor (module docstring).
+
+    Args:
+        path: the ``.onnx`` file (default: :data:`DEFAULT_SIREN_MODEL`).
+        threads: ONNX Runtime intra-op threads (``None``: all cores).
+        threshold: decision threshold (``None``: the one stored in the model).
+    """
+
+    def __init__(
+        self, path: str | Path | None = None, *, threads: int | None = None, threshold: float | None = None
+    ) -> None:
+        import onnxruntime as ort
+
+        self.path = Path(path) if path is not None else DEFAULT_SIREN_MODEL
+        if not self.path.is_file():
+            raise InputError(self.path, "siren model not found (train one with `makeway audio train`)")
+        opts = ort.SessionOptions()
+        if threads is not None:
+            opts.intra_op_num_threads = int(threads)
+            opts.inter_op_num_threads = 1
+        opts.log_severity_level = 3
+        try:
+            self.session = ort.InferenceSession(str(self.path), opts, providers=["CPUExecutionProvider"])
+        except Exception as exc:  # onnxruntime raises its own exception types
+            raise InputError(
+                self.path, f"not a readable ONNX model ({str(exc).splitlines()[0][:200]})"
+            ) from None
+        meta = self.session.get_modelmeta().custom_metadata_map
+        if meta.get("makeway_model") != "siren_net":
+            raise InputError(
+                self.path, "an ONNX model, but not a makeway siren network (no siren_net metadata)"
+            )
+        try:
+            self.streams: tuple[str, ...] = tuple(json.loads(meta["streams"]))
+            self.features = SirenFeatures(SirenFeatureConfig.from_dict(json.loads(meta["features"])))
+            stored = float(meta.get("threshold", "0.5"))
+        except (KeyError, ValueError, TypeError) as exc:
+            raise InputError(self.path, f"malformed siren model metadata ({exc})") from None
+        self.threshold = float(threshold) if threshold is not None else stored
+        self.metadata: dict[str, str] = dict(meta)
+        names = [i.name for i in self.session.get_inputs()]
+        if names != list(self.streams):
+            raise InputError(self.path, f"model inputs {names} do not match its streams {list(self.streams)}")
+
+    def __repr__(self) -> str:
+        return f"SirenModel({self.path.name}, streams={list(self.streams)}, threshold={self.threshold:g})"
+
+    @property
+    def config(self) -> SirenFeatureConfig:
+        return self.features.config
+
+    @property
+    def mics(self) -> np.ndarray:
+        return np.asarray(self.config.mics, dtype=np.float64)
+
+    def check_array(self, mics: np.ndarray, sample_rate: int, source: str | Path) -> None:
+        """Raise :class:`InputError` naming ``source`` unless the recording's array and sample rate
+        are the ones the model was trained for."""
+        m = np.asarray(mics, dtype=np.float64)
+        if int(sample_rate) != self.config.sample_rate:
+            raise InputError(
+                source,
+                f"sample rate {sample_rate} Hz, but the siren model expects {self.config.sample_rate} Hz",
+            )
+        if m.shape != self.mics.shape or not np.allclose(m, self.mics, atol=5e-3):
+            raise InputError(
+                source,
+                f"microphone array ({len(m)} capsules) differs from the one the siren model was trained "
+                f"for ({len(self.mics)} capsules, the reference roof array); use --baseline for other arrays",
+            )
+
+    def run_features(self, feats: dict[str, np.ndarray]) -> SirenPrediction:
+        """Run the network on precomputed features (``SirenFeatures.transform`` output)."""
+        outs = self.session.run(
+            None, {s: np.ascontiguousarray(feats[s], dtype=np.float32) for s in self.streams}
+        )
+        logit, direction, distance, bearing_logits = outs[:4]
+        prob = 1.0 / (1.0 + np.exp(-np.asarray(logit, dtype=np.float64)))
+        theta = np.arctan2(direction[:, 0], direction[:, 1]).astype(np.float64)
+        bmap = None
+        if bearing_logits.shape[1] == self.config.n_azimuth:
+            z = bearing_logits - bearing_logits.max(axis=1, keepdims=True)
+            e = np.exp(z)
+            bmap = e / e.sum(axis=1, keepdims=True)
+        return SirenPrediction(prob, theta, np.maximum(np.asarray(distance, dtype=np.float64), 0.0), bmap)
+
+    def predict(self, windows: np.ndarray) -> SirenPrediction:
+        """Outputs for ``windows (n, channels, samples)`` or one ``(channels, samples)`` window."""
+        return self.run_features(self.features.transform(windows))
+
+    def sources(self, pred: SirenPrediction, i: int) -> list[dict[str, Any]]:
+        """The sirens of window ``i``: the nearest (the heads), then any further bearing peak holding
+        at least :data:`SECOND_PEAK_FRACTION` of the first peak's mass, ≥ 30° away (distance
+        unknown: ``None``). Empty when window ``i`` is not a siren."""
+        if pred.prob[i] < self.threshold:
+            return []
+        out: list[dict[str, Any]] = [
+            {"bearing_rad": float(pred.theta[i]), "distance_m": float(pred.distance[i]), "rank": 0}
+        ]
+        if pred.bearing_map is None:
+            return out
+        p = pred.bearing_map[i]
+        n = len(p)
+        step = 2.0 * math.pi / n
+        half = max(1, round(math.radians(PEAK_SEPARATION_DEG) / step / 2))
+        # mass of each peak: the map summed over ±half bins, circularly
+        kernel = np.ones(2 * half + 1)
+        mass = np.convolve(np.concatenate([p[-half:], p, p[:half]]), kernel, mode="valid")
+        is_peak = (mass >= np.roll(mass, 1)) & (mass > np.roll(mass, -1))
+        order = [int(k) for k in np.argsort(-mass) if is_peak[k]]
+        if not order:
+            return out
+        first = mass[order[0]]
+        taken = [float(pred.theta[i])]
+        for k in order[1:]:
+            if mass[k] < SECOND_PEAK_FRACTION * first:
+                break
+            az = math.atan2(math.sin(k * step), math.cos(k * step))
+            if all(
+                abs(math.remainder(az - t, 2 * math.pi)) >= math.radians(PEAK_SEPARATION_DEG) for t in taken
+            ):
+                out.append({"bearing_rad": az, "distance_m": None, "rank": len(out)})
+                taken.append(az)
+        return out

@@ -1,0 +1,183 @@
+"""Issue 4, item 3: the siren network — features, training, ONNX export, the runtime model, the
+shipped default, and ``makeway audio train|eval|listen`` with it."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from makeway.cli.audio import audio_app
+from makeway.errors import InputError
+from makeway.perceive.audio.doa import wrap_angle
+from makeway.perceive.audio.features import bandpass, window_batch
+from makeway.perceive.audio.labels import label_recording
+from makeway.perceive.audio.siren_features import MIRROR_CHANNELS, SirenFeatureConfig, SirenFeatures
+from makeway.perceive.audio.siren_model import DEFAULT_SIREN_MODEL, SirenModel
+from makeway.sense.recording import Recording, reference_mics, write_recording
+from makeway.sim.audio_scenarios import simulate_recording
+from makeway.sim.siren import group_split, load_siren_sources, split_sources
+
+METRIC_KEYS = {
+    "recall",
+    "false_alarm_rate",
+    "accuracy",
+    "angle_median_deg",
+    "angle_mean_deg",
+    "distance_median_m",
+    "distance_mean_m",
+    "range_10_50",
+    "by_distance",
+}
+
+
+@pytest.fixture(scope="module")
+def pass_rec(data_root: Path) -> Recording:
+    """A held-out-split recording (test siren and noise groups): an EV passing in the opposite lane."""
+    from makeway.sim.acoustics import load_street_noise_sources
+
+    sirens = split_sources(load_siren_sources(data_root), "test")
+    noise = split_sources(load_street_noise_sources(data_root), "test")
+    return simulate_recording(
+        "opposite_direction", 6.0, seed=15, siren="real", siren_pool=sirens, noise_pool=noise, data_root=data_root
+    )
+
+
+@pytest.fixture(scope="module")
+def windows(pass_rec: Recording) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    labels = label_recording(pass_rec)
+    theta, dist = labels.nearest()
+    return window_batch(pass_rec, labels), labels.siren, theta, dist
+
+
+# ---------------------------------------------------------------------------------------- features
+
+
+def test_feature_shapes_and_errors(windows: tuple[np.ndarray, ...]) -> None:
+    feats = SirenFeatures()
+    w = windows[0][:3]
+    out = feats.transform(w)
+    assert {k: v.shape[1:] for k, v in out.items()} == feats.shapes()
+    assert all(v.dtype == np.float32 and np.all(np.isfinite(v)) for v in out.values())
+    one = feats.transform(w[0])
+    assert all(np.allclose(one[k][0], out[k][0], atol=1e-5) for k in out)
+    with pytest.raises(ValueError, match="8 channels"):
+        feats.transform(w[:, :6])
+    bad = w.copy()
+    bad[0, 0, 10] = np.nan
+    with pytest.raises(ValueError, match="NaN"):
+        feats.transform(bad)
+    cfg = SirenFeatureConfig.from_dict(json.loads(json.dumps(feats.config.to_dict())))
+    assert cfg == feats.config and hash(cfg) == hash(feats.config)
+
+
+def test_fft_bandpass_matches_forward_backward_filter(windows: tuple[np.ndarray, ...]) -> None:
+    """The features' FFT band-pass is the zero-phase Butterworth of features.bandpass (away from
+    the window edges, where the two treat the boundary differently)."""
+    from scipy.fft import irfft, next_fast_len, rfft
+
+    from makeway.perceive.audio.siren_features import _band_mask
+
+    w = windows[0][2].astype(np.float64)
+    ref = bandpass(w, 48_000)
+    n_fft = next_fast_len(w.shape[1] + 1024, real=True)
+    ours = irfft(rfft(w, n=n_fft, axis=-1) * _band_mask(48_000, 500.0, 1800.0, n_fft), n=n_fft)[:, : w.shape[1]]
+    mid = slice(4800, -4800)
+    err = np.linalg.norm(ours[:, mid] - ref[:, mid]) / np.linalg.norm(ref[:, mid])
+    assert err < 0.02
+
+
+def test_gcc_map_peaks_at_the_siren_bearing(windows: tuple[np.ndarray, ...]) -> None:
+    """Summed over pairs the bearing map is SRP-PHAT: it peaks near the truth. (Windows closer than
+    20 m are left out: there the EV sweeps past faster than a 0.5 s window can follow.)"""
+    w, siren, theta, dist = windows
+    near = np.flatnonzero(siren & (dist > 20) & (dist < 80))
+    assert len(near) >= 3
+    feats = SirenFeatures()
+    gcc = feats.transform(w[near])["gcc"]
+    n_pairs = gcc.shape[1] // 2
+    srp = gcc[:, n_pairs:].sum(axis=1)  # the harmonic-bin rows
+    az = feats.config.azimuths()[np.argmax(srp, axis=1)]
+    err = np.degrees(np.abs(wrap_angle(az - theta[near])))
+    assert np.median(err) < 10.0
+
+
+def test_mirror_permutation_mirrors_the_array() -> None:
+    mics = reference_mics()
+    assert np.allclose(mics[list(MIRROR_CHANNELS)], mics * np.array([1.0, -1.0, 1.0]))
+
+
+def test_source_split_is_by_group_and_stable(data_root: Path) -> None:
+    sources = load_siren_sources(data_root)
+    train, test = split_sources(sources, "train"), split_sources(sources, "test")
+    assert len(train) + len(test) == len(sources) and test and train
+    assert not {s.group for s in train} & {s.group for s in test}
+    assert all(group_split(s.group) == "test" for s in test)
+    with pytest.raises(ValueError, match="split"):
+        split_sources(sources, "validation")
+
+
+# ------------------------------------------------------------------------------- training + export
+
+
+@pytest.fixture(scope="module")
+def tiny_model(tmp_path_factory: pytest.TempPathFactory, data_root: Path) -> tuple[Path, Path, dict]:
+    """Two short training-split recordings, one epoch of a narrow network, exported to ONNX."""
+    torch = pytest.importorskip("torch")  # in the dev extra; importorskip only names the failure
+    from makeway.train.siren import TrainConfig, build_dataset, evaluate_net, export_onnx, train_siren_net
+
+    root = tmp_path_factory.mktemp("siren_train")
+    sirens = split_sources(load_siren_sources(data_root), "train")
+    for i, scen in enumerate(("same_direction", "none")):
+        rec = simulate_recording(scen, 1.5, seed=40 + i, siren_pool=sirens, data_root=data_root)
+        write_recording(root / "recs" / f"rec_{i:05d}", rec)
+    feats = SirenFeatures()
+    folders = sorted((root / "recs").iterdir())
+    data = build_dataset(folders, feats, mirror=True, cache=root / "cache.npz")
+    assert len(data) == 2 * 2 * 6 and data.siren[:6].all() and not data.siren[-6:].any()
+    again = build_dataset(folders, feats, mirror=True, cache=root / "cache.npz")  # from the cache
+    assert np.allclose(again.features["gcc"], data.features["gcc"]) and np.array_equal(again.siren, data.siren)
+    cfg = TrainConfig(epochs=1, width=8, batch_size=8, threads=1, val_fraction=0.5)
+    torch.manual_seed(0)
+    net, history = train_siren_net(data, feats.shapes(), cfg, n_azimuth=feats.config.n_azimuth)
+    assert len(history) == 1 and math.isfinite(history[0]["val_loss"])
+    path = export_onnx(net, root / "m.onnx", feats.config, extra={"training": {"note": "test"}})
+    return path, folders[0], evaluate_net(net, data.subset(np.arange(6)))  # rec 0, not mirrored
+
+
+def test_onnx_export_matches_torch(tiny_model: tuple[Path, Path, dict]) -> None:
+    from makeway.sense.recording import read_recording
+
+    path, folder, torch_out = tiny_model
+    model = SirenModel(path, threads=1)
+    assert model.streams == ("wave", "spec", "gcc", "level")
+    assert json.loads(model.metadata["training"]) == {"note": "test"}
+    rec = read_recording(folder)
+    w = window_batch(rec, label_recording(rec))
+    pred = model.predict(w)
+    assert len(pred) == len(w) == 6 and np.all((pred.prob >= 0) & (pred.prob <= 1))
+    assert np.allclose(pred.prob, torch_out["prob"], atol=1e-4)
+    assert np.allclose(pred.distance, np.maximum(torch_out["distance"], 0.0), atol=1e-2)
+    assert np.max(np.abs(wrap_angle(pred.theta - torch_out["theta"]))) < 1e-3
+    assert pred.bearing_map is not None and np.allclose(pred.bearing_map.sum(axis=1), 1.0, atol=1e-5)
+    single = model.predict(w[2])  # one window gives what it gives inside a batch
+    assert np.allclose(single.prob[0], pred.prob[2], atol=1e-5)
+
+
+def test_model_errors(tiny_model: tuple[Path, Path, dict], tmp_path: Path) -> None:
+    path, _, _ = tiny_model
+    model = SirenModel(path, threads=1)
+    with pytest.raises(InputError, match="microphone array"):
+        model.check_array(reference_mics()[:4], 48_000, "x")
+    with pytest.raises(InputError, match="sample rate"):
+        model.check_array(reference_mics(), 44_100, "x")
+    garbage = tmp_path / "garbage.onnx"
+    garbage.write_bytes(b"not a model at all")
+    with pytest.raises(InputError, match="ONNX"):
+        SirenModel(garbage)
+    with pytest.raises(InputError, match="not found"):
+        SirenModel(tmp_path / "missing.onnx")
