@@ -45,8 +45,8 @@ def fit_detector(paths: list[Path]) -> SirenEnergyDetector:
     for p in paths:
         rec = read_recording(p)
         lab = label_recording(rec)
-        scores.append(det.scores(window_batch(rec, lab)))
-        ys.append(lab.siren)
+        scores.append(det.scores(window_batch(rec, lab)[lab.kept]))
+        ys.append(lab.siren[lab.kept])
     return det.fit_scores(np.concatenate(scores), np.concatenate(ys))
 
 

@@ -207,6 +207,8 @@ def test_cli_eval(tiny_recordings: Path) -> None:
     result = json.loads(res.stdout.strip().splitlines()[-1])
     _check_keys(result)
     assert result["method"] == "gccphat" and result["recordings"] == 2
-    res = runner.invoke(audio_app, ["eval", "--data", str(tiny_recordings)])
-    assert res.exit_code == 2
-    assert "no trained siren model yet; use --baseline gccphat|srp|normmusic" in res.output
+    res = runner.invoke(audio_app, ["eval", "--data", str(tiny_recordings), "--baseline", "beamformer"])
+    assert res.exit_code == 2 and "--baseline must be one of gccphat|srp|normmusic" in res.output
+    missing = tiny_recordings / "no_model.onnx"
+    res = runner.invoke(audio_app, ["eval", "--data", str(tiny_recordings), "--model", str(missing)])
+    assert res.exit_code == 2 and "no_model.onnx" in res.output and "not found" in res.output

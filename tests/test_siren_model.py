@@ -9,15 +9,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from typer.testing import CliRunner
 
-from makeway.cli.audio import audio_app
 from makeway.errors import InputError
 from makeway.perceive.audio.doa import wrap_angle
 from makeway.perceive.audio.features import bandpass, window_batch
 from makeway.perceive.audio.labels import label_recording
 from makeway.perceive.audio.siren_features import MIRROR_CHANNELS, SirenFeatureConfig, SirenFeatures
-from makeway.perceive.audio.siren_model import DEFAULT_SIREN_MODEL, SirenModel
+from makeway.perceive.audio.siren_model import SirenModel
 from makeway.sense.recording import Recording, reference_mics, write_recording
 from makeway.sim.audio_scenarios import simulate_recording
 from makeway.sim.siren import group_split, load_siren_sources, split_sources
@@ -43,7 +41,13 @@ def pass_rec(data_root: Path) -> Recording:
     sirens = split_sources(load_siren_sources(data_root), "test")
     noise = split_sources(load_street_noise_sources(data_root), "test")
     return simulate_recording(
-        "opposite_direction", 6.0, seed=15, siren="real", siren_pool=sirens, noise_pool=noise, data_root=data_root
+        "opposite_direction",
+        6.0,
+        seed=15,
+        siren="real",
+        siren_pool=sirens,
+        noise_pool=noise,
+        data_root=data_root,
     )
 
 
@@ -85,7 +89,9 @@ def test_fft_bandpass_matches_forward_backward_filter(windows: tuple[np.ndarray,
     w = windows[0][2].astype(np.float64)
     ref = bandpass(w, 48_000)
     n_fft = next_fast_len(w.shape[1] + 1024, real=True)
-    ours = irfft(rfft(w, n=n_fft, axis=-1) * _band_mask(48_000, 500.0, 1800.0, n_fft), n=n_fft)[:, : w.shape[1]]
+    ours = irfft(rfft(w, n=n_fft, axis=-1) * _band_mask(48_000, 500.0, 1800.0, n_fft), n=n_fft)[
+        :, : w.shape[1]
+    ]
     mid = slice(4800, -4800)
     err = np.linalg.norm(ours[:, mid] - ref[:, mid]) / np.linalg.norm(ref[:, mid])
     assert err < 0.02
@@ -140,7 +146,9 @@ def tiny_model(tmp_path_factory: pytest.TempPathFactory, data_root: Path) -> tup
     data = build_dataset(folders, feats, mirror=True, cache=root / "cache.npz")
     assert len(data) == 2 * 2 * 6 and data.siren[:6].all() and not data.siren[-6:].any()
     again = build_dataset(folders, feats, mirror=True, cache=root / "cache.npz")  # from the cache
-    assert np.allclose(again.features["gcc"], data.features["gcc"]) and np.array_equal(again.siren, data.siren)
+    assert np.allclose(again.features["gcc"], data.features["gcc"]) and np.array_equal(
+        again.siren, data.siren
+    )
     cfg = TrainConfig(epochs=1, width=8, batch_size=8, threads=1, val_fraction=0.5)
     torch.manual_seed(0)
     net, history = train_siren_net(data, feats.shapes(), cfg, n_azimuth=feats.config.n_azimuth)

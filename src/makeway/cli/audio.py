@@ -142,22 +142,29 @@ def label(
 
     recs = _recording_folders(folder)
     lines: list[str] = []
-    n_windows = n_pos = 0
+    n_windows = n_pos = n_dropped = 0
     for path in recs:  # read everything first: a bad recording leaves no output behind
         labels = label_recording(read_recording(path), window, hop, max_distance)
         for row in labels.records(path.name):
             lines.append(json.dumps(row, separators=(",", ":")))
         n_windows += len(labels)
         n_pos += int(labels.siren.sum())
+        n_dropped += int(labels.dropped.sum())
     target = out if out is not None else folder / "labels.jsonl"
     write_text_atomic(target, "\n".join(lines) + ("\n" if lines else ""))
-    summary = {"recordings": len(recs), "windows": n_windows, "positive": n_pos, "out": str(target)}
+    summary = {
+        "recordings": len(recs),
+        "windows": n_windows,
+        "positive": n_pos,
+        "dropped": n_dropped,
+        "out": str(target),
+    }
     if as_json:
         print_json_line(summary)
     else:
         err_console.print(
             f"labelled {len(recs)} recording(s): {n_windows} windows, {n_pos} with a siren within "
-            f"{max_distance:g} m → {target}",
+            f"{max_distance:g} m, {n_dropped} dropped (sirens only farther) → {target}",
             highlight=False,
         )
 
@@ -223,8 +230,8 @@ def eval_cmd(
             rec = read_recording(path)
             labels = label_recording(rec)
             detector.sample_rate = rec.sample_rate
-            scores.append(detector.scores(window_batch(rec, labels)))
-            ys.append(labels.siren)
+            scores.append(detector.scores(window_batch(rec, labels)[labels.kept]))
+            ys.append(labels.siren[labels.kept])
         detector.fit_scores(np.concatenate(scores), np.concatenate(ys))
     method: Any = baseline
     name = baseline or "model"
@@ -281,7 +288,9 @@ def train(
     cache: Annotated[
         Path | None, typer.Option(help="Feature cache (.npz), reused when made from the same data.")
     ] = None,
-    threads: Annotated[int, typer.Option(min=1, help="torch threads.")] = 2,
+    threads: Annotated[
+        int, typer.Option(min=1, help="torch threads; also feature-extraction processes.")
+    ] = 2,
     seed: Annotated[int, typer.Option(help="Seed (weights, batches, validation split).")] = 0,
 ) -> None:
     """Train the siren network (SPEC §3): detection, bearing and distance heads, exported to ONNX.
@@ -311,7 +320,7 @@ def train(
     )
     feats = SirenFeatures()
     with progress_bar("features", len(folders), unit="rec") as advance:
-        dataset = build_dataset(folders, feats, mirror=mirror, cache=cache, advance=advance)
+        dataset = build_dataset(folders, feats, mirror=mirror, cache=cache, workers=threads, advance=advance)
     n_pos = int(dataset.siren.sum())
     err_console.print(
         f"{len(folders)} recordings → {len(dataset)} windows ({n_pos} with a siren ≤ 100 m)"

@@ -137,9 +137,11 @@ class SirenDataset:
 def _recording_dataset(folder: Path, feats: SirenFeatures, mirror: bool) -> SirenDataset:
     rec = read_recording(folder)
     labels = label_recording(rec, window_s=feats.config.window_s)
-    windows = window_batch(rec, labels)
+    kept = labels.kept  # windows whose sirens are all beyond 100 m are dropped (SPEC §3)
+    windows = window_batch(rec, labels)[kept]
     theta, dist = labels.nearest()
-    siren = labels.siren.astype(np.float32)
+    theta, dist = theta[kept], dist[kept]
+    siren = labels.siren[kept].astype(np.float32)
     chunks = [feats.transform(windows[i : i + 32]) for i in range(0, len(windows), 32)]
     f = {k: np.concatenate([c[k] for c in chunks]) for k in chunks[0]} if chunks else {}
     parts = [SirenDataset(f, siren, theta, dist, np.zeros(len(siren), np.int64), [folder.name])]
@@ -161,12 +163,14 @@ def build_dataset(
     *,
     mirror: bool = False,
     cache: Path | None = None,
+    workers: int = 1,
     advance: Callable[[int], Any] | None = None,
 ) -> SirenDataset:
     """Features and targets of every labelled window of ``folders`` (module docstring).
 
     With ``cache`` (a ``.npz`` path), a cache made from the same folders and feature configuration
-    is reused, and a new one written otherwise.
+    is reused, and a new one written otherwise. ``workers`` > 1 spreads the recordings over that
+    many processes (the order of the result does not depend on it).
     """
     key = json.dumps({"folders": [str(f) for f in folders], "features": feats.config.to_dict(), "m": mirror})
     if cache is not None and cache.is_file():
@@ -176,11 +180,21 @@ def build_dataset(
             if advance is not None:
                 advance(len(folders))
             return SirenDataset.load(cache)
-    parts = []
-    for folder in folders:
-        parts.append(_recording_dataset(Path(folder), feats, mirror))
-        if advance is not None:
-            advance(1)
+    parts: list[SirenDataset] = []
+    if workers > 1 and len(folders) > 1:
+        from concurrent.futures import ProcessPoolExecutor
+
+        with ProcessPoolExecutor(max_workers=workers) as pool:
+            jobs = [pool.submit(_recording_dataset, Path(f), feats, mirror) for f in folders]
+            for job in jobs:
+                parts.append(job.result())
+                if advance is not None:
+                    advance(1)
+    else:
+        for folder in folders:
+            parts.append(_recording_dataset(Path(folder), feats, mirror))
+            if advance is not None:
+                advance(1)
     data = SirenDataset.concat(parts)
     if cache is not None:
         data.save(cache, key)
@@ -378,7 +392,7 @@ def _loss(
     dir_l = (((direction - direction_t) ** 2).sum(dim=1) * m).sum() / n
     dist_l = (((distance - dist_t) ** 2) * m).sum() / n
     total = weights[0] * bce + weights[1] * dir_l + weights[2] * dist_l
-    return total, [float(bce), float(dir_l), float(dist_l)]
+    return total, [float(bce.detach()), float(dir_l.detach()), float(dist_l.detach())]
 
 
 def _split_by_recording(data: SirenDataset, fraction: float, seed: int) -> tuple[np.ndarray, np.ndarray]:
@@ -446,7 +460,7 @@ def train_siren_net(
             opt.zero_grad()
             loss.backward()
             opt.step()
-            sums += [float(loss), *parts]
+            sums += [float(loss.detach()), *parts]
             nb += 1
         net.eval()
         with torch.no_grad():

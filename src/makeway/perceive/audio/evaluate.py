@@ -1,7 +1,9 @@
 """Window-level evaluation of a siren detector + localizer on labelled recordings (issue 4, SPEC §3).
 
 :func:`evaluate` auto-labels each recording (0.5 s windows every 0.17 s, sources beyond 100 m
-dropped), runs a method on every window and returns the JSON keys of ``makeway audio eval``:
+dropped, and windows whose every siren lies beyond 100 m skipped, see
+:mod:`~makeway.perceive.audio.labels`), runs a method on every window and returns the JSON keys
+of ``makeway audio eval``:
 
 * ``recall`` — detected share of the windows with a siren within 100 m; ``false_alarm_rate`` —
   detected share of the windows without; ``accuracy`` — share of windows classified right. All
@@ -17,7 +19,8 @@ dropped), runs a method on every window and returns the JSON keys of ``makeway a
 * ``by_distance`` — 10 m bins of the nearest source's distance (0–10, …, 90–100): ``n``, ``recall``,
   ``angle_median_deg``, ``angle_mean_deg``.
 
-Plus ``method``, ``recordings``, ``windows``, ``positives``, ``negatives``, ``ms_per_window`` (the
+Plus ``method``, ``recordings``, ``windows``, ``positives``, ``negatives``, ``dropped_windows``
+(skipped: sirens only beyond 100 m), ``ms_per_window`` (the
 method's wall time per window: detector + bearing).
 """
 
@@ -179,19 +182,21 @@ def evaluate(
     ``on_recording`` is called after each recording."""
     estimate = baseline_estimator(method, detector) if isinstance(method, str) else method
     res = WindowResults()
-    n_recs = n_windows = 0
+    n_recs = n_windows = n_dropped = 0
     busy = 0.0
     for item in recordings:
         rec = item if isinstance(item, Recording) else read_recording(item)
         labels = label_recording(rec)
-        windows = window_batch(rec, labels)
+        kept = labels.kept
+        windows = window_batch(rec, labels)[kept]
         theta, dist = labels.nearest()
+        n_dropped += int((~kept).sum())
         t0 = time.perf_counter()
         prob, theta_hat, distance_hat = estimate(rec, windows)
         busy += time.perf_counter() - t0
-        res.siren.append(labels.siren)
-        res.theta.append(theta)
-        res.distance.append(dist)
+        res.siren.append(labels.siren[kept])
+        res.theta.append(theta[kept])
+        res.distance.append(dist[kept])
         res.prob.append(prob)
         res.theta_hat.append(theta_hat)
         res.distance_hat.append(distance_hat)
@@ -202,6 +207,7 @@ def evaluate(
     label = name if name is not None else (method if isinstance(method, str) else "model")
     out: dict[str, Any] = {"method": label, "recordings": n_recs}
     out.update(summarize(res.arrays(), threshold))
+    out["dropped_windows"] = n_dropped
     out["ms_per_window"] = round(1000.0 * busy / n_windows, 2) if n_windows else None
     out["threshold"] = threshold
     return out

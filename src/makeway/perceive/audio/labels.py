@@ -12,8 +12,11 @@ their logged timestamps (yaw on the unwrapped angle), the source is moved into t
   logs; negative: approaching).
 
 Sources farther than ``max_distance_m`` (100 m) are dropped, as in seed 002 (a siren is hardly
-perceivable beyond); a window with no source left is a negative (``siren`` false). Dropped entries
-hold NaN.
+perceivable beyond); their entries hold NaN. A window whose every source is beyond that range is
+**dropped** as a whole (``dropped`` true): it is neither a positive — no siren within 100 m — nor a
+fair negative, since a 115 dB siren 120 m away is still plainly audible; seed 002 drops such samples
+too. Training and evaluation skip dropped windows; a window of a recording without any siren is a
+negative (``siren`` false).
 """
 
 from __future__ import annotations
@@ -52,6 +55,7 @@ class Labels:
     window_s: float = WINDOW_S
     hop_s: float = HOP_S
     max_distance_m: float = MAX_DISTANCE_M
+    far: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.start)
@@ -59,6 +63,18 @@ class Labels:
     @property
     def n_sources(self) -> int:
         return int(self.present.shape[1])
+
+    @property
+    def dropped(self) -> np.ndarray:
+        """``(W,)`` bool: sources exist but all lie beyond ``max_distance_m`` (module docstring)."""
+        if self.far is None:
+            return np.zeros(len(self), dtype=bool)
+        return np.asarray(self.far & ~self.present.any(axis=1), dtype=bool)
+
+    @property
+    def kept(self) -> np.ndarray:
+        """``(W,)`` bool: the windows used for training and evaluation (not :attr:`dropped`)."""
+        return ~self.dropped
 
     @property
     def siren(self) -> np.ndarray:
@@ -102,6 +118,7 @@ class Labels:
                 n_samples=int(self.window),
                 t_end=round(float(self.t_end[w]), 6),
                 siren=bool(srcs),
+                dropped=bool(self.dropped[w]),
                 sources=srcs,
             )
             out.append(row)
@@ -150,6 +167,7 @@ def label_recording(
     dist = np.full(shape, np.nan)
     rate = np.full(shape, np.nan)
     present = np.zeros(shape, dtype=bool)
+    far = np.zeros(len(start), dtype=bool)
     for j, src in enumerate(rec.sources):
         x, y = relative_position(rec.ego, src, t_end)
         d = np.hypot(x, y)
@@ -162,8 +180,9 @@ def label_recording(
         x0, y0 = relative_position(rec.ego, src, t_lo)
         r = (np.hypot(x1, y1) - np.hypot(x0, y0)) / np.maximum(t_hi - t_lo, 1e-6)
         ok = d <= max_distance_m
+        far |= ~ok
         present[:, j] = ok
         theta[ok, j] = np.arctan2(y, x)[ok]
         dist[ok, j] = d[ok]
         rate[ok, j] = r[ok]
-    return Labels(start, win, sr, t_end, present, theta, dist, rate, window_s, hop_s, max_distance_m)
+    return Labels(start, win, sr, t_end, present, theta, dist, rate, window_s, hop_s, max_distance_m, far)

@@ -12,9 +12,10 @@ the CLI's default) ``probability`` is the network's, the first source is the nea
 the network's bearing (vehicle frame, 0 ahead, positive left) and distance, and further sirens are
 the other strong peaks of its bearing map (distance ``null``). Without a model, the band-energy
 :class:`~makeway.perceive.audio.doa.SirenEnergyDetector` and a classical bearing (``method``) give at
-most one source and no distance. ``approaching`` comes from :class:`~makeway.perceive.audio.motion.ApproachEstimator`, which sees every
-window (so its history is continuous) but is reported only in siren windows. ``sources`` is empty
-when there is no siren.
+most one source and no distance. ``approaching`` comes from
+:class:`~makeway.perceive.audio.motion.ApproachEstimator`, which sees every window (so its
+history is continuous) but is reported only in siren windows, for the nearest siren. ``sources`` is
+empty when there is no siren.
 
 :func:`plot_listen` draws the messages: a spectrogram of channel 0 (0–4 kHz) with the siren windows
 shaded, and a polar plot of the bearing track coloured by time.
@@ -60,7 +61,9 @@ def listen(
     if model is not None:
         model.check_array(recording.mics, sr, recording.path or "recording")
         if abs(window_s - model.config.window_s) > 1e-9:
-            raise ValueError(f"the siren model works on {model.config.window_s:g} s windows, not {window_s:g} s")
+            raise ValueError(
+                f"the siren model works on {model.config.window_s:g} s windows, not {window_s:g} s"
+            )
     det = detector if detector is not None else SirenEnergyDetector(sr)
     est = approach if approach is not None else ApproachEstimator()
     est.reset()
@@ -79,7 +82,11 @@ def listen(
         else:
             p = float(det.proba_from_scores(np.array([detector_score(window, sr)]))[0])
             is_siren = p >= 0.5
-            found = [{"bearing_rad": float(doa(window, recording.mics, sr)), "distance_m": None}] if is_siren else []
+            found = (
+                [{"bearing_rad": float(doa(window, recording.mics, sr)), "distance_m": None}]
+                if is_siren
+                else []
+            )
         for k, src in enumerate(found):
             bearing = float(src["bearing_rad"])
             dist = src["distance_m"]
