@@ -189,3 +189,26 @@ def test_model_errors(tiny_model: tuple[Path, Path, dict], tmp_path: Path) -> No
         SirenModel(garbage)
     with pytest.raises(InputError, match="not found"):
         SirenModel(tmp_path / "missing.onnx")
+
+
+# ------------------------------------------------------------------------------ real-data check
+
+
+def test_mono_check_files_and_rows(tiny_model: tuple[Path, Path, dict], data_root: Path) -> None:
+    from makeway.eval.siren_mono import check_file, mono_files, summarize_rows
+
+    files = mono_files(data_root)
+    kinds = {f.kind for f in files}
+    assert kinds == {"street_noise", "street_siren", "mixture", "clip"}
+    assert all(f.siren == (f.kind != "street_noise") for f in files)
+    assert not any(f.seen_in_training for f in files if f.kind in ("street_siren", "mixture", "clip"))
+    model = SirenModel(tiny_model[0], threads=1)
+    rng = np.random.default_rng(0)
+    picked = [next(f for f in files if f.kind == k) for k in ("street_noise", "street_siren")]
+    rows = [check_file(f, model, rng, max_windows=4) for f in picked]
+    assert [r["windows"] for r in rows] == [4, 4]
+    assert all(0 <= r["detected"] <= 4 and 0.0 <= r["mean_probability"] <= 1.0 for r in rows)
+    summary = summarize_rows(rows)
+    assert summary["all"]["siren_windows"] == 4 and summary["all"]["no_siren_windows"] == 4
+    assert summary["all"]["recall"] == rows[1]["detected"] / 4
+    assert summary["all"]["false_alarm_rate"] == rows[0]["detected"] / 4

@@ -174,12 +174,15 @@ def evaluate(
     threshold: float = 0.5,
     on_recording: Callable[[], None] | None = None,
     name: str | None = None,
+    arrays: dict[str, np.ndarray] | None = None,
 ) -> dict[str, Any]:
     """Run ``method`` over every window of every recording, and summarize (module docstring).
 
     ``method`` is a :data:`~makeway.perceive.audio.doa.DOA_METHODS` name (run with ``detector``,
     see :func:`baseline_estimator`) or any :data:`WindowEstimator` (e.g. :func:`model_estimator`).
-    ``on_recording`` is called after each recording."""
+    ``on_recording`` is called after each recording; ``arrays``, when given, receives the pooled
+    per-window arrays (``siren``, ``theta``, ``distance``, ``prob``, ``theta_hat``,
+    ``distance_hat``)."""
     estimate = baseline_estimator(method, detector) if isinstance(method, str) else method
     res = WindowResults()
     n_recs = n_windows = n_dropped = 0
@@ -206,7 +209,10 @@ def evaluate(
             on_recording()
     label = name if name is not None else (method if isinstance(method, str) else "model")
     out: dict[str, Any] = {"method": label, "recordings": n_recs}
-    out.update(summarize(res.arrays(), threshold))
+    pooled = res.arrays()
+    if arrays is not None:
+        arrays.update(pooled)
+    out.update(summarize(pooled, threshold))
     out["dropped_windows"] = n_dropped
     out["ms_per_window"] = round(1000.0 * busy / n_windows, 2) if n_windows else None
     out["threshold"] = threshold
