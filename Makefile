@@ -5,7 +5,7 @@ BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 OUT    ?= reports/demo
 
-.PHONY: venv demo test lint typecheck bench bench-sort bench-video bench-pull-over clean
+.PHONY: venv demo test lint typecheck bench bench-sort bench-video bench-pull-over bench-audio clean
 
 venv: $(STAMP)
 
@@ -42,7 +42,11 @@ bench-video: venv
 bench-pull-over: venv
 	$(BIN)/python benchmarks/bench_pull_over.py
 
-bench: bench-sort bench-video bench-pull-over
+bench-audio: venv
+	$(BIN)/python benchmarks/bench_audio_model.py
+	$(BIN)/python benchmarks/bench_audio_real.py
+
+bench: bench-sort bench-video bench-pull-over bench-audio
 
 clean:
 	rm -rf $(VENV) reports .pytest_cache .mypy_cache .ruff_cache

@@ -9,7 +9,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from typer.testing import CliRunner
 
+from makeway.cli.audio import audio_app
 from makeway.errors import InputError
 from makeway.perceive.audio.doa import wrap_angle
 from makeway.perceive.audio.features import bandpass, window_batch
@@ -133,7 +135,8 @@ def test_source_split_is_by_group_and_stable(data_root: Path) -> None:
 @pytest.fixture(scope="module")
 def tiny_model(tmp_path_factory: pytest.TempPathFactory, data_root: Path) -> tuple[Path, Path, dict]:
     """Two short training-split recordings, one epoch of a narrow network, exported to ONNX."""
-    torch = pytest.importorskip("torch")  # in the dev extra; importorskip only names the failure
+    import torch  # in the dev extra
+
     from makeway.train.siren import TrainConfig, build_dataset, evaluate_net, export_onnx, train_siren_net
 
     root = tmp_path_factory.mktemp("siren_train")
@@ -212,3 +215,32 @@ def test_mono_check_files_and_rows(tiny_model: tuple[Path, Path, dict], data_roo
     assert summary["all"]["siren_windows"] == 4 and summary["all"]["no_siren_windows"] == 4
     assert summary["all"]["recall"] == rows[1]["detected"] / 4
     assert summary["all"]["false_alarm_rate"] == rows[0]["detected"] / 4
+
+
+def test_cli_train_and_errors(tiny_model: tuple[Path, Path, dict], tmp_path: Path) -> None:
+    recs = tiny_model[1].parent
+    out = tmp_path / "cli.onnx"
+    runner = CliRunner()
+    args = [
+        "train",
+        "--data",
+        str(recs),
+        "--out",
+        str(out),
+        "--epochs",
+        "1",
+        "--width",
+        "8",
+        "--threads",
+        "1",
+    ]
+    res = runner.invoke(audio_app, [*args, "--test", str(recs)])
+    assert res.exit_code == 0, res.output
+    summary = json.loads(res.stdout.strip().splitlines()[-1])
+    assert summary["n_recordings"] == 2 and summary["epochs_run"] == 1
+    assert METRIC_KEYS <= set(summary["test"]) and summary["test"]["distance_median_m"] is not None
+    assert SirenModel(out).metadata["makeway_model"] == "siren_net"
+    res = runner.invoke(audio_app, [*args, "--streams", "wave,sonar"])
+    assert res.exit_code == 2 and "unknown streams" in res.output
+    res = runner.invoke(audio_app, ["train", "--data", str(tmp_path / "nothing"), "--out", str(out)])
+    assert res.exit_code == 2 and "nothing" in res.output

@@ -284,6 +284,9 @@ def train(
     ] = "wave,spec,gcc,level",
     lr: Annotated[float, typer.Option(min=0.0, help="Adam learning rate.")] = 1e-3,
     batch_size: Annotated[int, typer.Option(min=2, help="Windows per batch.")] = 64,
+    patience: Annotated[
+        int, typer.Option(min=0, help="Epochs without improvement before the learning rate drops (×0.3).")
+    ] = 2,
     mirror: Annotated[bool, typer.Option(help="Add every window mirrored left/right.")] = True,
     cache: Annotated[
         Path | None, typer.Option(help="Feature cache (.npz), reused when made from the same data.")
@@ -300,7 +303,7 @@ def train(
     """
     import sys
 
-    from makeway.perceive.audio.siren_features import SirenFeatures
+    from makeway.perceive.audio.siren_features import STREAMS, SirenFeatures
     from makeway.perceive.audio.siren_model import DEFAULT_SIREN_MODEL
     from makeway.progress import progress_bar
 
@@ -315,8 +318,20 @@ def train(
     test_folders = _recording_folders(test) if test is not None else []
     target = out if out is not None else DEFAULT_SIREN_MODEL
     names = tuple(x.strip() for x in streams.split(",") if x.strip())
+    unknown = sorted(set(names) - set(STREAMS))
+    if unknown or not names:
+        raise ValueError(
+            f"unknown streams {unknown}; --streams takes a comma-separated subset of {', '.join(STREAMS)}"
+        )
     cfg = TrainConfig(
-        streams=names, width=width, epochs=epochs, lr=lr, batch_size=batch_size, seed=seed, threads=threads
+        streams=names,
+        width=width,
+        epochs=epochs,
+        lr=lr,
+        batch_size=batch_size,
+        plateau_patience=patience,
+        seed=seed,
+        threads=threads,
     )
     feats = SirenFeatures()
     with progress_bar("features", len(folders), unit="rec") as advance:
@@ -327,6 +342,7 @@ def train(
         + (" incl. mirrored copies" if mirror else ""),
         highlight=False,
     )
+    command = " ".join(["makeway audio train", *sys.argv[3:]]) if len(sys.argv) > 3 else "makeway audio train"
     t0 = time.perf_counter()
     with progress_bar("training", cfg.epochs, unit="epoch") as advance:
 
@@ -340,24 +356,39 @@ def train(
             )
             advance(1)
 
+        def on_best(best_net: Any, row: dict[str, float]) -> None:
+            # a checkpoint of the best network so far, so a long run cut short still leaves a model
+            export_onnx(
+                best_net,
+                target,
+                feats.config,
+                extra={"training": {**training, "checkpoint_epoch": row["epoch"]}},
+            )
+
+        training: dict[str, Any] = {
+            "command": command,
+            "recordings": [str(d) for d in data],
+            "n_recordings": len(folders),
+            "windows": len(dataset),
+            "positives": n_pos,
+            "mirror": mirror,
+            "config": config_dict(cfg),
+        }
         net, history = train_siren_net(
-            dataset, feats.shapes(), cfg, n_azimuth=feats.config.n_azimuth, on_epoch=on_epoch
+            dataset,
+            feats.shapes(),
+            cfg,
+            n_azimuth=feats.config.n_azimuth,
+            on_epoch=on_epoch,
+            on_best=on_best,
         )
     wall = time.perf_counter() - t0
-    training = {
-        "command": " ".join(["makeway audio train", *sys.argv[3:]])
-        if len(sys.argv) > 2
-        else "makeway audio train",
-        "recordings": [str(d) for d in data],
-        "n_recordings": len(folders),
-        "windows": len(dataset),
-        "positives": n_pos,
-        "mirror": mirror,
-        "config": config_dict(cfg),
-        "epochs_run": len(history),
-        "best_val_loss": round(min(h["val_loss"] for h in history), 5),
-        "train_seconds": round(wall, 1),
-    }
+    training.update(
+        epochs_run=len(history),
+        best_val_loss=round(min(h["val_loss"] for h in history), 5),
+        history=[{k: round(float(v), 5) for k, v in h.items()} for h in history],
+        train_seconds=round(wall, 1),
+    )
     export_onnx(net, target, feats.config, extra={"training": training})
     err_console.print(f"model → {target} ({target.stat().st_size / 1e6:.2f} MB)", highlight=False)
     summary: dict[str, Any] = {"model": str(target), **training}

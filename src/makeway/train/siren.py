@@ -428,9 +428,11 @@ def train_siren_net(
     *,
     n_azimuth: int = 120,
     on_epoch: Callable[[int, dict[str, float]], Any] | None = None,
+    on_best: Callable[[SirenNet, dict[str, float]], Any] | None = None,
 ) -> tuple[SirenNet, list[dict[str, float]]]:
     """Train a :class:`SirenNet` on ``data`` (module docstring); returns the best-validation
-    network (by validation loss) and the per-epoch history."""
+    network (by validation loss) and the per-epoch history. ``on_best(net, row)`` is called (in eval
+    mode) whenever the validation loss improves, e.g. to save a checkpoint of a long run."""
     cfg = config if config is not None else TrainConfig()
     torch.manual_seed(cfg.seed)
     torch.set_num_threads(max(1, int(cfg.threads)))
@@ -488,6 +490,8 @@ def train_siren_net(
             on_epoch(epoch, row)
         if best is None or vsum[0] < best[0]:
             best = (float(vsum[0]), {k: v.detach().clone() for k, v in net.state_dict().items()})
+            if on_best is not None:
+                on_best(net, row)
         sched.step(vsum[0])
         if opt.param_groups[0]["lr"] < cfg.min_lr:
             break
