@@ -238,7 +238,7 @@ def test_cli_train_and_errors(tiny_model: tuple[Path, Path, dict], tmp_path: Pat
     assert res.exit_code == 0, res.output
     summary = json.loads(res.stdout.strip().splitlines()[-1])
     assert summary["n_recordings"] == 2 and summary["epochs_run"] == 1
-    assert METRIC_KEYS <= set(summary["test"]) and summary["test"]["distance_median_m"] is not None
+    assert set(summary["test"]) >= METRIC_KEYS and summary["test"]["distance_median_m"] is not None
     assert SirenModel(out).metadata["makeway_model"] == "siren_net"
     res = runner.invoke(audio_app, [*args, "--streams", "wave,sonar"])
     assert res.exit_code == 2 and "unknown streams" in res.output
