@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import statistics
 import tempfile
 import time
@@ -163,6 +164,32 @@ def main() -> int:
                 f"recall 10–50 m {100 * r1:.2f} % (target ≥ 99.5 % at ≤ 1 %)"
             )
             results["at_1pct_false_alarms"] = {"threshold": t1, "false_alarm_rate": fa1, "recall_10_50": r1}
+
+        # more than one siren: windows with two sirens within 100 m, both found among the sources
+        two = found_both = 0
+        for rec in recs:
+            if len(rec.sources) < 2:
+                continue
+            lab = label_recording(rec)
+            sel = np.flatnonzero(lab.present.sum(axis=1) >= 2)
+            if not len(sel):
+                continue
+            pred = model.predict(window_batch(rec, lab)[sel])
+            for j, w in enumerate(sel):
+                got = [s["bearing_rad"] for s in model.sources(pred, j)]
+                truth = lab.theta[w][lab.present[w]]
+                ok = all(
+                    any(abs(math.remainder(g - t, 2 * math.pi)) <= math.radians(15) for g in got)
+                    for t in truth
+                )
+                two += 1
+                found_both += int(ok)
+        if two:
+            print(
+                f"\ntwo sirens within 100 m: {two} windows; both found within 15° in {found_both} "
+                f"({100 * found_both / two:.1f} %)"
+            )
+            results["two_sirens"] = {"windows": two, "both_found_15deg": found_both}
 
         rec0 = recs[0]
         window = window_batch(rec0, label_recording(rec0))[0]

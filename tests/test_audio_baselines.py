@@ -16,6 +16,7 @@ from makeway.perceive.audio.doa import (
     siren_energy_detector,
     wrap_angle,
 )
+from makeway.perceive.audio.evaluate import METRIC_KEYS as EVAL_METRIC_KEYS
 from makeway.perceive.audio.evaluate import evaluate
 from makeway.perceive.audio.features import bandpass, log_mel, mfcc, window_batch
 from makeway.perceive.audio.labels import label_recording
@@ -34,15 +35,7 @@ from makeway.sim.siren import synthesize_siren
 SR = REFERENCE_SAMPLE_RATE
 WIN = SR // 2
 PRE = 0.3
-METRIC_KEYS = {
-    "recall",
-    "false_alarm_rate",
-    "accuracy",
-    "angle_median_deg",
-    "angle_mean_deg",
-    "distance_median_m",
-    "distance_mean_m",
-}
+METRIC_KEYS = set(EVAL_METRIC_KEYS)
 
 
 def _static(x: float, y: float, yaw: float | None = None) -> Trajectory:

@@ -110,8 +110,13 @@ def test_cli_listen(tmp_path: Path) -> None:
     assert summary["messages"] == len(lines) and png.exists()
     assert [json.loads(x) for x in out.read_text().splitlines()] == lines
 
+    res = runner.invoke(audio_app, ["listen", str(folder), "--baseline", "gccphat"])  # classical path
+    assert res.exit_code == 0, res.output
+    base = [json.loads(x) for x in res.stdout.splitlines() if x.strip()]
+    assert len(base) == len(lines) and all(s["distance_m"] is None for m in base for s in m["sources"])
+
     missing = tmp_path / "nope"
     res = runner.invoke(audio_app, ["listen", str(missing)])
     assert res.exit_code == 2 and "nope" in res.output
-    res = runner.invoke(audio_app, ["listen", str(folder), "--method", "bogus"])
+    res = runner.invoke(audio_app, ["listen", str(folder), "--baseline", "bogus"])
     assert res.exit_code == 2

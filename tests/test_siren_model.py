@@ -14,25 +14,16 @@ from typer.testing import CliRunner
 from makeway.cli.audio import audio_app
 from makeway.errors import InputError
 from makeway.perceive.audio.doa import wrap_angle
+from makeway.perceive.audio.evaluate import METRIC_KEYS as EVAL_METRIC_KEYS
 from makeway.perceive.audio.features import bandpass, window_batch
 from makeway.perceive.audio.labels import label_recording
 from makeway.perceive.audio.siren_features import MIRROR_CHANNELS, SirenFeatureConfig, SirenFeatures
-from makeway.perceive.audio.siren_model import SirenModel
+from makeway.perceive.audio.siren_model import DEFAULT_SIREN_MODEL, SirenModel
 from makeway.sense.recording import Recording, reference_mics, write_recording
 from makeway.sim.audio_scenarios import simulate_recording
 from makeway.sim.siren import group_split, load_siren_sources, split_sources
 
-METRIC_KEYS = {
-    "recall",
-    "false_alarm_rate",
-    "accuracy",
-    "angle_median_deg",
-    "angle_mean_deg",
-    "distance_median_m",
-    "distance_mean_m",
-    "range_10_50",
-    "by_distance",
-}
+METRIC_KEYS = {*EVAL_METRIC_KEYS, "range_10_50", "by_distance"}
 
 
 @pytest.fixture(scope="module")
@@ -244,3 +235,40 @@ def test_cli_train_and_errors(tiny_model: tuple[Path, Path, dict], tmp_path: Pat
     assert res.exit_code == 2 and "unknown streams" in res.output
     res = runner.invoke(audio_app, ["train", "--data", str(tmp_path / "nothing"), "--out", str(out)])
     assert res.exit_code == 2 and "nothing" in res.output
+
+
+# ---------------------------------------------------------------------------------- shipped model
+
+
+def test_shipped_model_on_a_held_out_recording(windows: tuple[np.ndarray, ...]) -> None:
+    """The default model (trained on the train split) on a recording made of test-split sirens
+    and street noise: detection, bearing and distance in the 20–80 m stretch of an EV passing."""
+    assert DEFAULT_SIREN_MODEL.is_file() and DEFAULT_SIREN_MODEL.stat().st_size <= 5_000_000
+    model = SirenModel()
+    training = json.loads(model.metadata["training"])
+    assert training["n_recordings"] >= 100 and "makeway audio train" in training["command"]
+    w, siren, theta, dist = windows
+    pred = model.predict(w)
+    assert np.mean((pred.prob >= model.threshold) == siren) >= 0.9
+    sel = siren & (dist > 20) & (dist < 80)
+    assert sel.sum() >= 5
+    ang = np.degrees(np.abs(wrap_angle(pred.theta[sel] - theta[sel])))
+    assert np.median(ang) <= 10.0
+    assert np.median(np.abs(pred.distance[sel] - dist[sel])) <= 15.0
+
+
+def test_cli_eval_and_listen_with_the_shipped_model(pass_rec: Recording, tmp_path: Path) -> None:
+    folder = write_recording(tmp_path / "recs" / "rec_00000", pass_rec)
+    runner = CliRunner()
+    res = runner.invoke(audio_app, ["eval", "--data", str(folder.parent), "--json", "-q"])
+    assert res.exit_code == 0, res.output
+    result = json.loads(res.stdout.strip().splitlines()[-1])
+    assert set(result) >= METRIC_KEYS and result["method"] == f"model:{DEFAULT_SIREN_MODEL.name}"
+    assert result["distance_median_m"] is not None and result["range_10_50"]["positives"] > 0
+    res = runner.invoke(audio_app, ["listen", str(folder), "--jsonl", str(tmp_path / "m.jsonl")])
+    assert res.exit_code == 0, res.output
+    msgs = [json.loads(x) for x in (tmp_path / "m.jsonl").read_text().splitlines()]
+    firsts = [m["sources"][0] for m in msgs if m["is_siren"]]
+    assert firsts and all(s["distance_m"] is not None and s["distance_m"] >= 0 for s in firsts)
+    res = runner.invoke(audio_app, ["listen", str(folder), "--baseline", "bogus"])
+    assert res.exit_code == 2 and "--baseline must be one of" in res.output

@@ -40,6 +40,16 @@ from makeway.perceive.audio.features import window_batch
 from makeway.perceive.audio.labels import label_recording
 from makeway.sense.recording import Recording, read_recording
 
+METRIC_KEYS = (
+    "recall",
+    "false_alarm_rate",
+    "accuracy",
+    "angle_median_deg",
+    "angle_mean_deg",
+    "distance_median_m",
+    "distance_mean_m",
+)
+"""The metric keys of ``makeway audio eval`` (also inside ``range_10_50``)."""
 RANGE_10_50 = (10.0, 50.0)
 BIN_M = 10.0
 

@@ -148,14 +148,45 @@ def plot_listen(
     ax.set_title("spectrogram; shaded / top strip: siren detected")
 
     pax: Any = fig.add_subplot(gs[0, 2], projection="polar")  # a PolarAxes
-    pts = [(m["t_end"], s["bearing_rad"]) for m in msgs for s in m["sources"]]
     pax.set_theta_zero_location("N")  # 0 = straight ahead, up; positive = left, counter-clockwise
-    if pts:
-        tt, bb = (np.array(v) for v in zip(*pts, strict=True))
-        sc = pax.scatter(bb, tt, c=tt, cmap="viridis", s=12, vmin=0.0, vmax=recording.duration_s)
-        fig.colorbar(sc, ax=pax, label="time (s)", shrink=0.7)
-    pax.set_rlim(0.0, max(recording.duration_s, 1e-3))
-    pax.set_title("bearing track (up = ahead, left = left)")
+    ranged = any(s["distance_m"] is not None for m in msgs for s in m["sources"])
+    if ranged:  # the network's bearing and distance: a map around the car, truth in grey when logged
+        r_max = 100.0
+        if recording.sources:
+            from makeway.perceive.audio.labels import label_recording
+
+            lab = label_recording(recording, window_s=window_s)
+            th, dist = lab.nearest()
+            pax.plot(th, dist, color="0.6", lw=1.0, label="true nearest siren")
+        first = [(m["t_end"], s["bearing_rad"], s["distance_m"]) for m in msgs for s in m["sources"][:1]]
+        more = [s["bearing_rad"] for m in msgs for s in m["sources"][1:]]
+        if first:
+            tt, bb, rr = (np.array(v, dtype=np.float64) for v in zip(*first, strict=True))
+            sc = pax.scatter(
+                bb, np.minimum(rr, r_max), c=tt, cmap="viridis", s=12, vmin=0.0, vmax=recording.duration_s
+            )
+            fig.colorbar(sc, ax=pax, label="time (s)", shrink=0.7)
+        if more:
+            pax.scatter(
+                more,
+                np.full(len(more), 0.95 * r_max),
+                marker="x",
+                color="tab:red",
+                s=14,
+                label="other sirens",
+            )
+        pax.set_rlim(0.0, r_max)
+        pax.set_title("sirens: bearing and distance (m); up = ahead")
+        if recording.sources or more:
+            pax.legend(loc="lower left", fontsize=7, bbox_to_anchor=(-0.15, -0.15))
+    else:
+        pts = [(m["t_end"], s["bearing_rad"]) for m in msgs for s in m["sources"]]
+        if pts:
+            tt, bb = (np.array(v) for v in zip(*pts, strict=True))
+            sc = pax.scatter(bb, tt, c=tt, cmap="viridis", s=12, vmin=0.0, vmax=recording.duration_s)
+            fig.colorbar(sc, ax=pax, label="time (s)", shrink=0.7)
+        pax.set_rlim(0.0, max(recording.duration_s, 1e-3))
+        pax.set_title("bearing track (up = ahead, left = left)")
     target = Path(out_png)
     with atomic_path(target) as tmp:
         fig.savefig(tmp, format="png")
