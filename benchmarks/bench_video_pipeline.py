@@ -7,6 +7,8 @@ the pipeline from the machine's current load, it also times the detector alone o
 in the same run and prints the pipeline's overhead over it.
 
     make bench-video           # or: .venv/bin/python benchmarks/bench_video_pipeline.py [--clip NAME]
+    .venv/bin/python benchmarks/bench_video_pipeline.py --classifier default --classify-every 1,2,3
+        # Framework B with the shipped crop classifier: with/without in each repeat, per k
 """
 
 from __future__ import annotations
@@ -21,7 +23,8 @@ from pathlib import Path
 
 from makeway.paths import data_dir
 from makeway.perceive.vision.detectors import create_detector
-from makeway.pipeline.video import run_video
+from makeway.perceive.vision.ev_classifier import DEFAULT_MODEL, EVTrackClassifier, load_crop_classifier
+from makeway.pipeline.video import TrackClassifier, VideoRunSummary, run_video
 from makeway.sense.video import VideoReader
 
 TARGET = 2.0
@@ -35,6 +38,18 @@ def main() -> int:
     ap.add_argument("--workers", type=int, default=None, help="detector workers (default: cores, ≤ 4)")
     ap.add_argument("--repeats", type=int, default=3, help="full runs; all are listed, the best is detailed")
     ap.add_argument("--all-clips", action="store_true", help="also run every clip once (no timing claims)")
+    ap.add_argument(
+        "--classifier",
+        default="none",
+        help="also run Framework B with this crop classifier ('default' = the shipped head, or a "
+        ".npz/.onnx path), alternating with runs without it, and print the ratio",
+    )
+    ap.add_argument(
+        "--classify-every",
+        default="1",
+        help="comma list of k: each track judged every k-th frame (one classifier setting per k)",
+    )
+    ap.add_argument("--classifier-threads", type=int, default=None, help="ONNX threads of the classifier")
     args = ap.parse_args()
 
     root = data_dir()
@@ -55,6 +70,12 @@ def main() -> int:
 
     best = None
     factors: list[float] = []
+    variants: dict[int, TrackClassifier] = {}
+    if args.classifier.strip().lower() != "none":
+        head = DEFAULT_MODEL if args.classifier.strip().lower() == "default" else Path(args.classifier)
+        crop_clf = load_crop_classifier(head, num_threads=args.classifier_threads)
+        variants = {int(k): EVTrackClassifier(crop_clf, every=int(k)) for k in args.classify_every.split(",")}
+    with_clf: dict[int, list[VideoRunSummary]] = {k: [] for k in variants}
     with tempfile.TemporaryDirectory() as tmp:
         for r in range(max(1, args.repeats)):
             s = run_video(
@@ -68,6 +89,18 @@ def main() -> int:
             factors.append(s.realtime_factor)
             if best is None or s.realtime_factor > best.realtime_factor:
                 best = s
+            for k, track_clf in variants.items():  # same repeat, right after: same machine load
+                with_clf[k].append(
+                    run_video(
+                        clip,
+                        Path(tmp) / f"run{r}_k{k}",
+                        detector=args.detector,
+                        stride=args.stride,
+                        detector_workers=args.workers,
+                        classifier=track_clf,
+                        progress=False,
+                    )
+                )
         if args.all_clips:
             for other in sorted((root / "video").glob("*.mp4")):
                 s2 = run_video(other, Path(tmp) / other.stem, detector=args.detector, progress=False)
@@ -97,9 +130,28 @@ def main() -> int:
         f"detector alone    {det_med:.1f} ms/frame median (one session, all cores) "
         f"→ pipeline wall / detector = {total_ms / det_med:.2f}"
     )
+    clf_json: dict[str, object] = {}
+    for k, runs in with_clf.items():
+        top = max(runs, key=lambda x: x.realtime_factor)
+        ratios = [w.realtime_factor / f for w, f in zip(runs, factors, strict=True)]
+        print(
+            f"with classifier   every {k} frame(s): {top.realtime_factor:.2f}× best "
+            f"({', '.join(f'{w.realtime_factor:.2f}×' for w in runs)}); classify "
+            f"{top.ms_per_frame['classify']:.1f} ms/frame; with/without in the same repeat "
+            f"{', '.join(f'{q:.2f}' for q in ratios)}   (target ≥ {TARGET:.0f}× with the classifier on)"
+        )
+        clf_json[f"every_{k}"] = {
+            "realtime_factor": top.realtime_factor,
+            "realtime_factor_runs": [w.realtime_factor for w in runs],
+            "ratio_to_without": ratios,
+            "classify_ms": top.ms_per_frame["classify"],
+            "active_ev_tracks": top.active_ev_tracks,
+            "target_met": top.realtime_factor >= TARGET,
+        }
     print(
         json.dumps(
             {
+                "classifier": clf_json,
                 "clip": clip.name,
                 "realtime_factor": best.realtime_factor,
                 "realtime_factor_runs": factors,

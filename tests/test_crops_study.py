@@ -315,7 +315,7 @@ def test_tiny_study_writes_sane_table(ev_crops: CropSet, tmp_path: Path) -> None
     rng = np.random.default_rng(0)
     train = ev_crops.subset(np.sort(rng.choice(train_idx, 200, replace=False)))
     test = ev_crops.subset(np.sort(rng.choice(test_idx, 100, replace=False)))
-    known = {"svm", "adaboost", "random_forest", "gradient_boosting", "xgboost", "knn", "logreg"}
+    known = {"svm", "adaboost", "random_forest", "gradient_boosting", "xgboost", "knn", "logreg", "small_cnn"}
     assert known == set(CLASSIFIERS)
     rows = run_study(train, test, ["rgb_hist", "hog"], ["knn", "random_forest"], split="tiny", progress=False)
     assert len(rows) == 4

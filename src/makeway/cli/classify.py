@@ -26,10 +26,20 @@ Commands:
   (:class:`~makeway.perceive.vision.ev_classifier.EVCropClassifier`: YOLOX-nano features +
   standardised logistic regression) and write it as ``.npz`` (default: the shipped
   ``makeway/models/ev_head_yolox_logreg.npz``). On ev_crops only the training part is used, and the
-  held-out metrics are printed as a JSON line.
-* ``eval --data DIR [--model FILE]`` — score a head (default: the shipped one) on a crop folder;
-  on ev_crops only the committed held-out part. Prints one JSON line last:
-  accuracy, precision, recall, f1, max_f1, p_at_r80, n.
+  held-out metrics are printed as a JSON line. ``--arch resnet18|small_cnn`` trains a CNN of SPEC §1
+  instead (:mod:`makeway.train.cnn`, torch; ``--input-size``, ``--width``, ``--epochs``, ``--lr``,
+  ``--pretrained FILE``, …): writes ``OUT.onnx`` + the checkpoint ``OUT.pt`` and scores the held-out
+  part through ONNX Runtime.
+* ``export CHECKPOINT --out FILE.onnx`` — export a CNN checkpoint to ONNX (dynamic batch axis,
+  preprocessing and threshold in the metadata) for
+  :class:`~makeway.perceive.vision.cnn_classifier.OnnxCropClassifier`.
+* ``mine POOL [--model FILE] [--out DIR] [--top N] [--threshold T]`` — data engine: score an
+  unlabelled pool, write the predicted EVs ranked for review (``candidates.csv``,
+  ``contact_sheet.png``, ``labels_template.csv``; see :mod:`makeway.perceive.vision.mining`).
+* ``eval --data DIR [--model FILE] [--plot FILE.png]`` — score a head ``.npz`` or a CNN ``.onnx``
+  (default: the shipped head) on a crop folder; on ev_crops only the committed held-out part.
+  ``--plot`` writes the precision–recall curve with the operating point and max-F1 marked. Prints
+  one JSON line last: accuracy, precision, recall, f1, max_f1, p_at_r80, n.
 
 Registered by the main app as ``app.add_typer(classify_app, name="classify")``; also runnable as
 ``python -m makeway.cli.classify``.
@@ -122,7 +132,7 @@ def study(
         read_holdout,
         split_holdout,
     )
-    from makeway.train.classical import CLASSIFIERS, StudyRow, run_study, write_study
+    from makeway.train.classical import CLASSIFIERS, StudyRow, compatible, run_study, write_study
 
     feats = _split_names(features, list(FEATURES))
     clfs = _split_names(classifiers, list(CLASSIFIERS))
@@ -132,7 +142,7 @@ def study(
         if not sep or feat not in FEATURES or clf not in CLASSIFIERS:
             raise ValueError(f"--skip takes FEATURE:CLASSIFIER with registered names, got {pair!r}")
         skipped.append((feat, clf))
-    n_runs = sum(1 for f in feats for c in clfs if (f, c) not in skipped)
+    n_runs = sum(1 for f in feats for c in clfs if (f, c) not in skipped and compatible(f, c))
     crops = read_crop_folder(data)
     if holdout is not None:
         train_idx, test_idx = holdout_split(crops, read_holdout(holdout))
@@ -343,6 +353,107 @@ def _metrics(probs: np.ndarray, labels: np.ndarray, threshold: float) -> dict[st
     }
 
 
+def _train_cnn(
+    data: list[Path],
+    out: Path,
+    *,
+    arch: str,
+    threshold: float,
+    seed: int,
+    pretrained: Path | None,
+    epochs: int,
+    input_size: int,
+    width: int,
+    lr: float,
+    min_lr: float,
+    patience: int,
+    batch_size: int,
+    box_jitter: bool,
+    pos_oversample: int,
+    neg_downsample: int,
+    threads: int,
+    progress: bool,
+) -> None:
+    """``classify train --arch resnet18|small_cnn``: fit, write OUT (.onnx) + its .pt checkpoint,
+    score the committed ev_crops holdout through ONNX Runtime (torch imported here only)."""
+    from makeway.perceive.vision.cnn_classifier import OnnxCropClassifier
+    from makeway.sense.crops import near_duplicate_groups, read_crop_folder
+    from makeway.train.cnn import ARCHS, Augment, CNNClassifier
+
+    if arch not in ARCHS:
+        raise ValueError(f"unknown --arch {arch!r}; choose yolox_logreg, {', '.join(ARCHS)}")
+    onnx_path = out if out.suffix.lower() == ".onnx" else out.with_suffix(".onnx")
+    ckpt_path = onnx_path.with_suffix(".pt")
+    clf = CNNClassifier(
+        arch,
+        input_size=input_size,
+        width=width,
+        epochs=epochs,
+        batch_size=batch_size,
+        lr=lr,
+        min_lr=min_lr,
+        patience=patience,
+        augment=None if box_jitter else Augment(box_jitter=None),
+        pos_oversample=pos_oversample,
+        neg_downsample=neg_downsample,
+        threshold=threshold,
+        pretrained=pretrained,
+        num_threads=threads,
+        seed=seed,
+    )
+    sets = [(folder, read_crop_folder(folder)) for folder in data]  # all read before any work
+    xs: list[np.ndarray] = []
+    ys: list[np.ndarray] = []
+    gs: list[np.ndarray] = []
+    parts: list[str] = []
+    held: list[tuple[Any, Path]] = []
+    for k, (folder, crops) in enumerate(sets):
+        split = _ev_crops_split(crops)
+        if split is not None:
+            held.append((crops.subset(split[1]), folder))
+            crops = crops.subset(split[0])
+            what = "training part (committed holdout excluded)"
+        else:
+            what = "all"
+        err_console.print(f"{folder.name}: {what}, {len(crops)} crops ({crops.n_positive} positive)")
+        parts.append(f"{folder.name}: {what}, {len(crops)} crops, {crops.n_positive} positive")
+        images = crops.load_images(input_size, cache=False)
+        groups = crops.groups if crops.groups is not None else near_duplicate_groups(images)
+        xs.append(images)
+        ys.append(crops.labels)
+        gs.append(np.asarray([f"{k}:{g}" for g in groups]))
+
+    def show(row: dict[str, float]) -> None:
+        if progress:
+            err_console.print(
+                "  ".join(f"{k} {v:.4g}" if isinstance(v, float) else f"{k} {v}" for k, v in row.items()),
+                highlight=False,
+            )
+
+    clf.fit(
+        np.concatenate(xs),
+        np.concatenate(ys),
+        np.concatenate(gs),
+        training="; ".join(parts),
+        progress=progress,
+        on_epoch=show,
+    )
+    clf.save(ckpt_path)
+    clf.export_onnx(onnx_path)
+    err_console.print(
+        f"{len(clf.history)} epochs; checkpoint → {ckpt_path}; ONNX → {onnx_path} "
+        f"({onnx_path.stat().st_size} bytes)",
+        highlight=False,
+    )
+    runtime = OnnxCropClassifier(onnx_path, num_threads=threads)
+    for test_set, folder in held:
+        probs = runtime.predict_proba(test_set.load_images(runtime.input_size, cache=False))
+        err_console.print(
+            f"held-out metrics on {folder.name} (committed holdout, ONNX Runtime):", highlight=False
+        )
+        print_json_line(_metrics(probs, test_set.labels, runtime.threshold))
+
+
 @classify_app.command()
 @friendly_errors
 def train(
@@ -351,15 +462,66 @@ def train(
         typer.Option("--data", help="Crop folder(s): images/ + labels.csv; repeat for several."),
     ],
     out: Annotated[
-        Path | None, typer.Option("--out", "-o", help="Head .npz to write [default: the shipped model].")
+        Path | None,
+        typer.Option(
+            "--out",
+            "-o",
+            help="yolox_logreg: head .npz [default: the shipped model]. CNNs: model .onnx (checkpoint .pt "
+            "beside it) [default: ev_cnn_<arch>.onnx].",
+        ),
     ] = None,
-    threshold: Annotated[float, typer.Option(help="Decision threshold stored with the head.")] = 0.5,
-    seed: Annotated[int, typer.Option(help="Seed of the inner CV that picks C.")] = 0,
+    threshold: Annotated[float, typer.Option(help="Decision threshold stored with the model.")] = 0.5,
+    seed: Annotated[int, typer.Option(help="Seed (yolox_logreg: of the inner CV that picks C).")] = 0,
+    arch: Annotated[
+        str, typer.Option(help="yolox_logreg (features + logistic head), resnet18 or small_cnn (CNNs).")
+    ] = "yolox_logreg",
+    pretrained: Annotated[
+        Path | None, typer.Option(help="torchvision ResNet-18 state dict (.pth) to start from (resnet18).")
+    ] = None,
+    epochs: Annotated[int, typer.Option(min=1, help="CNNs: most epochs.")] = 30,
+    input_size: Annotated[int, typer.Option(min=16, help="CNNs: crop side in pixels.")] = 64,
+    width: Annotated[int, typer.Option(min=1, help="CNNs: channels of the first stage.")] = 16,
+    lr: Annotated[float, typer.Option(help="CNNs: Adam learning rate (SPEC §1: 1e-4).")] = 1e-4,
+    min_lr: Annotated[float, typer.Option(help="CNNs: stop when the plateau schedule goes below.")] = 1e-5,
+    patience: Annotated[
+        int, typer.Option(min=0, help="CNNs: epochs without a better validation loss before halving the lr.")
+    ] = 3,
+    batch_size: Annotated[int, typer.Option(min=2, help="CNNs: crops per step.")] = 32,
+    box_jitter: Annotated[
+        bool, typer.Option(help="CNNs: positive-only box-jitter re-cropping (fitted normals).")
+    ] = True,
+    pos_oversample: Annotated[int, typer.Option(min=1, help="CNNs: copies of each positive per epoch.")] = 1,
+    neg_downsample: Annotated[int, typer.Option(min=1, help="CNNs: keep 1/N of negatives per epoch.")] = 1,
+    threads: Annotated[int, typer.Option(min=1, help="CNNs: torch threads.")] = 2,
+    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")] = False,
 ) -> None:
-    """Train the EV crop classifier head (YOLOX-nano features + standardised logistic regression).
+    """Train an EV crop classifier: the YOLOX-nano features + logistic head (default) or a CNN of
+    SPEC §1 (``--arch resnet18|small_cnn``: trained from scratch, or from ``--pretrained``).
 
     On ev_crops only the training part (the complement of the committed holdout) is used, and the
     held-out metrics are printed (one JSON line last)."""
+    if arch != "yolox_logreg":
+        _train_cnn(
+            data,
+            out if out is not None else Path(f"ev_cnn_{arch}.onnx"),
+            arch=arch,
+            threshold=threshold,
+            seed=seed,
+            pretrained=pretrained,
+            epochs=epochs,
+            input_size=input_size,
+            width=width,
+            lr=lr,
+            min_lr=min_lr,
+            patience=patience,
+            batch_size=batch_size,
+            box_jitter=box_jitter,
+            pos_oversample=pos_oversample,
+            neg_downsample=neg_downsample,
+            threads=threads,
+            progress=not quiet,
+        )
+        return
     from makeway.perceive.vision.ev_classifier import DEFAULT_MODEL, EVCropClassifier
     from makeway.sense.crops import read_crop_folder
 
@@ -397,16 +559,24 @@ def train(
 def eval_cmd(
     data: Annotated[Path, typer.Option("--data", help="Crop folder: images/ + labels.csv (any image size).")],
     model: Annotated[
-        Path | None, typer.Option("--model", help="Head .npz [default: the shipped model].")
+        Path | None,
+        typer.Option("--model", help="Head .npz or CNN .onnx [default: the shipped head]."),
+    ] = None,
+    plot: Annotated[
+        Path | None,
+        typer.Option(
+            "--plot", help="Also write the precision-recall curve (operating point, max-F1) as PNG."
+        ),
     ] = None,
 ) -> None:
-    """Score an EV crop classifier head on a crop folder; prints one JSON line last.
+    """Score an EV crop classifier (a head .npz or a CNN .onnx) on a crop folder; prints one JSON
+    line last.
 
     On ev_crops only the committed held-out part is scored."""
-    from makeway.perceive.vision.ev_classifier import DEFAULT_MODEL, EVCropClassifier
+    from makeway.perceive.vision.ev_classifier import DEFAULT_MODEL, load_crop_classifier
     from makeway.sense.crops import read_crop_folder
 
-    clf = EVCropClassifier.load(model if model is not None else DEFAULT_MODEL)
+    clf = load_crop_classifier(model if model is not None else DEFAULT_MODEL)
     crops = read_crop_folder(data)
     split = _ev_crops_split(crops)
     if split is not None:
@@ -417,7 +587,91 @@ def eval_cmd(
     else:
         err_console.print(f"scoring all {len(crops)} crops of {data}", highlight=False)
     probs = clf.predict_proba(crops.load_images(clf.input_size, cache=False))
+    if plot is not None:
+        from makeway.viz.pr_plot import plot_pr_curve
+
+        name = (model or DEFAULT_MODEL).name
+        what = "held-out part" if split is not None else "all crops"
+        plot_pr_curve(
+            probs, crops.labels, plot, threshold=clf.threshold, title=f"{name} on {data.name} ({what})"
+        )
+        err_console.print(f"PR curve → {plot}", highlight=False)
     print_json_line(_metrics(probs, crops.labels, clf.threshold))
+
+
+# -------------------------------------------------------------------------------------------- mine
+@classify_app.command()
+@friendly_errors
+def mine(
+    pool: Annotated[Path, typer.Argument(help="Folder of unlabelled crops (searched recursively).")],
+    model: Annotated[
+        Path | None,
+        typer.Option("--model", help="Head .npz or CNN .onnx [default: the shipped head]."),
+    ] = None,
+    out: Annotated[
+        Path,
+        typer.Option("--out", "-o", help="Where candidates.csv, contact_sheet.png, labels_template.csv go."),
+    ] = Path("makeway_out/mine"),
+    top: Annotated[int, typer.Option(min=0, help="Thumbnails on the contact sheet.")] = 64,
+    threshold: Annotated[
+        float | None,
+        typer.Option(
+            min=0.0, max=1.0, help="Keep images at or above this probability [default: the model's]."
+        ),
+    ] = None,
+    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")] = False,
+) -> None:
+    """Data engine (seed 000 §3.3.2): score an unlabelled pool and write every predicted EV — true or
+    false positive — ranked for review: OUT/candidates.csv (rank, image, probability, blank
+    emergency), OUT/contact_sheet.png (top N) and OUT/labels_template.csv (image,emergency, ready to
+    fill and append to a crop folder). Unreadable files are skipped and counted. One JSON line last."""
+    from makeway.perceive.vision.ev_classifier import DEFAULT_MODEL, load_crop_classifier
+    from makeway.perceive.vision.mining import mine as mine_pool
+
+    clf = load_crop_classifier(model if model is not None else DEFAULT_MODEL)
+    result = mine_pool(pool, clf, out, top=top, threshold=threshold, progress=not quiet)
+    summary = result.summary()
+    if result.unreadable:
+        shown = ", ".join(str(p.relative_to(pool)) for p in result.unreadable[:5])
+        more = f" and {len(result.unreadable) - 5} more" if len(result.unreadable) > 5 else ""
+        err_console.print(
+            f"skipped {len(result.unreadable)} file(s) OpenCV cannot read: {shown}{more}", highlight=False
+        )
+    err_console.print(
+        f"{summary['scored']} images scored, {summary['candidates']} at p >= {result.threshold:g} → {out}",
+        highlight=False,
+    )
+    print_json_line(summary)
+
+
+@classify_app.command("export")
+@friendly_errors
+def export_cmd(
+    checkpoint: Annotated[
+        Path, typer.Argument(help="CNN checkpoint .pt written by `classify train --arch …`.")
+    ],
+    out: Annotated[Path, typer.Option("--out", "-o", help="ONNX file to write.")],
+    threshold: Annotated[
+        float | None, typer.Option(help="Decision threshold to store [default: the checkpoint's].")
+    ] = None,
+) -> None:
+    """Export a CNN checkpoint to ONNX (dynamic batch axis; input size, threshold and preprocessing in
+    the metadata), then load it back through ONNX Runtime as a check."""
+    from makeway.perceive.vision.cnn_classifier import OnnxCropClassifier
+    from makeway.train.cnn import load_checkpoint
+
+    clf = load_checkpoint(checkpoint)
+    if threshold is not None:
+        if not 0.0 < threshold < 1.0:
+            raise ValueError(f"--threshold must be in (0, 1), got {threshold}")
+        clf.threshold = float(threshold)
+    clf.export_onnx(out)
+    runtime = OnnxCropClassifier(out)
+    err_console.print(
+        f"{clf.arch} (input {clf.input_size}, width {clf.width}) → {out} ({out.stat().st_size} bytes, "
+        f"threshold {runtime.threshold:g})",
+        highlight=False,
+    )
 
 
 if __name__ == "__main__":

@@ -63,6 +63,14 @@ def detect(
             "With one, tracks get smoothed EV states (slower: see docs/model_card_ev_head.md)."
         ),
     ] = "none",
+    classify_every: Annotated[
+        int,
+        typer.Option(
+            min=1,
+            help="Judge each track on every N-th frame only (staggered across tracks; the smoother "
+            "skips the others). 1 = every frame; 2 halves the classifier cost.",
+        ),
+    ] = 1,
     as_json: Annotated[bool, typer.Option("--json", help="Print the run summary as one JSON line.")] = False,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")] = False,
 ) -> None:
@@ -75,11 +83,17 @@ def detect(
 
     track_classifier = None
     if classifier.strip().lower() != "none":
-        from makeway.perceive.vision.ev_classifier import DEFAULT_MODEL, EVCropClassifier, EVTrackClassifier
+        from makeway.perceive.vision.ev_classifier import (
+            DEFAULT_MODEL,
+            EVTrackClassifier,
+            load_crop_classifier,
+        )
 
         head = DEFAULT_MODEL if classifier.strip().lower() == "default" else Path(classifier)
-        track_classifier = EVTrackClassifier(EVCropClassifier.load(head))
-        track_classifier.classifier.features  # noqa: B018 - build the extractor now: bad weights fail early
+        track_classifier = EVTrackClassifier(load_crop_classifier(head), every=classify_every)
+        getattr(
+            track_classifier.classifier, "features", None
+        )  # build the extractor now: bad weights fail early
     out_dir = out if out is not None else Path("makeway_out") / video.stem
     summary = run_video(
         video,

@@ -3,7 +3,9 @@
 ``precision_recall_f1`` from counts; ``threshold_metrics`` sweeps the decision threshold over the
 scores and reports the SPEC's headline numbers: max-F1 over thresholds (and where it is reached) and
 precision at recall 0.8 (the best precision among thresholds whose recall is at least 0.8).
-Undefined values (no positives, no predictions) are NaN, not 0, so that they cannot pass for a score.
+``pr_curve`` gives the precision–recall points behind them (plotted by
+:func:`makeway.viz.pr_plot.plot_pr_curve`). Undefined values (no positives, no predictions) are
+NaN, not 0, so that they cannot pass for a score.
 """
 
 from __future__ import annotations
@@ -54,3 +56,25 @@ def threshold_metrics(scores: np.ndarray, labels: np.ndarray, recall_at: float =
         "max_f1_threshold": float(thr[best]),
         key: float(at.max()) if at.size else float("nan"),
     }
+
+
+def pr_curve(scores: np.ndarray, labels: np.ndarray) -> dict[str, np.ndarray]:
+    """Precision–recall points, one per distinct score used as the threshold (``score >= t``).
+
+    Returns arrays ``precision``, ``recall`` and ``threshold`` in order of decreasing threshold
+    (increasing recall); empty when there are no positives or no scores.
+    """
+    scores = np.asarray(scores, dtype=np.float64).ravel()
+    labels = np.asarray(labels).astype(bool).ravel()
+    if scores.shape != labels.shape:
+        raise ValueError(f"{scores.size} scores but {labels.size} labels")
+    n_pos = int(labels.sum())
+    if n_pos == 0 or scores.size == 0:
+        empty = np.empty(0, dtype=np.float64)
+        return {"precision": empty, "recall": empty.copy(), "threshold": empty.copy()}
+    order = np.argsort(-scores, kind="stable")
+    s, y = scores[order], labels[order]
+    last = np.r_[np.flatnonzero(np.diff(s)), len(s) - 1]
+    tp = np.cumsum(y)[last].astype(np.float64)
+    fp = np.cumsum(~y)[last].astype(np.float64)
+    return {"precision": tp / (tp + fp), "recall": tp / n_pos, "threshold": s[last]}

@@ -17,6 +17,11 @@ knn                ``KNeighborsClassifier(n_neighbors=3)``
 logreg             ``StandardScaler`` → ``LogisticRegressionCV(Cs=10⁻⁴…10¹, cv=5, max_iter=2000)``:
                    L2 logistic regression whose C is chosen by a stratified 5-fold CV inside
                    ``fit``, i.e. on the training part only (added for the ``yolox`` features)
+small_cnn          the seeds' small CNN (:class:`makeway.train.cnn.SmallCNNPixels`: 3 × conv+ReLU+
+                   max-pool, dense ReLU, one sigmoid unit) on the ``pixels`` feature reshaped to
+                   128×128 images; focal loss, Adam, plateau schedule, augmentation (needs torch,
+                   extra ``train``; imported only when built). Runs with ``pixels`` only
+                   (:data:`ONLY_FEATURES`); other pairs are left out.
 =================  ==============================================================================
 
 :func:`run_study` fits every pair on a training set and scores the test set: accuracy, precision,
@@ -24,7 +29,7 @@ recall, F1 at the estimator's own decision rule, max-F1 and precision at recall 
 thresholds of its score (``decision_function``, else ``predict_proba``;
 :mod:`makeway.eval.classification`), fit seconds, and milliseconds per 100 crops to predict and to
 compute the feature. :func:`write_study` writes ``study.md`` and ``study.csv``.
-No torch here; the small CNN of the study lives with the other networks.
+No torch here; the small CNN of the study lives with the other networks (:mod:`makeway.train.cnn`).
 """
 
 from __future__ import annotations
@@ -48,7 +53,9 @@ from makeway.sense.crops import CropSet
 
 __all__ = [
     "CLASSIFIERS",
+    "ONLY_FEATURES",
     "StudyRow",
+    "compatible",
     "make_classifier",
     "run_study",
     "write_study",
@@ -108,6 +115,14 @@ def _logreg(n_jobs: int, seed: int) -> Any:
     return make_pipeline(StandardScaler(), model)
 
 
+def _small_cnn(n_jobs: int, seed: int) -> Any:
+    try:
+        from makeway.train.cnn import SmallCNNPixels  # torch, lazily
+    except ImportError:
+        raise ValueError("the small_cnn classifier needs torch (pip install 'makeway[train]')") from None
+    return SmallCNNPixels(n_jobs=max(1, min(n_jobs, 2)), seed=seed)
+
+
 #: Classifier factories by name: ``factory(n_jobs, seed)`` → an unfitted estimator (module docstring).
 CLASSIFIERS: dict[str, Callable[[int, int], Any]] = {
     "svm": _svm,
@@ -117,7 +132,16 @@ CLASSIFIERS: dict[str, Callable[[int, int], Any]] = {
     "xgboost": _xgboost,
     "knn": _knn,
     "logreg": _logreg,
+    "small_cnn": _small_cnn,
 }
+
+#: Classifiers that take only some features (the small CNN needs images: the ``pixels`` feature).
+ONLY_FEATURES: dict[str, tuple[str, ...]] = {"small_cnn": ("pixels",)}
+
+
+def compatible(feature: str, classifier: str) -> bool:
+    """Whether the study runs ``classifier`` on ``feature`` (see :data:`ONLY_FEATURES`)."""
+    return feature in ONLY_FEATURES.get(classifier, (feature,))
 
 
 def make_classifier(name: str, *, n_jobs: int = 1, seed: int = 0) -> Any:
@@ -192,7 +216,9 @@ def run_study(
     feats = _check_names(features, list(FEATURES), "features")
     clfs = _check_names(classifiers, list(CLASSIFIERS), "classifiers")
     skipped = {(f, c) for f, c in skip}
-    pairs = {f: [c for c in clfs if (f, c) not in skipped] for f in feats}
+    pairs = {f: [c for c in clfs if (f, c) not in skipped and compatible(f, c)] for f in feats}
+    pairs = {f: c for f, c in pairs.items() if c}  # a feature no chosen classifier takes is not computed
+    feats = list(pairs)
     y_train = np.asarray(train_set.labels, dtype=np.int64)
     y_test = np.asarray(test_set.labels, dtype=np.int64)
     if len(np.unique(y_train)) < 2:

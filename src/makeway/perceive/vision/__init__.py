@@ -1,5 +1,7 @@
-"""Vision perception: COCO vehicle detectors (SPEC §2, Framework B: detector of class vehicle → SORT)."""
+"""Vision perception: COCO vehicle detectors (SPEC §2, Framework B: detector of class vehicle → SORT)
+and the ONNX crop CNN (SPEC §1)."""
 
+from makeway.perceive.vision.cnn_classifier import OnnxCropClassifier
 from makeway.perceive.vision.detectors import (
     COCO_CLASSES,
     DETECTORS,
@@ -18,6 +20,7 @@ __all__ = [
     "VEHICLE_CLASSES",
     "Detector",
     "NanoDetM",
+    "OnnxCropClassifier",
     "YoloxNano",
     "create_detector",
     "nms",

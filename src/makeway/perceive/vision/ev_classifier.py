@@ -22,7 +22,7 @@ from __future__ import annotations
 import warnings
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -32,7 +32,14 @@ from makeway.messages import EVObservation, Track
 from makeway.perceive.vision.backbone import DEFAULT_LAYERS, BackboneFeatures
 from makeway.perceive.vision.crops import MIN_CROP_WIDTH_PX, crops_for_tracks
 
-__all__ = ["DEFAULT_MODEL", "FORMAT_VERSION", "EVCropClassifier", "EVTrackClassifier"]
+__all__ = [
+    "DEFAULT_MODEL",
+    "FORMAT_VERSION",
+    "CropClassifier",
+    "EVCropClassifier",
+    "EVTrackClassifier",
+    "load_crop_classifier",
+]
 
 #: The head shipped with the package (trained on the ev_crops training part; see the model card).
 DEFAULT_MODEL = Path(__file__).resolve().parents[2] / "models" / "ev_head_yolox_logreg.npz"
@@ -260,38 +267,82 @@ class EVCropClassifier:
         return clf
 
 
+class CropClassifier(Protocol):
+    """What :class:`EVTrackClassifier` and the data engine need from a crop classifier."""
+
+    input_size: int
+    threshold: float
+
+    def predict_proba(self, images: np.ndarray) -> np.ndarray: ...
+
+
+def load_crop_classifier(path: str | Path = DEFAULT_MODEL, **kwargs: Any) -> CropClassifier:
+    """Load a crop classifier by file suffix — the one place the CLI and tools load models from.
+
+    ``.npz``: :meth:`EVCropClassifier.load` (YOLOX features + logistic head); ``.onnx``:
+    :class:`~makeway.perceive.vision.cnn_classifier.OnnxCropClassifier` (a CNN exported by
+    ``makeway classify export``). ``kwargs`` (e.g. ``num_threads``) go to the loader.
+
+    Raises:
+        InputError: the file is missing, has another suffix, or cannot be loaded (names the file).
+    """
+    path = Path(path)
+    suffix = path.suffix.lower()
+    if suffix == ".npz":
+        return EVCropClassifier.load(path, **kwargs)
+    if suffix == ".onnx":
+        from makeway.perceive.vision.cnn_classifier import OnnxCropClassifier
+
+        return OnnxCropClassifier(path, **kwargs)
+    raise InputError(path, "unknown crop classifier format: expected a head .npz or a CNN .onnx")
+
+
 class EVTrackClassifier:
     """:class:`~makeway.pipeline.video.TrackClassifier` over an :class:`EVCropClassifier`.
 
     Every track of a frame gets a square crop of its box with ``margin`` context per side; all
     crops go through the classifier in one batch. Tracks narrower than ``min_width`` pixels (SPEC
     §1: 18) or off the image get ``probability=None``.
+
+    ``every = k > 1`` judges each track only on frames where ``(frame_index + track_id) % k == 0``
+    (staggered, so each frame classifies about 1/k of the tracks) and returns ``probability=None``
+    otherwise; the smoother skips those frames, so its 25-judgement window then spans 25·k frames.
+    This divides the classification cost by k (see docs/benchmarks.md for the accuracy effect).
     """
 
     def __init__(
-        self, classifier: EVCropClassifier, margin: float = 0.1, *, min_width: float = MIN_CROP_WIDTH_PX
+        self,
+        classifier: CropClassifier,
+        margin: float = 0.1,
+        *,
+        min_width: float = MIN_CROP_WIDTH_PX,
+        every: int = 1,
     ) -> None:
         if margin < 0:
             raise ValueError(f"margin must be >= 0, got {margin}")
+        if every < 1:
+            raise ValueError(f"every must be >= 1, got {every}")
         self.classifier = classifier
         self.margin = float(margin)
         self.min_width = float(min_width)
+        self.every = int(every)
 
     def classify(
         self, image_bgr: np.ndarray, tracks: Sequence[Track], frame_index: int, time_s: float
     ) -> list[EVObservation]:
         probs: list[float | None] = [None] * len(tracks)
-        if tracks:
+        due = [i for i, t in enumerate(tracks) if (frame_index + t.track_id) % self.every == 0]
+        if due:
             crops, kept = crops_for_tracks(
                 image_bgr,
-                [t.box for t in tracks],
+                [tracks[i].box for i in due],
                 margin=self.margin,
                 size=self.classifier.input_size,
                 min_width=self.min_width,
             )
             if len(kept):
                 for i, p in zip(kept.tolist(), self.classifier.predict_proba(crops).tolist(), strict=True):
-                    probs[i] = float(p)
+                    probs[due[i]] = float(p)
         return [
             EVObservation(t.track_id, frame_index, time_s, p, source="vision")
             for t, p in zip(tracks, probs, strict=True)
