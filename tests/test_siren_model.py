@@ -48,7 +48,9 @@ def pass_rec(data_root: Path) -> Recording:
 def windows(pass_rec: Recording) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     labels = label_recording(pass_rec)
     theta, dist = labels.nearest()
-    return window_batch(pass_rec, labels), labels.siren, theta, dist
+    kept = labels.kept  # windows whose siren is beyond 100 m are dropped (SPEC §3)
+    assert kept.sum() >= 20
+    return window_batch(pass_rec, labels)[kept], labels.siren[kept], theta[kept], dist[kept]
 
 
 # ---------------------------------------------------------------------------------------- features
