@@ -23,7 +23,7 @@ from pathlib import Path
 
 from makeway.paths import data_dir
 from makeway.perceive.vision.detectors import create_detector
-from makeway.perceive.vision.ev_classifier import DEFAULT_MODEL, EVTrackClassifier, load_crop_classifier
+from makeway.perceive.vision.ev_classifier import SHIPPED_MODELS, EVTrackClassifier, load_crop_classifier
 from makeway.pipeline.video import TrackClassifier, VideoRunSummary, run_video
 from makeway.sense.video import VideoReader
 
@@ -41,7 +41,8 @@ def main() -> int:
     ap.add_argument(
         "--classifier",
         default="none",
-        help="also run Framework B with this crop classifier ('default' = the shipped head, or a "
+        help="also run Framework B with this crop classifier ('default' = the shipped head, 'fast' = "
+        "the shipped small CNN, or a "
         ".npz/.onnx path), alternating with runs without it, and print the ratio",
     )
     ap.add_argument(
@@ -72,7 +73,7 @@ def main() -> int:
     factors: list[float] = []
     variants: dict[int, TrackClassifier] = {}
     if args.classifier.strip().lower() != "none":
-        head = DEFAULT_MODEL if args.classifier.strip().lower() == "default" else Path(args.classifier)
+        head = SHIPPED_MODELS.get(args.classifier.strip().lower(), Path(args.classifier))
         crop_clf = load_crop_classifier(head, num_threads=args.classifier_threads)
         variants = {int(k): EVTrackClassifier(crop_clf, every=int(k)) for k in args.classify_every.split(",")}
     with_clf: dict[int, list[VideoRunSummary]] = {k: [] for k in variants}

@@ -59,8 +59,9 @@ def detect(
     classifier: Annotated[
         str,
         typer.Option(
-            help="Per-track EV crop classifier: a head .npz, 'default' (the shipped one) or 'none'. "
-            "With one, tracks get smoothed EV states (slower: see docs/model_card_ev_head.md)."
+            help="Per-track EV crop classifier: 'default' (the shipped YOLOX-feature head), 'fast' (the "
+            "shipped 64 px small CNN), a model file (.npz head or .onnx CNN) or 'none'. With one, tracks "
+            "get smoothed EV states (see docs/model_card_ev_head.md, docs/model_card_ev_cnn.md)."
         ),
     ] = "none",
     classify_every: Annotated[
@@ -84,12 +85,12 @@ def detect(
     track_classifier = None
     if classifier.strip().lower() != "none":
         from makeway.perceive.vision.ev_classifier import (
-            DEFAULT_MODEL,
+            SHIPPED_MODELS,
             EVTrackClassifier,
             load_crop_classifier,
         )
 
-        head = DEFAULT_MODEL if classifier.strip().lower() == "default" else Path(classifier)
+        head = SHIPPED_MODELS.get(classifier.strip().lower(), Path(classifier))
         track_classifier = EVTrackClassifier(load_crop_classifier(head), every=classify_every)
         getattr(
             track_classifier.classifier, "features", None

@@ -34,7 +34,9 @@ from makeway.perceive.vision.crops import MIN_CROP_WIDTH_PX, crops_for_tracks
 
 __all__ = [
     "DEFAULT_MODEL",
+    "FAST_MODEL",
     "FORMAT_VERSION",
+    "SHIPPED_MODELS",
     "CropClassifier",
     "EVCropClassifier",
     "EVTrackClassifier",
@@ -43,6 +45,10 @@ __all__ = [
 
 #: The head shipped with the package (trained on the ev_crops training part; see the model card).
 DEFAULT_MODEL = Path(__file__).resolve().parents[2] / "models" / "ev_head_yolox_logreg.npz"
+#: The seeds' small CNN at 64 px (ONNX), shipped as the fast alternative: a few points less accurate
+#: than the head, several times cheaper per crop (``docs/model_card_ev_cnn.md``).
+FAST_MODEL = Path(__file__).resolve().parents[2] / "models" / "ev_cnn_small64.onnx"
+SHIPPED_MODELS = {"default": DEFAULT_MODEL, "fast": FAST_MODEL}
 
 #: Version of the ``.npz`` layout written by :meth:`EVCropClassifier.save`.
 FORMAT_VERSION = 1
