@@ -274,3 +274,15 @@ def test_cli_eval_and_listen_with_the_shipped_model(pass_rec: Recording, tmp_pat
     assert firsts and all(s["distance_m"] is not None and s["distance_m"] >= 0 for s in firsts)
     res = runner.invoke(audio_app, ["listen", str(folder), "--baseline", "bogus"])
     assert res.exit_code == 2 and "--baseline must be one of" in res.output
+
+
+def test_calibrate_threshold() -> None:
+    from makeway.train.siren import calibrate_threshold
+
+    siren = np.array([True] * 4 + [False] * 200)
+    prob = np.concatenate([np.full(4, 0.99), np.linspace(0.0, 0.9, 200)])
+    t = calibrate_threshold(prob, siren, 0.01)  # 2 of 200 negatives may reach it
+    assert np.sum(prob[~siren] >= t) == 2 and 0.88 < t < 0.9
+    assert calibrate_threshold(prob, siren, 0.0) > 0.9
+    assert calibrate_threshold(np.full(10, 0.1), np.zeros(10, bool), 0.01) == 0.5  # never below 0.5
+    assert calibrate_threshold(prob[:4], siren[:4], 0.01) == 0.5  # no negatives

@@ -284,6 +284,15 @@ def train(
     ] = "wave,spec,gcc,level",
     lr: Annotated[float, typer.Option(min=0.0, help="Adam learning rate.")] = 1e-3,
     batch_size: Annotated[int, typer.Option(min=2, help="Windows per batch.")] = 64,
+    max_false_alarm: Annotated[
+        float | None,
+        typer.Option(
+            min=0.0,
+            max=1.0,
+            help="Raise the stored decision threshold (from 0.5) until the validation false-alarm rate "
+            "per window is at most this [default: keep 0.5].",
+        ),
+    ] = None,
     patience: Annotated[
         int, typer.Option(min=0, help="Epochs without improvement before the learning rate drops (×0.3).")
     ] = 2,
@@ -308,7 +317,16 @@ def train(
     from makeway.progress import progress_bar
 
     try:
-        from makeway.train.siren import TrainConfig, build_dataset, config_dict, export_onnx, train_siren_net
+        from makeway.train.siren import (
+            TrainConfig,
+            build_dataset,
+            calibrate_threshold,
+            config_dict,
+            evaluate_net,
+            export_onnx,
+            split_by_recording,
+            train_siren_net,
+        )
     except ImportError as exc:
         raise ValueError(
             f"training needs torch ({exc}); install it with: pip install -e '.[train]'"
@@ -389,7 +407,20 @@ def train(
         history=[{k: round(float(v), 5) for k, v in h.items()} for h in history],
         train_seconds=round(wall, 1),
     )
-    export_onnx(net, target, feats.config, extra={"training": training})
+    threshold = 0.5
+    if max_false_alarm is not None:
+        _, val_idx = split_by_recording(dataset, cfg.val_fraction, cfg.seed)  # the split training used
+        val = dataset.subset(val_idx)
+        threshold = calibrate_threshold(evaluate_net(net, val)["prob"], val.siren > 0.5, max_false_alarm)
+        training["threshold_calibration"] = {
+            "max_false_alarm": max_false_alarm,
+            "validation_windows": len(val),
+            "threshold": round(threshold, 6),
+        }
+        err_console.print(
+            f"decision threshold {threshold:.4f} (validation false alarms ≤ {max_false_alarm:g})"
+        )
+    export_onnx(net, target, feats.config, threshold=threshold, extra={"training": training})
     err_console.print(f"model → {target} ({target.stat().st_size / 1e6:.2f} MB)", highlight=False)
     summary: dict[str, Any] = {"model": str(target), **training}
     if test_folders:

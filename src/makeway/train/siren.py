@@ -395,7 +395,19 @@ def _loss(
     return total, [float(bce.detach()), float(dir_l.detach()), float(dist_l.detach())]
 
 
-def _split_by_recording(data: SirenDataset, fraction: float, seed: int) -> tuple[np.ndarray, np.ndarray]:
+def calibrate_threshold(prob: np.ndarray, siren: np.ndarray, max_false_alarm: float) -> float:
+    """The lowest decision threshold (≥ 0.5) whose false-alarm rate on the negatives of
+    ``prob``/``siren`` is at most ``max_false_alarm`` — chosen on validation windows, never test."""
+    neg = np.sort(np.asarray(prob, dtype=np.float64)[~np.asarray(siren, dtype=bool)])
+    if not len(neg):
+        return 0.5
+    allowed = int(np.floor(max_false_alarm * len(neg)))  # this many negatives may lie at or above it
+    t = float(np.nextafter(neg[len(neg) - allowed - 1], 1.0)) if allowed < len(neg) else 0.5
+    return max(0.5, t)
+
+
+def split_by_recording(data: SirenDataset, fraction: float, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """``(train_idx, val_idx)``: a seeded share ``fraction`` of the recordings is validation."""
     recs = np.unique(data.recording)
     rng = np.random.default_rng(seed)
     val_recs = rng.choice(recs, size=max(1, round(fraction * len(recs))), replace=False)
@@ -437,7 +449,7 @@ def train_siren_net(
     torch.manual_seed(cfg.seed)
     torch.set_num_threads(max(1, int(cfg.threads)))
     rng = np.random.default_rng(cfg.seed)
-    train_idx, val_idx = _split_by_recording(data, cfg.val_fraction, cfg.seed)
+    train_idx, val_idx = split_by_recording(data, cfg.val_fraction, cfg.seed)
     net = SirenNet(shapes, cfg.streams, cfg.width, n_azimuth)
     net.fit_normalization({s: data.features[s][train_idx] for s in net.streams})
     opt = torch.optim.Adam(net.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)

@@ -32,8 +32,10 @@ __all__ = ["DEFAULT_SIREN_MODEL", "SirenModel", "SirenPrediction"]
 
 DEFAULT_SIREN_MODEL = Path(__file__).resolve().parents[2] / "models" / "siren_net.onnx"
 
-SECOND_PEAK_FRACTION = 0.25
-"""A second bearing peak counts as another siren when its mass is at least this share of the first."""
+SECOND_PEAK_FRACTION = 0.5
+"""A second bearing peak counts as another siren when its mass is at least this share of the first.
+Chosen on training-split recordings: 0.5 reports a spurious second siren in 2 % of one-siren windows
+(0.25: 4 %, 0.8: 0.6 %) while finding both sirens of two-siren windows about as often (23 % vs 24 %)."""
 PEAK_SEPARATION_DEG = 30.0
 
 
