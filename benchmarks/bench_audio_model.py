@@ -27,7 +27,7 @@ from typing import Any
 
 import numpy as np
 
-from makeway.perceive.audio.evaluate import evaluate, model_estimator
+from makeway.perceive.audio.evaluate import calibrate_threshold, evaluate, model_estimator
 from makeway.perceive.audio.features import window_batch
 from makeway.perceive.audio.labels import label_recording
 from makeway.perceive.audio.siren_model import DEFAULT_SIREN_MODEL, SirenModel
@@ -152,13 +152,13 @@ def main() -> int:
                 )
 
         # the detection trade-off: recall in 10–50 m when the threshold is set for 1 % false alarms
-        neg = np.sort(pooled["prob"][~pooled["siren"]])
+        neg = pooled["prob"][~pooled["siren"]]
         if len(neg):
-            t1 = float(neg[min(len(neg) - 1, int(np.floor(0.99 * len(neg))))])
+            t1 = calibrate_threshold(pooled["prob"], pooled["siren"], 0.01)
             d = pooled["distance"]
             in_range = pooled["siren"] & (d >= 10) & (d <= 50)
-            r1 = float(np.mean(pooled["prob"][in_range] > t1)) if in_range.any() else float("nan")
-            fa1 = float(np.mean(neg > t1))
+            r1 = float(np.mean(pooled["prob"][in_range] >= t1)) if in_range.any() else float("nan")
+            fa1 = float(np.mean(neg >= t1))
             print(
                 f"\nmodel, threshold for ≤ 1 % false alarms (t = {t1:.3f}): false alarms {100 * fa1:.2f} %, "
                 f"recall 10–50 m {100 * r1:.2f} % (target ≥ 99.5 % at ≤ 1 %)"

@@ -43,6 +43,7 @@ import numpy as np
 import torch
 from torch import nn
 
+from makeway.perceive.audio.evaluate import calibrate_threshold
 from makeway.perceive.audio.features import window_batch
 from makeway.perceive.audio.labels import label_recording
 from makeway.perceive.audio.siren_features import MIRROR_CHANNELS, SirenFeatureConfig, SirenFeatures
@@ -53,6 +54,7 @@ __all__ = [
     "SirenNet",
     "TrainConfig",
     "build_dataset",
+    "calibrate_threshold",
     "export_onnx",
     "train_siren_net",
 ]
@@ -180,19 +182,24 @@ def build_dataset(
             if advance is not None:
                 advance(len(folders))
             return SirenDataset.load(cache)
-    parts: list[SirenDataset] = []
-    if workers > 1 and len(folders) > 1:
-        from concurrent.futures import ProcessPoolExecutor
+    from concurrent.futures import ProcessPoolExecutor
+    from contextlib import nullcontext
 
-        with ProcessPoolExecutor(max_workers=workers) as pool:
-            jobs = [pool.submit(_recording_dataset, Path(f), feats, mirror) for f in folders]
-            for job in jobs:
-                parts.append(job.result())
-                if advance is not None:
-                    advance(1)
-    else:
-        for folder in folders:
-            parts.append(_recording_dataset(Path(folder), feats, mirror))
+    parts: list[SirenDataset] = []
+    pool = ProcessPoolExecutor(max_workers=workers) if workers > 1 and len(folders) > 1 else nullcontext()
+    with pool as ex:
+        jobs = (
+            ex.map(
+                _recording_dataset,
+                [Path(f) for f in folders],
+                [feats] * len(folders),
+                [mirror] * len(folders),
+            )
+            if ex is not None
+            else (_recording_dataset(Path(f), feats, mirror) for f in folders)
+        )
+        for part in jobs:  # in folder order either way
+            parts.append(part)
             if advance is not None:
                 advance(1)
     data = SirenDataset.concat(parts)
@@ -393,17 +400,6 @@ def _loss(
     dist_l = (((distance - dist_t) ** 2) * m).sum() / n
     total = weights[0] * bce + weights[1] * dir_l + weights[2] * dist_l
     return total, [float(bce.detach()), float(dir_l.detach()), float(dist_l.detach())]
-
-
-def calibrate_threshold(prob: np.ndarray, siren: np.ndarray, max_false_alarm: float) -> float:
-    """The lowest decision threshold (≥ 0.5) whose false-alarm rate on the negatives of
-    ``prob``/``siren`` is at most ``max_false_alarm`` — chosen on validation windows, never test."""
-    neg = np.sort(np.asarray(prob, dtype=np.float64)[~np.asarray(siren, dtype=bool)])
-    if not len(neg):
-        return 0.5
-    allowed = int(np.floor(max_false_alarm * len(neg)))  # this many negatives may lie at or above it
-    t = float(np.nextafter(neg[len(neg) - allowed - 1], 1.0)) if allowed < len(neg) else 0.5
-    return max(0.5, t)
 
 
 def split_by_recording(data: SirenDataset, fraction: float, seed: int) -> tuple[np.ndarray, np.ndarray]:

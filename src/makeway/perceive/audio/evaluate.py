@@ -229,6 +229,17 @@ def evaluate(
     return out
 
 
+def calibrate_threshold(prob: np.ndarray, siren: np.ndarray, max_false_alarm: float) -> float:
+    """The lowest decision threshold (≥ 0.5) whose false-alarm rate on the negatives of
+    ``prob``/``siren`` is at most ``max_false_alarm`` — chosen on validation windows, never test."""
+    neg = np.sort(np.asarray(prob, dtype=np.float64)[~np.asarray(siren, dtype=bool)])
+    if not len(neg):
+        return 0.5
+    allowed = int(np.floor(max_false_alarm * len(neg)))  # this many negatives may lie at or above it
+    t = float(np.nextafter(neg[len(neg) - allowed - 1], 1.0)) if allowed < len(neg) else 0.5
+    return max(0.5, t)
+
+
 def angle_error_deg(theta_hat: float, theta: float) -> float:
     """Wrapped absolute bearing error in degrees (0…180)."""
     return math.degrees(abs(float(wrap_angle(theta_hat - theta))))
