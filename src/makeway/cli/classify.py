@@ -26,10 +26,11 @@ Commands:
   (:class:`~makeway.perceive.vision.ev_classifier.EVCropClassifier`: YOLOX-nano features +
   standardised logistic regression) and write it as ``.npz`` (default: the shipped
   ``makeway/models/ev_head_yolox_logreg.npz``). On ev_crops only the training part is used, and the
-  held-out metrics are printed as a JSON line. ``--arch resnet18|small_cnn`` trains a CNN of SPEC §1
-  instead (:mod:`makeway.train.cnn`, torch; ``--input-size``, ``--width``, ``--epochs``, ``--lr``,
-  ``--pretrained FILE``, …): writes ``OUT.onnx`` + the checkpoint ``OUT.pt`` and scores the held-out
-  part through ONNX Runtime.
+  held-out metrics are printed as a JSON line. ``--arch resnet18|small_cnn|yolox_ft`` trains a CNN
+  of SPEC §1 instead (:mod:`makeway.train.cnn`, torch; ``--input-size``, ``--width``, ``--epochs``,
+  ``--lr``, ``--pretrained FILE``, …; ``yolox_ft`` is the YOLOX-nano backbone itself, linear probe
+  then fine-tuned, :mod:`makeway.train.onnx_graph`): writes ``OUT.onnx`` + the checkpoint
+  ``OUT.pt`` and scores the held-out part through ONNX Runtime.
 * ``export CHECKPOINT --out FILE.onnx`` — export a CNN checkpoint to ONNX (dynamic batch axis,
   preprocessing and threshold in the metadata) for
   :class:`~makeway.perceive.vision.cnn_classifier.OnnxCropClassifier`.
@@ -374,7 +375,7 @@ def _train_cnn(
     threads: int,
     progress: bool,
 ) -> None:
-    """``classify train --arch resnet18|small_cnn``: fit, write OUT (.onnx) + its .pt checkpoint,
+    """``classify train --arch resnet18|small_cnn|yolox_ft``: fit, write OUT (.onnx) + its .pt checkpoint,
     score the committed ev_crops holdout through ONNX Runtime (torch imported here only)."""
     from makeway.perceive.vision.cnn_classifier import OnnxCropClassifier
     from makeway.sense.crops import near_duplicate_groups, read_crop_folder
@@ -473,7 +474,11 @@ def train(
     threshold: Annotated[float, typer.Option(help="Decision threshold stored with the model.")] = 0.5,
     seed: Annotated[int, typer.Option(help="Seed (yolox_logreg: of the inner CV that picks C).")] = 0,
     arch: Annotated[
-        str, typer.Option(help="yolox_logreg (features + logistic head), resnet18 or small_cnn (CNNs).")
+        str,
+        typer.Option(
+            help="yolox_logreg (features + logistic head); CNNs: resnet18, small_cnn, or yolox_ft "
+            "(the YOLOX-nano backbone fine-tuned, after a linear probe; --input-size a multiple of 32)."
+        ),
     ] = "yolox_logreg",
     pretrained: Annotated[
         Path | None, typer.Option(help="torchvision ResNet-18 state dict (.pth) to start from (resnet18).")
@@ -496,7 +501,8 @@ def train(
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")] = False,
 ) -> None:
     """Train an EV crop classifier: the YOLOX-nano features + logistic head (default) or a CNN of
-    SPEC §1 (``--arch resnet18|small_cnn``: trained from scratch, or from ``--pretrained``).
+    SPEC §1 (``--arch resnet18|small_cnn``: trained from scratch, or from ``--pretrained``;
+    ``--arch yolox_ft``: the COCO detector's backbone fine-tuned).
 
     On ev_crops only the training part (the complement of the committed holdout) is used, and the
     held-out metrics are printed (one JSON line last)."""

@@ -253,7 +253,14 @@ def small_cnn(input_size: int = 128, width: int = 16, hidden: int = 64) -> Small
 ARCHS: dict[str, Callable[[int, int], nn.Module]] = {
     "resnet18": lambda input_size, width: resnet18_binary(width),
     "small_cnn": lambda input_size, width: small_cnn(input_size, width),
+    "yolox_ft": lambda input_size, width: _yolox_ft(input_size),
 }
+
+
+def _yolox_ft(input_size: int) -> nn.Module:
+    from makeway.train.onnx_graph import yolox_crop_net
+
+    return yolox_crop_net(input_size)
 
 
 def build_model(arch: str, input_size: int, width: int) -> nn.Module:
@@ -629,6 +636,9 @@ class CNNClassifier:
             x_tr, y_tr = x_all[tr], y[tr]
             x_va, y_va = _normalise(x_all[va]), torch.from_numpy(y[va]).float()
             model = self.new_model()
+            probe = getattr(model, "linear_probe", None)
+            if callable(probe):  # pretrained backbones: start from the best linear head
+                probe(_normalise(x_tr), y_tr)
             opt = torch.optim.Adam(model.parameters(), lr=self.lr, weight_decay=self.weight_decay)
             sched = torch.optim.lr_scheduler.ReduceLROnPlateau(
                 opt, mode="min", factor=self.lr_factor, patience=self.patience

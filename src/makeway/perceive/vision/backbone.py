@@ -61,7 +61,7 @@ import numpy as np
 from makeway.errors import InputError
 from makeway.perceive.vision.detectors import resolve_model_path
 
-__all__ = ["DEFAULT_LAYERS", "LAYERS", "BackboneFeatures"]
+__all__ = ["DEFAULT_LAYERS", "LAYERS", "BackboneFeatures", "prune_to_tensors"]
 
 #: Short names of the useful YOLOX-nano tensors (see the module docstring).
 LAYERS: dict[str, str] = {
@@ -78,6 +78,53 @@ DEFAULT_LAYERS: tuple[str, ...] = ("dark4", "dark5", "pan5")
 
 _MODEL_FILENAME = "yolox_nano.onnx"
 _CHUNK = 16  # on 2 cores, 16 crops a run is ~10 % faster than 64 (cache)
+
+
+def prune_to_tensors(model: Any, tensors: Sequence[str]) -> Any:
+    """Rewrite a single-input ONNX ``model`` in place so that ``tensors`` are its outputs.
+
+    Only the nodes (and initializers) the tensors depend on are kept — for YOLOX-nano the detection
+    head goes away — and the input gets a symbolic batch, height and width (axes 0, 2, 3). Shared
+    by :class:`BackboneFeatures` and the fine-tuned crop network of :mod:`makeway.train.onnx_graph`.
+
+    Raises:
+        KeyError: ``args[0]`` lists the tensors no node produces, or the graph has several inputs.
+    """
+    import onnx
+
+    graph = model.graph
+    producers = {out: node for node in graph.node for out in node.output}
+    missing = [t for t in tensors if t not in producers]
+    if missing or len(graph.input) != 1:
+        raise KeyError(missing)
+    needed: set[str] = set()
+    stack = list(tensors)
+    keep: set[int] = set()
+    while stack:
+        tensor = stack.pop()
+        if tensor in needed:
+            continue
+        needed.add(tensor)
+        node = producers.get(tensor)
+        if node is not None and id(node) not in keep:
+            keep.add(id(node))
+            stack.extend(i for i in node.input if i)
+    nodes = [n for n in graph.node if id(n) in keep]
+    del graph.node[:]
+    graph.node.extend(nodes)
+    used = {i for n in nodes for i in n.input}
+    inits = [i for i in graph.initializer if i.name in used]
+    del graph.initializer[:]
+    graph.initializer.extend(inits)
+    dims = graph.input[0].type.tensor_type.shape.dim
+    for axis, name in ((0, "batch"), (2, "height"), (3, "width")):
+        dims[axis].ClearField("dim_value")
+        dims[axis].dim_param = name
+    del graph.value_info[:]
+    del graph.output[:]
+    for tensor in tensors:
+        graph.output.append(onnx.helper.make_tensor_value_info(tensor, onnx.TensorProto.FLOAT, None))
+    return model
 
 
 class BackboneFeatures:
@@ -149,44 +196,15 @@ class BackboneFeatures:
             raise InputError(
                 self.model_path, f"not a valid ONNX model ({type(exc).__name__}: {exc})"
             ) from exc
-        graph = model.graph
-        producers = {out: node for node in graph.node for out in node.output}
-        missing = [name for name, t in zip(self.layers, self._tensors, strict=True) if t not in producers]
-        if missing or len(graph.input) != 1:
+        try:
+            model = prune_to_tensors(model, self._tensors)
+        except KeyError as exc:
+            missing = [n for n, t in zip(self.layers, self._tensors, strict=True) if t in exc.args[0]]
             raise InputError(
                 self.model_path,
                 f"not the YOLOX-nano graph this extractor knows: no tensor for {', '.join(missing)} "
                 f"(known layers: {', '.join(LAYERS)})",
-            )
-        # Keep only the nodes the chosen tensors depend on (the detection head goes away).
-        needed: set[str] = set()
-        stack = list(self._tensors)
-        keep: set[int] = set()
-        while stack:
-            tensor = stack.pop()
-            if tensor in needed:
-                continue
-            needed.add(tensor)
-            node = producers.get(tensor)
-            if node is not None and id(node) not in keep:
-                keep.add(id(node))
-                stack.extend(i for i in node.input if i)
-        nodes = [n for n in graph.node if id(n) in keep]
-        del graph.node[:]
-        graph.node.extend(nodes)
-        used = {i for n in nodes for i in n.input}
-        inits = [i for i in graph.initializer if i.name in used]
-        del graph.initializer[:]
-        graph.initializer.extend(inits)
-        # Symbolic batch, height and width; stale intermediate shapes dropped.
-        dims = graph.input[0].type.tensor_type.shape.dim
-        for axis, name in ((0, "batch"), (2, "height"), (3, "width")):
-            dims[axis].ClearField("dim_value")
-            dims[axis].dim_param = name
-        del graph.value_info[:]
-        del graph.output[:]
-        for tensor in self._tensors:
-            graph.output.append(onnx.helper.make_tensor_value_info(tensor, onnx.TensorProto.FLOAT, None))
+            ) from None
         opts = ort.SessionOptions()
         opts.intra_op_num_threads = self.num_threads
         opts.inter_op_num_threads = 1
