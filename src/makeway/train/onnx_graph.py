@@ -232,9 +232,7 @@ def yolox_crop_net(
         InputError: the model file is missing or is not the YOLOX-nano graph.
         ValueError: ``input_size`` is not a positive multiple of 32.
     """
-    import onnx
-
-    from makeway.perceive.vision.backbone import DEFAULT_LAYERS, LAYERS, prune_to_tensors
+    from makeway.perceive.vision.backbone import DEFAULT_LAYERS, LAYERS, load_pruned_yolox
     from makeway.perceive.vision.detectors import resolve_model_path
 
     if input_size < 32 or input_size % 32:
@@ -243,16 +241,11 @@ def yolox_crop_net(
         )
     path = resolve_model_path("yolox_nano.onnx", model_path)
     names = tuple(layers or DEFAULT_LAYERS)
-    tensors = [LAYERS.get(n, n) for n in names]
+    model = load_pruned_yolox(path, names)
     try:
-        model = prune_to_tensors(onnx.load(str(path)), tensors)
-        graph = OnnxGraph(model, tensors)
-    except KeyError as exc:
-        raise InputError(path, f"not the YOLOX-nano graph: no tensor {', '.join(exc.args[0])}") from None
+        graph = OnnxGraph(model, [LAYERS.get(n, n) for n in names])
     except ValueError as exc:
         raise InputError(path, str(exc)) from None
-    except Exception as exc:  # protobuf decode errors come in several types
-        raise InputError(path, f"not a valid ONNX model ({type(exc).__name__}: {exc})") from exc
     with torch.no_grad():
         outs = graph(torch.full((1, 3, input_size, input_size), 114.0))
     return YoloxCropNet(graph, [int(o.shape[1]) for o in outs], dropout=dropout)

@@ -61,7 +61,7 @@ import numpy as np
 from makeway.errors import InputError
 from makeway.perceive.vision.detectors import resolve_model_path
 
-__all__ = ["DEFAULT_LAYERS", "LAYERS", "BackboneFeatures", "prune_to_tensors"]
+__all__ = ["DEFAULT_LAYERS", "LAYERS", "BackboneFeatures", "load_pruned_yolox", "prune_to_tensors"]
 
 #: Short names of the useful YOLOX-nano tensors (see the module docstring).
 LAYERS: dict[str, str] = {
@@ -88,15 +88,17 @@ def prune_to_tensors(model: Any, tensors: Sequence[str]) -> Any:
     by :class:`BackboneFeatures` and the fine-tuned crop network of :mod:`makeway.train.onnx_graph`.
 
     Raises:
-        KeyError: ``args[0]`` lists the tensors no node produces, or the graph has several inputs.
+        ValueError: the graph has several inputs, or no node produces one of ``tensors``.
     """
     import onnx
 
     graph = model.graph
+    if len(graph.input) != 1:
+        raise ValueError(f"expected a graph with one input, found {len(graph.input)}")
     producers = {out: node for node in graph.node for out in node.output}
     missing = [t for t in tensors if t not in producers]
-    if missing or len(graph.input) != 1:
-        raise KeyError(missing)
+    if missing:
+        raise ValueError(f"no tensor for {', '.join(missing)}")
     needed: set[str] = set()
     stack = list(tensors)
     keep: set[int] = set()
@@ -125,6 +127,28 @@ def prune_to_tensors(model: Any, tensors: Sequence[str]) -> Any:
     for tensor in tensors:
         graph.output.append(onnx.helper.make_tensor_value_info(tensor, onnx.TensorProto.FLOAT, None))
     return model
+
+
+def load_pruned_yolox(model_path: Path, layers: Sequence[str]) -> Any:
+    """The YOLOX-nano ONNX model at ``model_path`` pruned to ``layers`` (names of :data:`LAYERS` or
+    tensor names), for :class:`BackboneFeatures` and :func:`makeway.train.onnx_graph.yolox_crop_net`.
+
+    Raises:
+        InputError: the file is not a valid ONNX model, or not the graph this module knows.
+    """
+    import onnx
+
+    try:
+        model = onnx.load(str(model_path))
+    except Exception as exc:  # protobuf decode errors come in several types
+        raise InputError(model_path, f"not a valid ONNX model ({type(exc).__name__}: {exc})") from exc
+    try:
+        return prune_to_tensors(model, [LAYERS.get(name, name) for name in layers])
+    except ValueError as exc:
+        raise InputError(
+            model_path,
+            f"not the YOLOX-nano graph this extractor knows: {exc} (known layers: {', '.join(LAYERS)})",
+        ) from None
 
 
 class BackboneFeatures:
@@ -187,24 +211,9 @@ class BackboneFeatures:
     # --------------------------------------------------------------------------------- session
 
     def _build_session(self) -> tuple[Any, list[int]]:
-        import onnx
         import onnxruntime as ort
 
-        try:
-            model = onnx.load(str(self.model_path))
-        except Exception as exc:  # protobuf decode errors come in several types
-            raise InputError(
-                self.model_path, f"not a valid ONNX model ({type(exc).__name__}: {exc})"
-            ) from exc
-        try:
-            model = prune_to_tensors(model, self._tensors)
-        except KeyError as exc:
-            missing = [n for n, t in zip(self.layers, self._tensors, strict=True) if t in exc.args[0]]
-            raise InputError(
-                self.model_path,
-                f"not the YOLOX-nano graph this extractor knows: no tensor for {', '.join(missing)} "
-                f"(known layers: {', '.join(LAYERS)})",
-            ) from None
+        model = load_pruned_yolox(self.model_path, self.layers)
         opts = ort.SessionOptions()
         opts.intra_op_num_threads = self.num_threads
         opts.inter_op_num_threads = 1
