@@ -55,6 +55,13 @@ def simulate(
             "street recordings are split by a fixed hash of their group, 80/20)."
         ),
     ] = "all",
+    distractors: Annotated[
+        bool,
+        typer.Option(
+            help="Add non-siren street sounds (horns, birds, brake squeal, air-brake hiss, revving "
+            "engines) to 60 % of the recordings."
+        ),
+    ] = True,
     as_json: Annotated[bool, typer.Option("--json", help="Print the summary as one JSON line.")] = False,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")] = False,
 ) -> None:
@@ -89,6 +96,7 @@ def simulate(
         siren_pool=siren_pool if siren != "synth" else [],
         noise_pool=noise_pool if noise != "generated" else [],
         progress=not quiet,
+        distractors=distractors,
     )
     wall = time.perf_counter() - t0
     summary = {

@@ -12,7 +12,8 @@ Material (``<data>/audio``) and its label:
 
 =================================  ========  ==============================================
 ``street_recordings/traffic-*``,   no siren  the real negatives (some were simulator noise
-``noise*``                                   ingredients: see ``seen_in_training``)
+``noise*``                                   ingredients: see ``seen_in_training``), less the
+                                             siren spans of ``STREET_NOISE_SIRENS``
 ``street_recordings/ambulance*``   siren     sirens in real traffic, never a simulator input
 ``street_mixtures/*``              siren     ambulance + traffic mixtures, never an input
 ``siren_clips/*``                  siren     3 s clips from road videos; test-split blocks only
@@ -42,7 +43,7 @@ from makeway.sim.acoustics import (
     place_fixed_sources,
     self_noise,
 )
-from makeway.sim.siren import group_split, load_mono, load_siren_sources
+from makeway.sim.siren import cut_spans, group_split, load_mono, load_siren_sources
 
 LEVEL_DBA = 70.0
 DISTANCE_M = 25.0
@@ -59,6 +60,8 @@ class MonoFile:
     siren: bool
     group: str
     seen_in_training: bool
+    exclude: tuple[tuple[float, float], ...] = ()
+    """Spans (s) left out: the sirens found in no-siren street recordings (``STREET_NOISE_SIRENS``)."""
 
 
 def mono_files(data_root: str | Path, *, include_train_clips: bool = False) -> list[MonoFile]:
@@ -66,7 +69,8 @@ def mono_files(data_root: str | Path, *, include_train_clips: bool = False) -> l
     audio = Path(data_root) / "audio"
     out: list[MonoFile] = []
     for src in load_street_noise_sources(data_root):
-        out.append(MonoFile(src.path, "street_noise", False, src.group, group_split(src.group) == "train"))
+        seen = group_split(src.group) == "train"
+        out.append(MonoFile(src.path, "street_noise", False, src.group, seen, src.exclude))
     for p in sorted((audio / "street_recordings").glob("ambulance*.flac")):
         out.append(MonoFile(p, "street_siren", True, f"street:{p.stem}", False))
     for p in sorted((audio / "street_mixtures").glob("*.flac")):
@@ -122,6 +126,8 @@ def check_file(
     """Per-window probabilities of one file; a row of the report."""
     cfg = model.config
     x = load_mono(item.path, cfg.sample_rate, unit_rms=True)
+    if item.exclude:
+        x = cut_spans(x, cfg.sample_rate, item.exclude)
     win = cfg.n_samples
     n_win = min(len(x) // win, max_windows)
     row: dict[str, Any] = {

@@ -490,13 +490,53 @@ def self_noise(
     return rng.standard_normal((n, n_mics)) * db_spl_to_pa(level_db)
 
 
+STREET_NOISE_SIRENS = Path(__file__).resolve().parents[1] / "data" / "street_noise_sirens.csv"
+"""Spans of the no-siren street recordings that do hold a siren after all (found by looking at their
+spectrograms; ``file,start_s,end_s,what``). They are cut out wherever the recordings serve as
+negatives: as simulator noise and in the real-data check."""
+
+
+def street_noise_siren_spans(
+    path: str | Path = STREET_NOISE_SIRENS,
+) -> dict[str, tuple[tuple[float, float], ...]]:
+    """``{file stem: ((start_s, end_s), …)}`` from the annotation CSV (:data:`STREET_NOISE_SIRENS`).
+
+    Raises :class:`~makeway.errors.InputError` naming the file and row on a malformed line."""
+    import csv
+
+    from makeway.errors import InputError
+
+    spans: dict[str, list[tuple[float, float]]] = {}
+    try:
+        with open(path, newline="", encoding="utf-8") as fh:
+            reader = csv.DictReader(fh)
+            missing = {"file", "start_s", "end_s"} - set(reader.fieldnames or ())
+            if missing:
+                raise InputError(
+                    path, f"needs the columns file,start_s,end_s (missing {', '.join(sorted(missing))})"
+                )
+            for i, row in enumerate(reader, start=2):
+                try:
+                    start, end = float(row["start_s"]), float(row["end_s"])
+                except (TypeError, ValueError):
+                    raise InputError(path, f"line {i}: start_s/end_s must be numbers") from None
+                if not (0.0 <= start < end):
+                    raise InputError(path, f"line {i}: needs 0 <= start_s < end_s, got {start:g}, {end:g}")
+                spans.setdefault(str(row["file"]).strip(), []).append((start, end))
+    except OSError as exc:
+        raise InputError(path, f"cannot be read ({exc.strerror or exc})") from None
+    return {k: tuple(sorted(v)) for k, v in spans.items()}
+
+
 def load_street_noise_sources(data_root: str | Path) -> list[AudioSource]:
     """The real street recordings with no siren (``traffic-*``, ``noise*`` under
     ``audio/street_recordings``), one group per file; the ``ambulance*`` files hold sirens and are left
-    out. 16 kHz material, so :meth:`AudioSource.load` upsamples it to 48 kHz (content < 8 kHz)."""
+    out, and so are the siren spans of :data:`STREET_NOISE_SIRENS` (``AudioSource.exclude``). 16 kHz
+    material, so :meth:`AudioSource.load` upsamples it to 48 kHz (content < 8 kHz)."""
     folder = Path(data_root) / "audio" / "street_recordings"
+    sirens = street_noise_siren_spans()
     out: list[AudioSource] = []
     for p in sorted(folder.glob("*.flac")):
         if p.stem.startswith(("traffic", "noise")):
-            out.append(AudioSource(p.stem, f"street:{p.stem}", "street", "none", p))
+            out.append(AudioSource(p.stem, f"street:{p.stem}", "street", "none", p, sirens.get(p.stem, ())))
     return out

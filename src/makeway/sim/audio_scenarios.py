@@ -28,7 +28,12 @@ rotated and shifted by a random world pose so that world and vehicle frames diff
   generated street noise without data);
 * wind: 60–72 dB SPL at 10 m/s air speed, 40·log10(U) law (see :mod:`makeway.sim.acoustics`),
   air speed = ego speed + 0.5–4 m/s ambient wind;
-* capsule self-noise 30 dB SPL.
+* capsule self-noise 30 dB SPL;
+* non-siren street sounds (:mod:`makeway.sim.distractors`: horns, birds, brake squeal, air-brake
+  hiss, revving engines) in 60 % of the recordings, with or without a siren: 1–3 of them at fixed
+  points 5–40 m away (birds 2–10 m up), each 5 dB below to 15 dB above the street noise's A-weighted
+  level while it sounds. Drawn from their own random stream, so switching them off
+  (``distractors=False``) leaves every other draw of a seed unchanged.
 
 The resulting in-band (500–1800 Hz) siren-to-noise ratio is written to ``meta.yaml`` (``snr_band_db``)
 together with every other draw, so benchmarks can be broken down by it.
@@ -54,6 +59,7 @@ from makeway.sense.recording import (
 )
 from makeway.sim.acoustics import (
     FULL_SCALE_PA,
+    SPEED_OF_SOUND,
     PointSource,
     a_weighted_level_db,
     db_spl_to_pa,
@@ -64,6 +70,7 @@ from makeway.sim.acoustics import (
     simulate_array,
     wind_noise,
 )
+from makeway.sim.distractors import synthesize_distractor
 from makeway.sim.siren import AudioSource, fit_length, load_siren_sources, synthesize_siren
 
 AUDIO_SCENARIOS = ("crossing", "same_direction", "opposite_direction", "from_behind")
@@ -85,6 +92,13 @@ AMBIENT_WIND_MPS = (0.5, 4.0)
 REAL_SIREN_SHARE = 0.6
 """With ``siren="auto"`` and the data present, this share of sirens are real clips/tones."""
 SNR_BAND_HZ = (500.0, 1800.0)
+DISTRACTOR_SHARE = 0.6
+N_DISTRACTORS = (1, 3)
+DISTRACTOR_DISTANCE_M = (5.0, 40.0)
+DISTRACTOR_HEIGHT_M = (0.5, 1.5)
+BIRD_HEIGHT_M = (2.0, 10.0)
+DISTRACTOR_REL_DBA = (-5.0, 15.0)
+"""A-weighted level of a distractor while it sounds, relative to the street noise's (dB)."""
 
 Fn = Callable[[np.ndarray], np.ndarray]
 
@@ -250,6 +264,7 @@ def simulate_recording(
     sample_rate: int = REFERENCE_SAMPLE_RATE,
     mics: np.ndarray | None = None,
     kernel: str = "sinc",
+    distractors: bool = True,
 ) -> Recording:
     """Simulate one recording of the reference array (not written; see :func:`generate_recordings`).
 
@@ -266,6 +281,7 @@ def simulate_recording(
         siren_pool, noise_pool: restrict the real ingredients (e.g. to a training split).
         mics: capsule positions (default: the reference array).
         kernel: fractional-delay interpolation (``"sinc"`` or ``"lagrange"``).
+        distractors: add non-siren street sounds (module docstring) to a share of the recordings.
     """
     rng = np.random.default_rng(seed)
     if siren not in ("auto", "synth", "real", "none"):
@@ -377,6 +393,10 @@ def simulate_recording(
     wind = wind_noise(n, len(mics), sample_rate, air, wind_10, rng)
     meta["wind"] = {"level_10_db": round(wind_10, 2), "air_speed_mps": round(air, 2)}
     noise_pa = street + wind + self_noise(n, len(mics), rng)
+    if distractors:
+        extra_pa, meta["distractors"] = _distractor_field(n, sample_rate, mics, street, seed)
+        if extra_pa is not None:
+            noise_pa = noise_pa + extra_pa
 
     total = noise_pa if siren_pa is None else siren_pa + noise_pa
     if siren_pa is not None:
@@ -395,6 +415,45 @@ def simulate_recording(
     return Recording(audio.astype(np.float32), sample_rate, mics, ego_out, srcs_out, None, meta)
 
 
+def _distractor_field(
+    n: int, sample_rate: int, mics: np.ndarray, street: np.ndarray, seed: int
+) -> tuple[np.ndarray | None, list[dict[str, Any]]]:
+    """Pressure of the non-siren street sounds of one recording (or None) and their description."""
+    rng = np.random.default_rng([int(seed) & 0xFFFFFFFF, 0xD157])
+    if rng.random() >= DISTRACTOR_SHARE:
+        return None, []
+    street_dba = a_weighted_level_db(street, sample_rate)
+    extra = round(0.25 * sample_rate)
+    total = np.zeros((n, len(mics)))
+    info: list[dict[str, Any]] = []
+    for _ in range(int(rng.integers(N_DISTRACTORS[0], N_DISTRACTORS[1] + 1))):
+        d = synthesize_distractor(None, n + extra, sample_rate, rng)
+        bearing = float(rng.uniform(-math.pi, math.pi))
+        dist = float(rng.uniform(*DISTRACTOR_DISTANCE_M))
+        height = float(rng.uniform(*(BIRD_HEIGHT_M if d.kind == "birds" else DISTRACTOR_HEIGHT_M)))
+        centre = mics[:, :2].mean(axis=0)
+        pos = np.array([[centre[0] + dist * math.cos(bearing), centre[1] + dist * math.sin(bearing), height]])
+        pa = place_fixed_sources([d.signal], pos, mics, n, sample_rate, reflection=0.8)
+        # output sample j hears source sample extra + j − delay (place_fixed_sources' alignment)
+        delay = round(float(np.linalg.norm(pos[0] - mics.mean(axis=0))) / SPEED_OF_SOUND * sample_rate)
+        active = d.active[extra - delay : extra - delay + n]
+        if not active.any():
+            continue
+        rel = float(rng.uniform(*DISTRACTOR_REL_DBA))
+        pa *= 10 ** ((street_dba + rel - a_weighted_level_db(pa[active], sample_rate)) / 20.0)
+        total += pa
+        info.append(
+            {
+                "kind": d.kind,
+                **d.params,
+                "position_vehicle_m": np.round(pos[0], 2).tolist(),
+                "relative_dba": round(rel, 2),
+                "active_s": round(float(active.sum()) / sample_rate, 3),
+            }
+        )
+    return (total if info else None), info
+
+
 def generate_recordings(
     out_dir: str | Path,
     n: int,
@@ -411,11 +470,13 @@ def generate_recordings(
     noise_pool: Sequence[AudioSource] | None = None,
     progress: bool = True,
     start_index: int = 0,
+    distractors: bool = True,
 ) -> list[Path]:
     """Simulate ``n`` recordings into ``out_dir/rec_00000`` … (each written all-or-nothing).
 
     A share ``no_siren_fraction`` has no siren (negatives), ``two_siren_fraction`` of the rest two
     EVs. Recording ``i`` uses a seed derived from ``(seed, i)``, so any one can be re-made alone.
+    ``distractors``: non-siren street sounds in a share of the recordings (module docstring).
     """
     from makeway.progress import progress_bar
 
@@ -447,6 +508,7 @@ def generate_recordings(
                 data_root=root,
                 siren_pool=siren_pool or [],
                 noise_pool=noise_pool or [],
+                distractors=distractors,
             )
             written.append(write_recording(out / f"rec_{i:05d}", rec))
             advance(1)

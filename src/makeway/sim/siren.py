@@ -254,6 +254,23 @@ def load_mono(path: str | Path, sample_rate: int = SAMPLE_RATE, *, unit_rms: boo
     return x
 
 
+def cut_spans(
+    x: np.ndarray, sample_rate: int, spans: Sequence[tuple[float, float]], *, unit_rms: bool = True
+) -> np.ndarray:
+    """``x`` without the samples of ``spans`` (seconds), the pieces joined end to end; unit RMS
+    again when ``unit_rms``. Read-only like :func:`load_mono`."""
+    keep = np.ones(len(x), dtype=bool)
+    for start, end in spans:
+        keep[max(0, round(start * sample_rate)) : max(0, round(end * sample_rate))] = False
+    out = np.asarray(x, dtype=np.float32)[keep]
+    if unit_rms and len(out):
+        rms = float(np.sqrt(np.mean(np.square(out, dtype=np.float64))))
+        if rms > 0:
+            out = (out / rms).astype(np.float32)
+    out.setflags(write=False)
+    return out
+
+
 _TONE_MODES = (
     ("phaser", "phaser"),
     ("hyperyelp", "yelp"),
@@ -290,10 +307,14 @@ class AudioSource:
     kind: str
     mode: str
     path: Path
+    exclude: tuple[tuple[float, float], ...] = ()
+    """Spans ``(start_s, end_s)`` cut out on loading (e.g. a siren heard in a no-siren recording)."""
 
     def load(self, sample_rate: int = SAMPLE_RATE) -> np.ndarray:
-        """Mono float32 at ``sample_rate`` with unit RMS (cached, read-only)."""
-        return load_mono(self.path, sample_rate)
+        """Mono float32 at ``sample_rate`` with unit RMS (cached, read-only), ``exclude`` cut out."""
+        if not self.exclude:
+            return load_mono(self.path, sample_rate)
+        return cut_spans(load_mono(self.path, sample_rate, unit_rms=False), sample_rate, self.exclude)
 
 
 SirenSource = AudioSource
