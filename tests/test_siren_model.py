@@ -233,6 +233,25 @@ def test_cli_train_and_errors(tiny_model: tuple[Path, Path, dict], tmp_path: Pat
     assert summary["n_recordings"] == 2 and summary["epochs_run"] == 1
     assert set(summary["test"]) >= METRIC_KEYS and summary["test"]["distance_median_m"] is not None
     assert SirenModel(out).metadata["makeway_model"] == "siren_net"
+    # log-distance head: trains, exports, and still answers in metres (positive)
+    log_out = tmp_path / "log.onnx"
+    res = runner.invoke(audio_app, [*args[:4], str(log_out), *args[5:], "--distance-loss", "log"])
+    assert res.exit_code == 0, res.output
+    summary = json.loads(res.stdout.strip().splitlines()[-1])
+    assert summary["config"]["distance_loss"] == "log" and summary["config"]["loss_weights"] == [
+        10.0,
+        10.0,
+        10.0,
+    ]
+    from makeway.sense.recording import read_recording
+
+    rec = read_recording(tiny_model[1])
+    pred = SirenModel(log_out, threads=1).predict(window_batch(rec, label_recording(rec)))
+    assert np.all(pred.distance > 0) and np.all(np.isfinite(pred.distance))
+    res = runner.invoke(audio_app, [*args, "--loss-weights", "10,10"])
+    assert res.exit_code == 2 and "--loss-weights takes three" in res.output
+    res = runner.invoke(audio_app, [*args, "--distance-loss", "cubic"])
+    assert res.exit_code == 2 and "--distance-loss must be squared or log" in res.output
     res = runner.invoke(audio_app, [*args, "--streams", "wave,sonar"])
     assert res.exit_code == 2 and "unknown streams" in res.output
     res = runner.invoke(audio_app, ["train", "--data", str(tmp_path / "nothing"), "--out", str(out)])

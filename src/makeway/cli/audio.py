@@ -304,6 +304,20 @@ def train(
     patience: Annotated[
         int, typer.Option(min=0, help="Epochs without improvement before the learning rate drops (×0.3).")
     ] = 2,
+    distance_loss: Annotated[
+        str,
+        typer.Option(
+            help="Distance loss: squared (SPEC §3, squared error in m²) or log (squared error of ln "
+            "distance: the level cue's error is relative, so near sources count as much as far ones)."
+        ),
+    ] = "squared",
+    loss_weights: Annotated[
+        str | None,
+        typer.Option(
+            help="Weights of the siren, direction and distance losses, e.g. 10,10,0.008 "
+            "[default: 10,10,0.008 with --distance-loss squared, 10,10,10 with log]."
+        ),
+    ] = None,
     mirror: Annotated[bool, typer.Option(help="Add every window mirrored left/right.")] = True,
     cache: Annotated[
         Path | None, typer.Option(help="Feature cache (.npz), reused when made from the same data.")
@@ -349,8 +363,23 @@ def train(
         raise ValueError(
             f"unknown streams {unknown}; --streams takes a comma-separated subset of {', '.join(STREAMS)}"
         )
+    if distance_loss not in ("squared", "log"):
+        raise ValueError(f"--distance-loss must be squared or log, not {distance_loss!r}")
+    if loss_weights is None:
+        weights = (10.0, 10.0, 0.008) if distance_loss == "squared" else (10.0, 10.0, 10.0)
+    else:
+        try:
+            weights = tuple(float(v) for v in loss_weights.split(","))
+        except ValueError:
+            weights = ()
+        if len(weights) != 3 or min(weights) < 0:
+            raise ValueError(
+                f"--loss-weights takes three non-negative numbers like 10,10,0.008, not {loss_weights!r}"
+            )
     cfg = TrainConfig(
         streams=names,
+        distance_loss=distance_loss,
+        loss_weights=(weights[0], weights[1], weights[2]),
         width=width,
         epochs=epochs,
         lr=lr,
@@ -377,7 +406,12 @@ def train(
                 f"epoch {epoch + 1}: lr {row['lr']:.2g} train {row['train_loss']:.3f} "
                 f"val {row['val_loss']:.3f} "
                 f"(bce {row['val_bce']:.3f}, direction {row['val_direction']:.3f}, "
-                f"distance rmse {row['val_distance_mse'] ** 0.5:.1f} m) {row['seconds']:.0f} s",
+                + (
+                    f"distance rmse {row['val_distance_mse'] ** 0.5:.1f} m) "
+                    if distance_loss == "squared"
+                    else f"distance rms ln-error {row['val_distance_mse'] ** 0.5:.2f}) "
+                )
+                + f"{row['seconds']:.0f} s",
                 highlight=False,
             )
             advance(1)

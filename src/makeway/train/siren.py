@@ -61,6 +61,7 @@ __all__ = [
 ]
 
 INPUT_NAMES = ("wave", "spec", "gcc", "level")
+DISTANCE_LOSSES = ("squared", "log")
 OUTPUT_NAMES = ("siren_logit", "direction", "distance", "bearing_logits")
 
 
@@ -267,8 +268,10 @@ class SirenNet(nn.Module):
         streams: Sequence[str] = INPUT_NAMES,
         width: int = 32,
         n_azimuth: int = 120,
+        log_distance: bool = False,
     ) -> None:
         super().__init__()
+        self.log_distance = bool(log_distance)
         unknown = set(streams) - set(INPUT_NAMES)
         if unknown:
             raise ValueError(f"unknown streams {sorted(unknown)}; choose from {', '.join(INPUT_NAMES)}")
@@ -348,7 +351,10 @@ class SirenNet(nn.Module):
             parts.append(self.norm["level"](x["level"]))
         h = self.trunk(torch.cat(parts, dim=1))
         siren_logit = self.siren_head(h)[:, 0]
-        distance = 50.0 * self.distance_head(h)[:, 0] + 40.0
+        if self.log_distance:  # the head predicts ln(distance); the output stays in metres
+            distance = torch.exp(torch.clamp(self.distance_head(h)[:, 0] + math.log(30.0), max=8.0))
+        else:
+            distance = 50.0 * self.distance_head(h)[:, 0] + 40.0
         if bearing_logits is not None:
             weights = torch.softmax(bearing_logits, dim=1)
             direction = weights @ self.unit.T  # (n, 2) = (sin θ, cos θ), not normalised
@@ -372,6 +378,8 @@ class TrainConfig:
     lr: float = 1e-3
     weight_decay: float = 0.0
     loss_weights: tuple[float, float, float] = (10.0, 10.0, 0.008)
+    distance_loss: str = "squared"
+    """``"squared"`` (SPEC §3: squared error in m²) or ``"log"`` (squared error of ln distance)."""
     plateau_patience: int = 2
     plateau_factor: float = 0.3
     min_lr: float = 2e-5
@@ -390,7 +398,10 @@ def _targets(data: SirenDataset) -> tuple[torch.Tensor, torch.Tensor, torch.Tens
 
 
 def _loss(
-    out: tuple[torch.Tensor, ...], tgt: tuple[torch.Tensor, ...], weights: tuple[float, float, float]
+    out: tuple[torch.Tensor, ...],
+    tgt: tuple[torch.Tensor, ...],
+    weights: tuple[float, float, float],
+    distance_loss: str = "squared",
 ) -> tuple[torch.Tensor, list[float]]:
     siren_logit, direction, distance, _ = out
     siren, direction_t, dist_t, mask = tgt
@@ -398,7 +409,11 @@ def _loss(
     m = mask.float()
     n = torch.clamp(m.sum(), min=1.0)
     dir_l = (((direction - direction_t) ** 2).sum(dim=1) * m).sum() / n
-    dist_l = (((distance - dist_t) ** 2) * m).sum() / n
+    if distance_loss == "log":
+        err = torch.log(torch.clamp(distance, min=0.5)) - torch.log(torch.clamp(dist_t, min=0.5))
+    else:
+        err = distance - dist_t
+    dist_l = ((err**2) * m).sum() / n
     total = weights[0] * bce + weights[1] * dir_l + weights[2] * dist_l
     return total, [float(bce.detach()), float(dir_l.detach()), float(dist_l.detach())]
 
@@ -446,8 +461,12 @@ def train_siren_net(
     torch.manual_seed(cfg.seed)
     torch.set_num_threads(max(1, int(cfg.threads)))
     rng = np.random.default_rng(cfg.seed)
+    if cfg.distance_loss not in DISTANCE_LOSSES:
+        raise ValueError(
+            f"distance_loss must be one of {', '.join(DISTANCE_LOSSES)}, not {cfg.distance_loss!r}"
+        )
     train_idx, val_idx = split_by_recording(data, cfg.val_fraction, cfg.seed)
-    net = SirenNet(shapes, cfg.streams, cfg.width, n_azimuth)
+    net = SirenNet(shapes, cfg.streams, cfg.width, n_azimuth, log_distance=cfg.distance_loss == "log")
     net.fit_normalization({s: data.features[s][train_idx] for s in net.streams})
     opt = torch.optim.Adam(net.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
     sched = torch.optim.lr_scheduler.ReduceLROnPlateau(
@@ -467,7 +486,7 @@ def train_siren_net(
             if len(idx) < 2:
                 continue
             out = net(*_batches(data, idx, net.streams))
-            loss, parts = _loss(out, tuple(t[idx] for t in tgt_all), cfg.loss_weights)
+            loss, parts = _loss(out, tuple(t[idx] for t in tgt_all), cfg.loss_weights, cfg.distance_loss)
             opt.zero_grad()
             loss.backward()
             opt.step()
@@ -480,7 +499,7 @@ def train_siren_net(
             for i in range(0, len(val_idx), 256):
                 idx = val_idx[i : i + 256]
                 out = net(*_batches(data, idx, net.streams))
-                loss, parts = _loss(out, tuple(t[idx] for t in tgt_all), cfg.loss_weights)
+                loss, parts = _loss(out, tuple(t[idx] for t in tgt_all), cfg.loss_weights, cfg.distance_loss)
                 vsum += np.array([float(loss), *parts]) * len(idx)
                 vn += len(idx)
             vsum /= max(vn, 1)
