@@ -1,6 +1,6 @@
 """The siren network (issue 4) against the classical baselines and seed 002, on held-out recordings.
 
-    .venv/bin/python benchmarks/bench_audio_model.py [--data DIR | --n 24 --duration 8] [--model FILE]
+    .venv/bin/python benchmarks/bench_audio_model.py [--data DIR | --n 30 --duration 8] [--model FILE]
         [--baselines gccphat,srp,normmusic] [--latency-reps 60] [--keep DIR] [--json FILE]
 
 1. Held-out recordings: ``--data`` (a folder of recordings), or ``--n`` recordings simulated with
@@ -85,7 +85,7 @@ def latency_ms(model: SirenModel, window: np.ndarray, reps: int) -> float:
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--data", type=Path, default=None, help="held-out recordings (default: simulate)")
-    ap.add_argument("--n", type=int, default=24, help="recordings to simulate without --data")
+    ap.add_argument("--n", type=int, default=30, help="recordings to simulate without --data")
     ap.add_argument("--duration", type=float, default=8.0, help="seconds per simulated recording")
     ap.add_argument("--model", type=Path, default=DEFAULT_SIREN_MODEL)
     ap.add_argument("--baselines", default="gccphat,srp,normmusic")
@@ -126,7 +126,12 @@ def main() -> int:
         for name, method in methods:
             with progress_bar(f"eval {name}", len(recs), unit="rec") as advance:
                 results[name] = evaluate(
-                    recs, method, on_recording=advance, name=name, arrays=pooled if name == "model" else None
+                    recs,
+                    method,
+                    on_recording=advance,
+                    name=name,
+                    arrays=pooled if name == "model" else None,
+                    threshold=model.threshold if name == "model" else 0.5,
                 )
 
         first = results["model"]

@@ -286,6 +286,7 @@ def test_cli_eval_and_listen_with_the_shipped_model(pass_rec: Recording, tmp_pat
     result = json.loads(res.stdout.strip().splitlines()[-1])
     assert set(result) >= METRIC_KEYS and result["method"] == f"model:{DEFAULT_SIREN_MODEL.name}"
     assert result["distance_median_m"] is not None and result["range_10_50"]["positives"] > 0
+    assert result["threshold"] == SirenModel().threshold  # the model's stored decision threshold
     res = runner.invoke(audio_app, ["listen", str(folder), "--jsonl", str(tmp_path / "m.jsonl")])
     assert res.exit_code == 0, res.output
     msgs = [json.loads(x) for x in (tmp_path / "m.jsonl").read_text().splitlines()]

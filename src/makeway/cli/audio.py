@@ -243,15 +243,19 @@ def eval_cmd(
         detector.fit_scores(np.concatenate(scores), np.concatenate(ys))
     method: Any = baseline
     name = baseline or "model"
+    threshold = 0.5
     if baseline is None:
         from makeway.perceive.audio.siren_model import SirenModel
 
         net = SirenModel(model, threads=threads)
         method = model_estimator(net)
         name = f"model:{net.path.name}"
+        threshold = net.threshold  # the decision threshold stored with the model
     t0 = time.perf_counter()
     with progress_bar(f"eval {name}", len(recs), enabled=not quiet, unit="rec") as advance:
-        result = evaluate(recs, method, detector=detector, on_recording=advance, name=name)
+        result = evaluate(
+            recs, method, detector=detector, on_recording=advance, name=name, threshold=threshold
+        )
     result["data"] = str(data)
     result["seconds"] = round(time.perf_counter() - t0, 2)
     if detector is not None:
@@ -470,8 +474,13 @@ def train(
         from makeway.perceive.audio.siren_model import SirenModel
 
         with progress_bar("test", len(test_folders), unit="rec") as advance:
+            trained = SirenModel(target)
             summary["test"] = evaluate(
-                test_folders, model_estimator(SirenModel(target)), on_recording=advance, name="model"
+                test_folders,
+                model_estimator(trained),
+                on_recording=advance,
+                name="model",
+                threshold=trained.threshold,
             )
     print_json_line(summary)
 
