@@ -117,3 +117,21 @@ def test_simulator_adds_distractors_from_their_own_stream(monkeypatch: pytest.Mo
         assert d["kind"] in DISTRACTOR_KINDS and -5.0 <= d["relative_dba"] <= 15.0
         x, y, _ = d["position_vehicle_m"]
         assert 4.9 <= math.hypot(x + 0.9, y) <= 40.1  # around the array centre
+
+
+def test_street_level_range(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> None:
+    from typer.testing import CliRunner
+
+    import makeway.sim.audio_scenarios as scen
+    from makeway.cli.audio import audio_app
+
+    monkeypatch.setattr(scen, "data_dir", lambda: None)
+    rec = simulate_recording("none", 0.8, seed=1, street_dba=(84.0, 84.0), distractors=False)
+    assert rec.meta["street_noise"]["level_dba"] == 84.0
+    with pytest.raises(ValueError, match="low <= high"):
+        simulate_recording("none", 0.8, seed=1, street_dba=(80.0, 70.0))
+    res = CliRunner().invoke(
+        audio_app, ["simulate", "--out", str(tmp_path / "x"), "--n", "1", "--street-level", "75,60"]
+    )
+    assert res.exit_code == 2 and "--street-level needs 0 <= LOW <= HIGH" in res.output
+    assert not (tmp_path / "x").exists()

@@ -62,6 +62,13 @@ def simulate(
             "engines) to 60 % of the recordings."
         ),
     ] = True,
+    street_level: Annotated[
+        str,
+        typer.Option(
+            help="Range of the street noise's A-weighted level at the array, LOW,HIGH in dB(A) "
+            "(e.g. 60,88 for loud no-siren training recordings: traffic alone is no siren)."
+        ),
+    ] = "60,75",
     as_json: Annotated[bool, typer.Option("--json", help="Print the summary as one JSON line.")] = False,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")] = False,
 ) -> None:
@@ -79,6 +86,12 @@ def simulate(
     scenarios = tuple(scenario) if scenario else AUDIO_SCENARIOS
     if siren not in ("auto", "synth", "real"):
         raise ValueError(f"--siren must be auto, synth or real, not {siren!r}")
+    try:
+        lo, hi = (float(v) for v in street_level.split(","))
+    except ValueError:
+        raise ValueError(f"--street-level takes LOW,HIGH in dB(A) like 60,75, not {street_level!r}") from None
+    if not 0.0 <= lo <= hi <= 120.0:
+        raise ValueError(f"--street-level needs 0 <= LOW <= HIGH <= 120 dB(A), not {street_level!r}")
     root = data_dir()
     siren_pool = split_sources(load_siren_sources(root), split) if root is not None else []
     noise_pool = split_sources(load_street_noise_sources(root), split) if root is not None else []
@@ -97,6 +110,7 @@ def simulate(
         noise_pool=noise_pool if noise != "generated" else [],
         progress=not quiet,
         distractors=distractors,
+        street_dba=(lo, hi),
     )
     wall = time.perf_counter() - t0
     summary = {

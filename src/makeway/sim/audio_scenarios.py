@@ -265,6 +265,7 @@ def simulate_recording(
     mics: np.ndarray | None = None,
     kernel: str = "sinc",
     distractors: bool = True,
+    street_dba: tuple[float, float] = STREET_NOISE_DBA,
 ) -> Recording:
     """Simulate one recording of the reference array (not written; see :func:`generate_recordings`).
 
@@ -282,6 +283,8 @@ def simulate_recording(
         mics: capsule positions (default: the reference array).
         kernel: fractional-delay interpolation (``"sinc"`` or ``"lagrange"``).
         distractors: add non-siren street sounds (module docstring) to a share of the recordings.
+        street_dba: range of the street noise's A-weighted level at the array (dB(A)); wider than
+            the default to teach a detector that loud traffic alone is no siren.
     """
     rng = np.random.default_rng(seed)
     if siren not in ("auto", "synth", "real", "none"):
@@ -377,13 +380,16 @@ def simulate_recording(
     street = place_fixed_sources(
         signals, pos, mics, n, sample_rate, reflection=float(rng.uniform(*GROUND_REFLECTION))
     )
-    street_dba = float(rng.uniform(*STREET_NOISE_DBA))
-    street *= 10 ** ((street_dba - a_weighted_level_db(street, sample_rate)) / 20.0)
+    lo, hi = (float(v) for v in street_dba)
+    if not lo <= hi:
+        raise ValueError(f"street_dba must be (low, high) with low <= high, not {street_dba!r}")
+    street_level = float(rng.uniform(lo, hi))
+    street *= 10 ** ((street_level - a_weighted_level_db(street, sample_rate)) / 20.0)
     meta["street_noise"] = {
         "ingredient": "real" if use_real_noise else "generated",
         "names": names,
         "groups": [f"street:{nm}" for nm in names],
-        "level_dba": round(street_dba, 2),
+        "level_dba": round(street_level, 2),
         "positions_vehicle_m": np.round(pos, 2).tolist(),
     }
 
@@ -471,12 +477,14 @@ def generate_recordings(
     progress: bool = True,
     start_index: int = 0,
     distractors: bool = True,
+    street_dba: tuple[float, float] = STREET_NOISE_DBA,
 ) -> list[Path]:
     """Simulate ``n`` recordings into ``out_dir/rec_00000`` … (each written all-or-nothing).
 
     A share ``no_siren_fraction`` has no siren (negatives), ``two_siren_fraction`` of the rest two
     EVs. Recording ``i`` uses a seed derived from ``(seed, i)``, so any one can be re-made alone.
-    ``distractors``: non-siren street sounds in a share of the recordings (module docstring).
+    ``distractors``: non-siren street sounds in a share of the recordings (module docstring);
+    ``street_dba``: the street noise's level range (see :func:`simulate_recording`).
     """
     from makeway.progress import progress_bar
 
@@ -509,6 +517,7 @@ def generate_recordings(
                 siren_pool=siren_pool or [],
                 noise_pool=noise_pool or [],
                 distractors=distractors,
+                street_dba=street_dba,
             )
             written.append(write_recording(out / f"rec_{i:05d}", rec))
             advance(1)

@@ -467,7 +467,10 @@ def train_siren_net(
         )
     train_idx, val_idx = split_by_recording(data, cfg.val_fraction, cfg.seed)
     net = SirenNet(shapes, cfg.streams, cfg.width, n_azimuth, log_distance=cfg.distance_loss == "log")
-    net.fit_normalization({s: data.features[s][train_idx] for s in net.streams})
+    # standardisation statistics from at most 4000 training windows (a full copy of the waveform
+    # stream would double the memory of a large training set)
+    norm_idx = np.sort(rng.choice(train_idx, size=min(len(train_idx), 4000), replace=False))
+    net.fit_normalization({s: data.features[s][norm_idx] for s in net.streams})
     opt = torch.optim.Adam(net.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
     sched = torch.optim.lr_scheduler.ReduceLROnPlateau(
         opt, mode="min", factor=cfg.plateau_factor, patience=cfg.plateau_patience
