@@ -44,7 +44,7 @@ bench-pull-over: venv
 
 bench-audio: venv
 	$(BIN)/python benchmarks/bench_audio_model.py
-	$(BIN)/python benchmarks/bench_audio_real.py
+	$(BIN)/python benchmarks/bench_audio_real.py --sweep 65,75,80,85
 
 bench: bench-sort bench-video bench-pull-over bench-audio
 

@@ -19,7 +19,10 @@ Targets: siren present (any source ≤ 100 m), and θ / distance of the nearest 
 
 The streams' embeddings are concatenated into an MLP trunk with the siren (logit) and distance (m)
 heads. Losses as SPEC §3: BCE for the siren, squared error on (sin θ, cos θ) and on the distance,
-both masked to windows with a siren, weighted sum with weights (10, 10, 0.008) by default. Inputs
+both masked to windows with a siren, weighted sum with weights (10, 10, 0.008) by default. With
+``TrainConfig.distance_loss = "log"`` the distance head predicts ln distance (the output stays in
+metres) and the loss is the squared error of ln distance (weights 10, 10, 10 from the CLI): the
+level cue's error is relative, so near sirens count as much as far ones. Inputs
 are standardised inside the network (buffers fitted on the training data), so the exported ONNX
 graph takes the raw features.
 
