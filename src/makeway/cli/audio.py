@@ -383,13 +383,12 @@ def train(
         )
     if distance_loss not in ("squared", "log"):
         raise ValueError(f"--distance-loss must be squared or log, not {distance_loss!r}")
-    if loss_weights is None:
-        weights = (10.0, 10.0, 0.008) if distance_loss == "squared" else (10.0, 10.0, 10.0)
-    else:
+    weights: list[float] = [10.0, 10.0, 0.008 if distance_loss == "squared" else 10.0]
+    if loss_weights is not None:
         try:
-            weights = tuple(float(v) for v in loss_weights.split(","))
+            weights = [float(v) for v in loss_weights.split(",")]
         except ValueError:
-            weights = ()
+            weights = []
         if len(weights) != 3 or min(weights) < 0:
             raise ValueError(
                 f"--loss-weights takes three non-negative numbers like 10,10,0.008, not {loss_weights!r}"
