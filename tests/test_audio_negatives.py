@@ -135,3 +135,11 @@ def test_street_level_range(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> 
     )
     assert res.exit_code == 2 and "--street-level needs 0 <= LOW <= HIGH" in res.output
     assert not (tmp_path / "x").exists()
+
+
+def test_mono_check_leaves_out_the_siren_spans(data_root: Path) -> None:
+    from makeway.eval.siren_mono import mono_files
+
+    files = {f.path.stem: f for f in mono_files(data_root) if f.kind == "street_noise"}
+    assert files["traffic-8"].exclude == ((0.0, 24.0),) and not files["traffic-8"].siren
+    assert files["noise1"].exclude == ()
