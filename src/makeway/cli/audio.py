@@ -358,6 +358,7 @@ def train(
 
     try:
         from makeway.train.siren import (
+            DISTANCE_LOSSES,
             TrainConfig,
             build_dataset,
             calibrate_threshold,
@@ -381,8 +382,8 @@ def train(
         raise ValueError(
             f"unknown streams {unknown}; --streams takes a comma-separated subset of {', '.join(STREAMS)}"
         )
-    if distance_loss not in ("squared", "log"):
-        raise ValueError(f"--distance-loss must be squared or log, not {distance_loss!r}")
+    if distance_loss not in DISTANCE_LOSSES:
+        raise ValueError(f"--distance-loss must be {' or '.join(DISTANCE_LOSSES)}, not {distance_loss!r}")
     weights: list[float] = [10.0, 10.0, 0.008 if distance_loss == "squared" else 10.0]
     if loss_weights is not None:
         try:

@@ -432,12 +432,12 @@ def _distractor_field(
     extra = round(0.25 * sample_rate)
     total = np.zeros((n, len(mics)))
     info: list[dict[str, Any]] = []
+    centre = mics[:, :2].mean(axis=0)
     for _ in range(int(rng.integers(N_DISTRACTORS[0], N_DISTRACTORS[1] + 1))):
         d = synthesize_distractor(None, n + extra, sample_rate, rng)
         bearing = float(rng.uniform(-math.pi, math.pi))
         dist = float(rng.uniform(*DISTRACTOR_DISTANCE_M))
         height = float(rng.uniform(*(BIRD_HEIGHT_M if d.kind == "birds" else DISTRACTOR_HEIGHT_M)))
-        centre = mics[:, :2].mean(axis=0)
         pos = np.array([[centre[0] + dist * math.cos(bearing), centre[1] + dist * math.sin(bearing), height]])
         pa = place_fixed_sources([d.signal], pos, mics, n, sample_rate, reflection=0.8)
         # output sample j hears source sample extra + j − delay (place_fixed_sources' alignment)

@@ -58,6 +58,15 @@ def _ramp(n: int, sample_rate: int, attack_s: float, release_s: float) -> np.nda
     return env
 
 
+def _placed(n: int, start: int, segment: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(signal, active)`` of length ``n``: ``segment`` from sample ``start``, silence elsewhere."""
+    x = np.zeros(n)
+    x[start : start + len(segment)] = segment
+    active = np.zeros(n, dtype=bool)
+    active[start : start + len(segment)] = True
+    return x, active
+
+
 def _harmonic_tone(
     phase: np.ndarray, freq: np.ndarray, sample_rate: int, decay: float, max_k: int
 ) -> np.ndarray:
@@ -136,10 +145,7 @@ def _squeal(
     f = f0 * (1 + depth * np.sin(2 * np.pi * rng.uniform(4.0, 10.0) * t))
     phase = 2 * np.pi * np.cumsum(f) / sample_rate
     env = np.sin(np.pi * np.linspace(0.0, 1.0, dur)) ** 0.5
-    x = np.zeros(n)
-    x[start : start + dur] = env * (np.sin(phase) + 0.1 * np.sin(2 * phase))
-    active = np.zeros(n, dtype=bool)
-    active[start : start + dur] = True
+    x, active = _placed(n, start, env * (np.sin(phase) + 0.1 * np.sin(2 * phase)))
     return x, active, {"f_hz": round(f0, 1), "duration_s": round(dur / sample_rate, 3)}
 
 
@@ -155,10 +161,7 @@ def _air_brake(
     burst = np.fft.irfft(spec, dur)
     u = np.arange(dur) / sample_rate
     env = (1 - np.exp(-u / 0.005)) * np.exp(-u / (0.35 * dur / sample_rate))
-    x = np.zeros(n)
-    x[start : start + dur] = burst * env
-    active = np.zeros(n, dtype=bool)
-    active[start : start + dur] = True
+    x, active = _placed(n, start, burst * env)
     return x, active, {"f_cut_hz": round(f_cut, 1), "duration_s": round(dur / sample_rate, 3)}
 
 
@@ -175,10 +178,7 @@ def _engine_rev(
     tone = _harmonic_tone(phase, f, sample_rate, 1.0, 40)
     rough = rng.standard_normal(dur) * 0.3 * float(np.std(tone))
     env = _ramp(dur, sample_rate, 0.15, 0.3) * (0.6 + 0.4 * np.sin(np.pi * u))
-    x = np.zeros(n)
-    x[start : start + dur] = env * (tone + rough)
-    active = np.zeros(n, dtype=bool)
-    active[start : start + dur] = True
+    x, active = _placed(n, start, env * (tone + rough))
     return (
         x,
         active,

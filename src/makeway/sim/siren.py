@@ -247,11 +247,13 @@ def load_mono(path: str | Path, sample_rate: int = SAMPLE_RATE, *, unit_rms: boo
         raise InputError(
             path, f"cannot be read as audio ({str(exc).strip().splitlines()[0] if str(exc) else exc!r})"
         ) from None
-    if unit_rms:
-        rms = float(np.sqrt(np.mean(np.square(x, dtype=np.float64)))) if len(x) else 0.0
-        if rms > 0:
-            x = (x / rms).astype(np.float32)
-    return x
+    return _unit_rms(x) if unit_rms else x
+
+
+def _unit_rms(x: np.ndarray) -> np.ndarray:
+    """``x`` scaled to RMS 1 as float32 (unchanged when silent or empty)."""
+    rms = float(np.sqrt(np.mean(np.square(x, dtype=np.float64)))) if len(x) else 0.0
+    return (x / rms).astype(np.float32) if rms > 0 else x
 
 
 def cut_spans(
@@ -263,10 +265,8 @@ def cut_spans(
     for start, end in spans:
         keep[max(0, round(start * sample_rate)) : max(0, round(end * sample_rate))] = False
     out = np.asarray(x, dtype=np.float32)[keep]
-    if unit_rms and len(out):
-        rms = float(np.sqrt(np.mean(np.square(out, dtype=np.float64))))
-        if rms > 0:
-            out = (out / rms).astype(np.float32)
+    if unit_rms:
+        out = _unit_rms(out)
     out.setflags(write=False)
     return out
 
