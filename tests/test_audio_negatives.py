@@ -134,6 +134,10 @@ def test_street_level_range(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> 
         audio_app, ["simulate", "--out", str(tmp_path / "x"), "--n", "1", "--street-level", "75,60"]
     )
     assert res.exit_code == 2 and "--street-level needs 0 <= LOW <= HIGH" in res.output
+    res = CliRunner().invoke(
+        audio_app, ["simulate", "--out", str(tmp_path / "x"), "--n", "1", "--siren-pitch", "0.7"]
+    )
+    assert res.exit_code == 2 and "--siren-pitch takes LOW,HIGH" in res.output
     assert not (tmp_path / "x").exists()
 
 

@@ -41,6 +41,7 @@ from makeway.sim.siren import (
     fit_length,
     load_siren_sources,
     mode_frequency_bounds,
+    pitch_shift,
     synthesize_siren,
 )
 
@@ -235,6 +236,42 @@ def test_fit_length_loops() -> None:
     x = np.arange(1000, dtype=np.float32)
     y = fit_length(x, 2500, np.random.default_rng(0), crossfade=0, random_start=False)
     assert len(y) == 2500 and y[1000] == 0 and y[2499] == 499
+
+
+def test_pitch_shift_moves_the_tone() -> None:
+    t = np.arange(SR) / SR
+    x = np.sin(2 * np.pi * 1000.0 * t).astype(np.float32)
+    for factor in (0.7, 1.25):
+        y = pitch_shift(x, factor, SR)
+        assert len(y) == SR and y.dtype == np.float32
+        assert abs(float(np.median(_peak_track(y))) - 1000.0 * factor) <= SR / 4096
+    assert len(pitch_shift(x, 0.5)) == 2 * SR  # n=None keeps the resampled length
+    with pytest.raises(ValueError, match="pitch factor"):
+        pitch_shift(x, 10.0)
+
+
+def test_siren_pitch_variety_uses_its_own_stream(monkeypatch: pytest.MonkeyPatch) -> None:
+    import makeway.sim.audio_scenarios as scen
+
+    monkeypatch.setattr(scen, "data_dir", lambda: None)  # synthesized sirens, generated noise
+    varied = None
+    for seed in range(8):
+        plain = simulate_recording("crossing", 1.0, seed=seed, distractors=False)
+        rec = simulate_recording("crossing", 1.0, seed=seed, distractors=False, siren_pitch=(0.7, 0.75))
+        for key in ("street_noise", "wind", "ego_speed_mps", "scenario"):  # every other draw is unchanged
+            assert rec.meta[key] == plain.meta[key]
+        s, p = rec.meta["sirens"][0], plain.meta["sirens"][0]
+        assert s["level_db_1m"] == p["level_db_1m"] and s["period_s"] == p["period_s"]
+        if "variety" in s:
+            varied = (s, p)
+        else:  # not drawn for variety: the very same siren
+            np.testing.assert_array_equal(rec.audio, plain.audio)
+    assert varied is not None, "no siren of 8 was varied (share 0.5)"
+    s, p = varied
+    assert 0.7 <= s["variety"]["pitch_factor"] <= 0.75
+    assert s["f_low_hz"] == pytest.approx(p["f_low_hz"] * s["variety"]["pitch_factor"], abs=0.2)
+    with pytest.raises(ValueError, match="siren_pitch"):
+        simulate_recording("crossing", 1.0, seed=0, siren_pitch=(1.3, 0.7))
 
 
 # ----------------------------------------------------------------------------------------- simulator

@@ -22,6 +22,17 @@ audio_app = new_app(
 )
 
 
+def _parse_range(text: str, option: str, bounds: tuple[float, float], example: str) -> tuple[float, float]:
+    """``"LOW,HIGH"`` → ``(low, high)`` within ``bounds``, or a ValueError naming ``option``."""
+    try:
+        lo, hi = (float(v) for v in text.split(","))
+    except ValueError:
+        raise ValueError(f"{option} takes LOW,HIGH in {example}, not {text!r}") from None
+    if not bounds[0] <= lo <= hi <= bounds[1]:
+        raise ValueError(f"{option} needs {bounds[0]:g} <= LOW <= HIGH <= {bounds[1]:g}, not {text!r}")
+    return lo, hi
+
+
 @audio_app.command()
 @friendly_errors
 def simulate(
@@ -69,6 +80,14 @@ def simulate(
             "(e.g. 60,88 for loud no-siren training recordings: traffic alone is no siren)."
         ),
     ] = "60,75",
+    siren_pitch: Annotated[
+        str,
+        typer.Option(
+            help="Pitch variety for training sets, LOW,HIGH factors (e.g. 0.7,1.25): half the sirens "
+            "are played at a factor drawn from this range (synthesized wails and yelps also get a "
+            "new sweep shape). Empty: sirens as they are."
+        ),
+    ] = "",
     as_json: Annotated[bool, typer.Option("--json", help="Print the summary as one JSON line.")] = False,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")] = False,
 ) -> None:
@@ -86,12 +105,10 @@ def simulate(
     scenarios = tuple(scenario) if scenario else AUDIO_SCENARIOS
     if siren not in ("auto", "synth", "real"):
         raise ValueError(f"--siren must be auto, synth or real, not {siren!r}")
-    try:
-        lo, hi = (float(v) for v in street_level.split(","))
-    except ValueError:
-        raise ValueError(f"--street-level takes LOW,HIGH in dB(A) like 60,75, not {street_level!r}") from None
-    if not 0.0 <= lo <= hi <= 120.0:
-        raise ValueError(f"--street-level needs 0 <= LOW <= HIGH <= 120 dB(A), not {street_level!r}")
+    street_dba = _parse_range(street_level, "--street-level", (0.0, 120.0), "dB(A) like 60,75")
+    pitch = None
+    if siren_pitch:
+        pitch = _parse_range(siren_pitch, "--siren-pitch", (0.25, 4.0), "factors like 0.7,1.25")
     root = data_dir()
     siren_pool = split_sources(load_siren_sources(root), split) if root is not None else []
     noise_pool = split_sources(load_street_noise_sources(root), split) if root is not None else []
@@ -110,7 +127,8 @@ def simulate(
         noise_pool=noise_pool if noise != "generated" else [],
         progress=not quiet,
         distractors=distractors,
-        street_dba=(lo, hi),
+        street_dba=street_dba,
+        siren_pitch=pitch,
     )
     wall = time.perf_counter() - t0
     summary = {

@@ -43,7 +43,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -71,7 +71,15 @@ from makeway.sim.acoustics import (
     wind_noise,
 )
 from makeway.sim.distractors import synthesize_distractor
-from makeway.sim.siren import AudioSource, fit_length, load_siren_sources, synthesize_siren
+from makeway.sim.siren import (
+    AudioSource,
+    SirenParams,
+    fit_length,
+    load_siren_sources,
+    pitch_shift,
+    render_siren,
+    synthesize_siren,
+)
 
 AUDIO_SCENARIOS = ("crossing", "same_direction", "opposite_direction", "from_behind")
 TRAJECTORY_RATE_HZ = 100.0
@@ -98,6 +106,12 @@ DISTRACTOR_DISTANCE_M = (5.0, 40.0)
 DISTRACTOR_HEIGHT_M = (0.5, 1.5)
 BIRD_HEIGHT_M = (2.0, 10.0)
 DISTRACTOR_REL_DBA = (-5.0, 15.0)
+SIREN_VARIETY_SHARE = 0.5
+"""With ``siren_pitch``: share of the sirens whose pitch (and, for synthesized wail/yelp, sweep shape)
+is varied."""
+SIREN_VARIETY_RISE = (0.15, 0.95)
+"""With ``siren_pitch``: range of the rise fraction a varied synthesized wail or yelp is redrawn from
+(0.95: a slow rise and a sudden drop, like a mechanical siren winding up)."""
 """A-weighted level of a distractor while it sounds, relative to the street noise's (dB)."""
 
 Fn = Callable[[np.ndarray], np.ndarray]
@@ -266,6 +280,7 @@ def simulate_recording(
     kernel: str = "sinc",
     distractors: bool = True,
     street_dba: tuple[float, float] = STREET_NOISE_DBA,
+    siren_pitch: tuple[float, float] | None = None,
 ) -> Recording:
     """Simulate one recording of the reference array (not written; see :func:`generate_recordings`).
 
@@ -285,8 +300,17 @@ def simulate_recording(
         distractors: add non-siren street sounds (module docstring) to a share of the recordings.
         street_dba: range of the street noise's A-weighted level at the array (dB(A)); wider than
             the default to teach a detector that loud traffic alone is no siren.
+        siren_pitch: ``(low, high)`` pitch factors (e.g. ``(0.7, 1.25)``) for training-set variety:
+            :data:`SIREN_VARIETY_SHARE` of the sirens are played at a factor drawn log-uniformly
+            from it (real sirens resampled, so their tempo changes too; synthesized ones
+            re-rendered with the sweep scaled and, for wail and yelp, a rise fraction redrawn from
+            :data:`SIREN_VARIETY_RISE`). Drawn from its own random stream, so every other draw
+            of a seed is unchanged; ``None`` (default) leaves the sirens as they are.
     """
     rng = np.random.default_rng(seed)
+    vary_rng = np.random.default_rng([int(seed) & 0xFFFFFFFF, 0x517E]) if siren_pitch else None
+    if siren_pitch is not None and not 0.25 <= siren_pitch[0] <= siren_pitch[1] <= 4.0:
+        raise ValueError(f"siren_pitch must be (low, high), 0.25 <= low <= high <= 4, not {siren_pitch!r}")
     if siren not in ("auto", "synth", "real", "none"):
         raise ValueError(f"siren must be auto, synth, real or none, not {siren!r}")
     if noise not in ("auto", "real", "generated"):
@@ -325,12 +349,16 @@ def simulate_recording(
             siren == "auto" and bool(siren_pool) and rng.random() < REAL_SIREN_SHARE
         )
         info: dict[str, Any] = dict(p)
+        sp: SirenParams | None = None
         if use_real:
             src = _pick_by_group(siren_pool, rng)
             sig = fit_length(src.load(sample_rate), n_sig, rng, crossfade=0 if src.kind == "tone" else 2400)
             info.update(ingredient="real", name=src.name, group=src.group, kind=src.kind, mode=src.mode)
         else:
             sig, sp = synthesize_siren(None, n_sig / sample_rate, sample_rate, rng=rng)
+        if vary_rng is not None and siren_pitch is not None and vary_rng.random() < SIREN_VARIETY_SHARE:
+            sig, sp, info["variety"] = _vary_siren(sig, sp, siren_pitch, vary_rng, sample_rate)
+        if sp is not None:
             info.update(
                 ingredient="synth",
                 mode=sp.mode,
@@ -421,6 +449,27 @@ def simulate_recording(
     return Recording(audio.astype(np.float32), sample_rate, mics, ego_out, srcs_out, None, meta)
 
 
+def _vary_siren(
+    sig: np.ndarray,
+    sp: SirenParams | None,
+    pitch: tuple[float, float],
+    rng: np.random.Generator,
+    sample_rate: int,
+) -> tuple[np.ndarray, SirenParams | None, dict[str, float]]:
+    """One siren with its pitch (and a synthesized wail/yelp's sweep shape) varied; see
+    :func:`simulate_recording`'s ``siren_pitch``. Returns the signal, the new synthesizer parameters
+    (None for a real siren) and what was changed, for ``meta.yaml``."""
+    factor = float(np.exp(rng.uniform(math.log(pitch[0]), math.log(pitch[1]))))
+    if sp is None:
+        return pitch_shift(sig, factor, len(sig)), None, {"pitch_factor": round(factor, 4)}
+    rise = sp.rise_fraction
+    if sp.mode in ("wail", "yelp"):
+        rise = float(rng.uniform(*SIREN_VARIETY_RISE))
+    new = replace(sp, f_low=sp.f_low * factor, f_high=sp.f_high * factor, rise_fraction=rise)
+    out = render_siren(new, len(sig) / sample_rate, sample_rate, rng)[: len(sig)]
+    return out, new, {"pitch_factor": round(factor, 4), "rise_fraction": round(rise, 3)}
+
+
 def _distractor_field(
     n: int, sample_rate: int, mics: np.ndarray, street: np.ndarray, seed: int
 ) -> tuple[np.ndarray | None, list[dict[str, Any]]]:
@@ -478,13 +527,15 @@ def generate_recordings(
     start_index: int = 0,
     distractors: bool = True,
     street_dba: tuple[float, float] = STREET_NOISE_DBA,
+    siren_pitch: tuple[float, float] | None = None,
 ) -> list[Path]:
     """Simulate ``n`` recordings into ``out_dir/rec_00000`` … (each written all-or-nothing).
 
     A share ``no_siren_fraction`` has no siren (negatives), ``two_siren_fraction`` of the rest two
     EVs. Recording ``i`` uses a seed derived from ``(seed, i)``, so any one can be re-made alone.
     ``distractors``: non-siren street sounds in a share of the recordings (module docstring);
-    ``street_dba``: the street noise's level range (see :func:`simulate_recording`).
+    ``street_dba``: the street noise's level range; ``siren_pitch``: pitch variety for training sets
+    (both: see :func:`simulate_recording`).
     """
     from makeway.progress import progress_bar
 
@@ -518,6 +569,7 @@ def generate_recordings(
                 noise_pool=noise_pool or [],
                 distractors=distractors,
                 street_dba=street_dba,
+                siren_pitch=siren_pitch,
             )
             written.append(write_recording(out / f"rec_{i:05d}", rec))
             advance(1)

@@ -213,6 +213,31 @@ def synthesize_siren(
     return render_siren(params, duration_s, sample_rate, rng), params
 
 
+def pitch_shift(x: np.ndarray, factor: float, n: int | None = None) -> np.ndarray:
+    """``x`` played ``factor`` times faster (pitch and tempo both × ``factor``), ``n`` samples long.
+
+    Polyphase resampling with the factor rounded to a fraction of denominator ≤ 100; where the result
+    is shorter than ``n`` it is looped from its start (:func:`fit_length`, 50 ms crossfade). Used to
+    widen the siren sounds a detector is trained on beyond the measured unit ranges (a mechanical or
+    regional siren pitched lower or higher; :func:`makeway.sim.audio_scenarios.simulate_recording`'s
+    ``siren_pitch``). ``n=None`` keeps the resampled length.
+    """
+    from fractions import Fraction
+
+    from scipy.signal import resample_poly
+
+    if not 0.25 <= factor <= 4.0:
+        raise ValueError(f"pitch factor must be within 0.25–4, not {factor!r}")
+    frac = Fraction(float(factor)).limit_denominator(100)
+    y = np.asarray(x, dtype=np.float64)
+    if frac != 1:
+        y = resample_poly(y, frac.denominator, frac.numerator)
+    y = y.astype(np.float32)
+    if n is None:
+        return y
+    return y[:n].copy() if len(y) >= n else fit_length(y, n, random_start=False)
+
+
 # ----------------------------------------------------------------------------------------- real audio
 
 
