@@ -39,6 +39,7 @@ from makeway.sim.siren import (
     MODE_RANGES,
     SIREN_MODES,
     fit_length,
+    flatten_envelope,
     load_siren_sources,
     mode_frequency_bounds,
     pitch_shift,
@@ -248,6 +249,35 @@ def test_pitch_shift_moves_the_tone() -> None:
     assert len(pitch_shift(x, 0.5)) == 2 * SR  # n=None keeps the resampled length
     with pytest.raises(ValueError, match="pitch factor"):
         pitch_shift(x, 10.0)
+
+
+def _window_levels_db(x: np.ndarray, win: int = SR // 2) -> np.ndarray:
+    k = len(x) // win
+    p = np.mean(np.asarray(x[: k * win], dtype=np.float64).reshape(k, win) ** 2, axis=1)
+    return 10 * np.log10(p + 1e-20)
+
+
+def test_flatten_envelope_undoes_level_changes_and_cuts_silence() -> None:
+    x, _ = synthesize_siren("yelp", 6.0, SR, seed=3)
+    fade = np.concatenate([np.linspace(0.0, -20.0, 4 * SR), np.full(2 * SR, -20.0)])  # a pass-by's fall
+    y = x * 10 ** (fade / 20)
+    y[5 * SR : int(5.5 * SR)] = 0.0  # a silent gap
+    out = flatten_envelope(y, SR)
+    assert out.dtype == np.float32 and abs(len(out) / SR - 5.5) < 0.15  # the gap is cut out
+    levels = _window_levels_db(out)
+    assert levels.max() - levels.min() < 4.0, levels  # was 20 dB
+    assert abs(float(np.sqrt(np.mean(out.astype(np.float64) ** 2))) - 1.0) < 1e-3
+    clean = flatten_envelope(x, SR)  # a steady siren passes nearly unchanged
+    assert len(clean) == len(x) and np.corrcoef(clean, x)[0, 1] > 0.99
+
+
+def test_real_siren_recordings_are_flattened(data_root: Path) -> None:
+    src = next(s for s in load_siren_sources(data_root) if s.name == "jap_amb")
+    from makeway.sim.siren import load_mono
+
+    raw, flat = load_mono(src.path), src.load()
+    assert np.median(_window_levels_db(raw)) < -8.0  # a pass-by: most windows well below its RMS
+    assert np.median(_window_levels_db(flat)) > -2.0
 
 
 def test_siren_pitch_variety_uses_its_own_stream(monkeypatch: pytest.MonkeyPatch) -> None:

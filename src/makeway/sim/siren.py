@@ -336,10 +336,72 @@ class AudioSource:
     """Spans ``(start_s, end_s)`` cut out on loading (e.g. a siren heard in a no-siren recording)."""
 
     def load(self, sample_rate: int = SAMPLE_RATE) -> np.ndarray:
-        """Mono float32 at ``sample_rate`` with unit RMS (cached, read-only), ``exclude`` cut out."""
+        """Mono float32 at ``sample_rate`` with unit RMS (cached, read-only), ``exclude`` cut out;
+        a siren (every kind but ``"street"``) also through :func:`flatten_envelope`."""
+        if self.kind != "street":
+            return _flattened_siren(str(Path(self.path).resolve()), int(sample_rate), self.exclude)
         if not self.exclude:
             return load_mono(self.path, sample_rate)
         return cut_spans(load_mono(self.path, sample_rate, unit_rms=False), sample_rate, self.exclude)
+
+
+@functools.lru_cache(maxsize=512)
+def _flattened_siren(path: str, sample_rate: int, exclude: tuple[tuple[float, float], ...]) -> np.ndarray:
+    x = load_mono(path, sample_rate, unit_rms=False)
+    if exclude:
+        x = cut_spans(x, sample_rate, exclude, unit_rms=False)
+    out = flatten_envelope(x, sample_rate)
+    out.setflags(write=False)
+    return out
+
+
+ENVELOPE_BAND_HZ = (300.0, 4000.0)
+ENVELOPE_SMOOTH_S = 1.0
+SILENCE_SMOOTH_S = 0.1
+SILENCE_DB = -25.0
+MAX_GAIN_DB = 20.0
+
+
+def flatten_envelope(
+    x: np.ndarray,
+    sample_rate: int,
+    *,
+    smooth_s: float = ENVELOPE_SMOOTH_S,
+    silence_db: float = SILENCE_DB,
+    max_gain_db: float = MAX_GAIN_DB,
+) -> np.ndarray:
+    """A real siren recording with its slow level changes undone: unit RMS, float32.
+
+    A recorded pass-by already carries the level changes of its own distance (``jap_amb``: half its
+    0.5 s windows lie 12 dB or more below its RMS), and some clips fall silent for a while. Used as
+    the emitted signal of a simulated siren, both would make the label ("a 110–120 dB siren at this
+    distance") disagree with the audio: the simulator applies distance itself. So the in-band
+    (:data:`ENVELOPE_BAND_HZ`) power is smoothed over ``smooth_s``; the signal is brought to that
+    level's median with a gain of at most ``max_gain_db``, and stretches whose level over
+    :data:`SILENCE_SMOOTH_S` lies more than ``-silence_db`` dB below the median are cut out
+    (:func:`cut_spans`). Clean siren-unit loops pass nearly unchanged.
+    """
+    from scipy.ndimage import uniform_filter1d
+    from scipy.signal import butter, sosfiltfilt
+
+    x = np.asarray(x, dtype=np.float64)
+    win = max(1, round(smooth_s * sample_rate))
+    if len(x) < 2 * win:
+        return _unit_rms(x.astype(np.float32))
+    hi = min(ENVELOPE_BAND_HZ[1], 0.45 * sample_rate)
+    sos = butter(4, [ENVELOPE_BAND_HZ[0], hi], btype="bandpass", fs=sample_rate, output="sos")
+    band = sosfiltfilt(sos, x) ** 2
+    level = 10.0 * np.log10(uniform_filter1d(band, win, mode="nearest") + 1e-20)
+    ref = float(np.median(level))
+    gain = 10.0 ** (np.clip(ref - level, -max_gain_db, max_gain_db) / 20.0)
+    y = (x * gain).astype(np.float32)
+    short = uniform_filter1d(band, max(1, round(SILENCE_SMOOTH_S * sample_rate)), mode="nearest")
+    quiet = 10.0 * np.log10(short + 1e-20) < ref + silence_db
+    if quiet.any() and not quiet.all():
+        edges = np.flatnonzero(np.diff(np.concatenate([[0], quiet.astype(np.int8), [0]])))
+        spans = [(a / sample_rate, b / sample_rate) for a, b in zip(edges[::2], edges[1::2], strict=True)]
+        return np.array(cut_spans(y, sample_rate, spans), dtype=np.float32)
+    return _unit_rms(y)
 
 
 SirenSource = AudioSource
