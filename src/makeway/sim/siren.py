@@ -33,7 +33,13 @@ little period jitter (±2 % per cycle) and a slight tremolo. Every draw is seeda
 with a ``group`` each, so train/test splits can be made by source: the 150 Kaggle clips in blocks of
 10 consecutive numbers (neighbours are often cut from the same video), the tone loops by siren model
 (``family__model__tone`` → model), each long recording on its own. :meth:`AudioSource.load` returns
-mono audio resampled to 48 kHz with unit RMS (cached).
+mono audio resampled to 48 kHz with unit RMS (cached); for sirens it first undoes the recording's own
+slow level changes and cuts its silences (:func:`flatten_envelope`), because the simulator applies
+the distance itself and labels every window of a siren's track as "siren".
+
+**Variety for training.** :func:`pitch_shift` plays a siren faster or slower (pitch and tempo
+together); the simulator's ``siren_pitch`` option uses it to cover sirens pitched outside the
+measured unit ranges (e.g. a low mechanical-style wail) in training sets.
 """
 
 from __future__ import annotations
