@@ -1,6 +1,6 @@
 """The siren network (issue 4) against the classical baselines and seed 002, on held-out recordings.
 
-    .venv/bin/python benchmarks/bench_audio_model.py [--data DIR | --n 30 --duration 8] [--model FILE]
+    .venv/bin/python benchmarks/bench_audio_model.py [--data DIR | --n 30 --duration 8] [--model FILE] [--localizer FILE|none|auto]
         [--baselines gccphat,srp,normmusic] [--latency-reps 60] [--keep DIR] [--json FILE]
 
 1. Held-out recordings: ``--data`` (a folder of recordings), or ``--n`` recordings simulated with
@@ -88,6 +88,12 @@ def main() -> int:
     ap.add_argument("--n", type=int, default=30, help="recordings to simulate without --data")
     ap.add_argument("--duration", type=float, default=8.0, help="seconds per simulated recording")
     ap.add_argument("--model", type=Path, default=DEFAULT_SIREN_MODEL)
+    ap.add_argument(
+        "--localizer",
+        default="auto",
+        help="second model for bearing and distance: a file, 'none', or 'auto' (the shipped "
+        "localizer with the shipped model)",
+    )
     ap.add_argument("--baselines", default="gccphat,srp,normmusic")
     ap.add_argument("--latency-reps", type=int, default=60)
     ap.add_argument("--keep", type=Path, default=None, help="simulate into this folder and keep it")
@@ -117,7 +123,8 @@ def main() -> int:
             )
         recs = [read_recording(f) for f in folders]  # read once, shared by every method
 
-        model = SirenModel(args.model, threads=2)
+        loc: Path | bool = {"auto": True, "none": False}.get(args.localizer, Path(args.localizer))
+        model = SirenModel(args.model, threads=2, localizer=loc)
         print(f"model: {model!r} ({args.model.stat().st_size / 1e6:.2f} MB)")
         results: dict[str, dict[str, Any]] = {}
         methods: list[tuple[str, Any]] = [("model", model_estimator(model))]

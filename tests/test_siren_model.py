@@ -18,7 +18,7 @@ from makeway.perceive.audio.evaluate import METRIC_KEYS as EVAL_METRIC_KEYS
 from makeway.perceive.audio.features import bandpass, window_batch
 from makeway.perceive.audio.labels import label_recording
 from makeway.perceive.audio.siren_features import MIRROR_CHANNELS, SirenFeatureConfig, SirenFeatures
-from makeway.perceive.audio.siren_model import DEFAULT_SIREN_MODEL, SirenModel
+from makeway.perceive.audio.siren_model import DEFAULT_SIREN_LOCALIZER, DEFAULT_SIREN_MODEL, SirenModel
 from makeway.sense.recording import Recording, reference_mics, write_recording
 from makeway.sim.audio_scenarios import simulate_recording
 from makeway.sim.siren import group_split, load_siren_sources, split_sources
@@ -278,6 +278,45 @@ def test_shipped_model_on_a_held_out_recording(windows: tuple[np.ndarray, ...]) 
     assert np.median(np.abs(pred.distance[sel] - dist[sel])) <= 15.0
 
 
+def test_shipped_localizer_gives_bearing_and_distance(windows: tuple[np.ndarray, ...]) -> None:
+    """The shipped pair: the detector decides, the localizer (pitch-variety training) localizes."""
+    assert DEFAULT_SIREN_LOCALIZER.is_file() and DEFAULT_SIREN_LOCALIZER.stat().st_size <= 5_000_000
+    pair, alone = SirenModel(threads=1), SirenModel(threads=1, localizer=False)
+    assert pair.localizer is not None and pair.localizer.path == DEFAULT_SIREN_LOCALIZER
+    assert alone.localizer is None and "localizer" not in repr(alone)
+    loc = SirenModel(DEFAULT_SIREN_LOCALIZER, threads=1)
+    assert loc.localizer is None  # another model never picks the shipped localizer by itself
+    w, siren, theta, dist = windows
+    p, a, b = pair.predict(w), alone.predict(w), loc.predict(w)
+    np.testing.assert_allclose(p.prob, a.prob, rtol=1e-6)  # detection: the detector's
+    np.testing.assert_allclose(p.theta, b.theta, atol=1e-6)  # bearing and distance: the localizer's
+    np.testing.assert_allclose(p.distance, b.distance, rtol=1e-5)
+    assert p.bearing_map is not None and b.bearing_map is not None
+    np.testing.assert_allclose(p.bearing_map, b.bearing_map, atol=1e-6)
+    sel = siren & (dist > 20) & (dist < 80)
+    assert np.median(np.abs(p.distance[sel] - dist[sel])) <= 15.0
+
+
+def test_localizer_must_read_the_same_features(tiny_model: tuple[Path, Path, dict], tmp_path: Path) -> None:
+    import onnx
+
+    path = tiny_model[0]
+    pair = SirenModel(path, threads=1, localizer=path)  # same features: fine
+    assert pair.localizer is not None and pair.localizer.path == path
+    proto = onnx.load(str(path))
+    for prop in proto.metadata_props:
+        if prop.key == "features":
+            cfg = json.loads(prop.value)
+            cfg["n_mels"] = int(cfg["n_mels"]) + 8
+            prop.value = json.dumps(cfg)
+    other = tmp_path / "other_features.onnx"
+    onnx.save(proto, str(other))
+    with pytest.raises(InputError, match="other_features.onnx.*other features than the detector"):
+        SirenModel(path, localizer=other)
+    with pytest.raises(InputError, match="missing.onnx"):
+        SirenModel(path, localizer=tmp_path / "missing.onnx")
+
+
 def test_cli_eval_and_listen_with_the_shipped_model(pass_rec: Recording, tmp_path: Path) -> None:
     folder = write_recording(tmp_path / "recs" / "rec_00000", pass_rec)
     runner = CliRunner()
@@ -287,6 +326,7 @@ def test_cli_eval_and_listen_with_the_shipped_model(pass_rec: Recording, tmp_pat
     assert set(result) >= METRIC_KEYS and result["method"] == f"model:{DEFAULT_SIREN_MODEL.name}"
     assert result["distance_median_m"] is not None and result["range_10_50"]["positives"] > 0
     assert result["threshold"] == SirenModel().threshold  # the model's stored decision threshold
+    assert result["localizer"] == DEFAULT_SIREN_LOCALIZER.name
     res = runner.invoke(audio_app, ["listen", str(folder), "--jsonl", str(tmp_path / "m.jsonl")])
     assert res.exit_code == 0, res.output
     msgs = [json.loads(x) for x in (tmp_path / "m.jsonl").read_text().splitlines()]

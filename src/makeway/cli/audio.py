@@ -232,6 +232,13 @@ def eval_cmd(
     model: Annotated[
         Path | None, typer.Option("--model", help="Siren model (.onnx) [default: the shipped one].")
     ] = None,
+    localizer: Annotated[
+        Path | None,
+        typer.Option(
+            help="A second siren model whose bearing and distance replace the model's "
+            "[default: the shipped localizer, with the shipped model only]."
+        ),
+    ] = None,
     threads: Annotated[int | None, typer.Option(min=1, help="ONNX Runtime threads [default: all].")] = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print only the JSON line.")] = False,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")] = False,
@@ -248,8 +255,8 @@ def eval_cmd(
     choices = "|".join(DOA_METHODS)
     if baseline is not None and baseline not in DOA_METHODS:
         raise ValueError(f"--baseline must be one of {choices}, not {baseline!r}")
-    if baseline is not None and model is not None:
-        raise ValueError("give either --model or --baseline, not both")
+    if baseline is not None and (model is not None or localizer is not None):
+        raise ValueError("give either --model/--localizer or --baseline, not both")
     if baseline is None and fit is not None:
         raise ValueError("--fit fits the baseline detector; it needs --baseline")
     from makeway.perceive.audio.doa import SirenEnergyDetector
@@ -276,10 +283,11 @@ def eval_cmd(
     method: Any = baseline
     name = baseline or "model"
     threshold = 0.5
+    net: Any = None
     if baseline is None:
         from makeway.perceive.audio.siren_model import SirenModel
 
-        net = SirenModel(model, threads=threads)
+        net = SirenModel(model, threads=threads, localizer=localizer if localizer is not None else True)
         method = model_estimator(net)
         name = f"model:{net.path.name}"
         threshold = net.threshold  # the decision threshold stored with the model
@@ -289,6 +297,8 @@ def eval_cmd(
             recs, method, detector=detector, on_recording=advance, name=name, threshold=threshold
         )
     result["data"] = str(data)
+    if net is not None:
+        result["localizer"] = net.localizer.path.name if net.localizer is not None else None
     result["seconds"] = round(time.perf_counter() - t0, 2)
     if detector is not None:
         result["detector"] = {"slope": round(detector.slope, 6), "offset": round(detector.offset, 6)}
@@ -524,6 +534,13 @@ def listen(
     model: Annotated[
         Path | None, typer.Option("--model", help="Siren model (.onnx) [default: the shipped one].")
     ] = None,
+    localizer: Annotated[
+        Path | None,
+        typer.Option(
+            help="A second siren model whose bearing and distance replace the model's "
+            "[default: the shipped localizer, with the shipped model only]."
+        ),
+    ] = None,
     baseline: Annotated[
         str | None,
         typer.Option(help="Classical bearing + band-energy detector instead: gccphat, srp or normmusic."),
@@ -549,11 +566,13 @@ def listen(
 
     if baseline is not None and baseline not in DOA_METHODS:
         raise ValueError(f"--baseline must be one of {'|'.join(DOA_METHODS)}, not {baseline!r}")
-    if baseline is not None and model is not None:
-        raise ValueError("give either --model or --baseline, not both")
+    if baseline is not None and (model is not None or localizer is not None):
+        raise ValueError("give either --model/--localizer or --baseline, not both")
     if not path.exists():
         raise InputError(path, "no such folder")
-    net = SirenModel(model, threads=1) if baseline is None else None
+    net = None
+    if baseline is None:
+        net = SirenModel(model, threads=1, localizer=localizer if localizer is not None else True)
     rec = read_recording(path)
     t0 = time.perf_counter()
     messages = []

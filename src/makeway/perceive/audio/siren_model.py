@@ -13,6 +13,13 @@ answers, for a batch of 0.5 s windows of the roof array:
 
 :data:`DEFAULT_SIREN_MODEL` is the model shipped in the package (``makeway/models/siren_net.onnx``;
 model card ``docs/model_card_siren_net.md``).
+
+**Detector and localizer.** A second network of the same kind can supply ``theta``, ``distance``
+and ``bearing_map`` while the first keeps ``prob`` (``localizer=``): both read the same features,
+computed once. The shipped pair is :data:`DEFAULT_SIREN_MODEL` as detector and
+:data:`DEFAULT_SIREN_LOCALIZER` (trained with pitch variety, ``audio simulate --siren-pitch``) as
+localizer: the variety sharpens bearing and distance but costs false alarms on real traffic, so it
+does not decide whether a siren is there (model card).
 """
 
 from __future__ import annotations
@@ -28,9 +35,10 @@ import numpy as np
 from makeway.errors import InputError
 from makeway.perceive.audio.siren_features import SirenFeatureConfig, SirenFeatures
 
-__all__ = ["DEFAULT_SIREN_MODEL", "SirenModel", "SirenPrediction"]
+__all__ = ["DEFAULT_SIREN_LOCALIZER", "DEFAULT_SIREN_MODEL", "SirenModel", "SirenPrediction"]
 
 DEFAULT_SIREN_MODEL = Path(__file__).resolve().parents[2] / "models" / "siren_net.onnx"
+DEFAULT_SIREN_LOCALIZER = Path(__file__).resolve().parents[2] / "models" / "siren_localizer.onnx"
 
 SECOND_PEAK_FRACTION = 0.5
 """A second bearing peak counts as another siren when its mass is at least this share of the first.
@@ -59,10 +67,18 @@ class SirenModel:
         path: the ``.onnx`` file (default: :data:`DEFAULT_SIREN_MODEL`).
         threads: ONNX Runtime intra-op threads (``None``: all cores).
         threshold: decision threshold (``None``: the one stored in the model).
+        localizer: a second siren network whose bearing and distance replace this one's (module
+            docstring): a path, ``True`` (:data:`DEFAULT_SIREN_LOCALIZER` when ``path`` is the
+            default model, none otherwise) or ``False`` (none).
     """
 
     def __init__(
-        self, path: str | Path | None = None, *, threads: int | None = None, threshold: float | None = None
+        self,
+        path: str | Path | None = None,
+        *,
+        threads: int | None = None,
+        threshold: float | None = None,
+        localizer: str | Path | bool = True,
     ) -> None:
         import onnxruntime as ort
 
@@ -96,9 +112,27 @@ class SirenModel:
         names = [i.name for i in self.session.get_inputs()]
         if names != list(self.streams):
             raise InputError(self.path, f"model inputs {names} do not match its streams {list(self.streams)}")
+        self.localizer: SirenModel | None = None
+        loc_path: Path | None = None
+        if localizer is True:
+            if self.path.resolve() == DEFAULT_SIREN_MODEL.resolve() and DEFAULT_SIREN_LOCALIZER.is_file():
+                loc_path = DEFAULT_SIREN_LOCALIZER
+        elif localizer is not False:
+            loc_path = Path(localizer)
+        if loc_path is not None:
+            loc = SirenModel(loc_path, threads=threads, localizer=False)
+            if loc.features.config != self.features.config or not set(loc.streams) <= set(self.streams):
+                raise InputError(
+                    loc_path,
+                    f"this localizer reads other features than the detector {self.path.name} "
+                    "(both must be trained with the same feature settings and streams)",
+                )
+            self.localizer = loc
 
     def __repr__(self) -> str:
-        return f"SirenModel({self.path.name}, streams={list(self.streams)}, threshold={self.threshold:g})"
+        loc = f", localizer={self.localizer.path.name}" if self.localizer is not None else ""
+        streams = list(self.streams)
+        return f"SirenModel({self.path.name}, streams={streams}, threshold={self.threshold:g}{loc})"
 
     @property
     def config(self) -> SirenFeatureConfig:
@@ -125,7 +159,15 @@ class SirenModel:
             )
 
     def run_features(self, feats: dict[str, np.ndarray]) -> SirenPrediction:
-        """Run the network on precomputed features (``SirenFeatures.transform`` output)."""
+        """Run the network on precomputed features (``SirenFeatures.transform`` output); with a
+        localizer, its bearing, distance and bearing map replace this network's."""
+        own = self._run_own(feats)
+        if self.localizer is None:
+            return own
+        loc = self.localizer._run_own(feats)
+        return SirenPrediction(own.prob, loc.theta, loc.distance, loc.bearing_map)
+
+    def _run_own(self, feats: dict[str, np.ndarray]) -> SirenPrediction:
         outs = self.session.run(
             None, {s: np.ascontiguousarray(feats[s], dtype=np.float32) for s in self.streams}
         )
