@@ -1,7 +1,8 @@
 """The siren network (issue 4) against the classical baselines and seed 002, on held-out recordings.
 
-    .venv/bin/python benchmarks/bench_audio_model.py [--data DIR | --n 30 --duration 8] [--model FILE] [--localizer FILE|none|auto]
-        [--baselines gccphat,srp,normmusic] [--latency-reps 60] [--keep DIR] [--json FILE]
+    .venv/bin/python benchmarks/bench_audio_model.py [--data DIR | --n 30 --duration 8] [--model FILE]
+        [--localizer FILE|none|auto] [--baselines gccphat,srp,normmusic] [--latency-reps 60]
+        [--keep DIR] [--json FILE]
 
 1. Held-out recordings: ``--data`` (a folder of recordings), or ``--n`` recordings simulated with
    seed 2026 from the **test** groups only (siren models, clip blocks and street recordings the

@@ -286,7 +286,7 @@ def test_shipped_localizer_gives_bearing_and_distance(windows: tuple[np.ndarray,
     assert alone.localizer is None and "localizer" not in repr(alone)
     loc = SirenModel(DEFAULT_SIREN_LOCALIZER, threads=1)
     assert loc.localizer is None  # another model never picks the shipped localizer by itself
-    w, siren, theta, dist = windows
+    w, siren, _, dist = windows
     p, a, b = pair.predict(w), alone.predict(w), loc.predict(w)
     np.testing.assert_allclose(p.prob, a.prob, rtol=1e-6)  # detection: the detector's
     np.testing.assert_allclose(p.theta, b.theta, atol=1e-6)  # bearing and distance: the localizer's
@@ -311,9 +311,9 @@ def test_localizer_must_read_the_same_features(tiny_model: tuple[Path, Path, dic
             prop.value = json.dumps(cfg)
     other = tmp_path / "other_features.onnx"
     onnx.save(proto, str(other))
-    with pytest.raises(InputError, match="other_features.onnx.*other features than the detector"):
+    with pytest.raises(InputError, match=r"other_features\.onnx.*other features than the detector"):
         SirenModel(path, localizer=other)
-    with pytest.raises(InputError, match="missing.onnx"):
+    with pytest.raises(InputError, match=r"missing\.onnx"):
         SirenModel(path, localizer=tmp_path / "missing.onnx")
 
 
