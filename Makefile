@@ -45,6 +45,7 @@ bench-pull-over: venv
 bench-audio: venv
 	$(BIN)/python benchmarks/bench_audio_model.py
 	$(BIN)/python benchmarks/bench_audio_real.py --sweep 65,75,80,85
+	$(BIN)/python benchmarks/bench_audio_multisource.py
 
 bench: bench-sort bench-video bench-pull-over bench-audio
 

@@ -187,9 +187,10 @@ def main() -> int:
             sel = np.flatnonzero(lab.present.sum(axis=1) >= 2)
             if not len(sel):
                 continue
-            pred = model.predict(window_batch(rec, lab)[sel])
+            wins = window_batch(rec, lab)[sel]
+            pred = model.predict(wins)
             for j, w in enumerate(sel):
-                got = [s["bearing_rad"] for s in model.sources(pred, j)]
+                got = [s["bearing_rad"] for s in model.sources(pred, j, wins[j])]
                 truth = lab.theta[w][lab.present[w]]
                 ok = all(
                     any(abs(math.remainder(g - t, 2 * math.pi)) <= math.radians(15) for g in got)

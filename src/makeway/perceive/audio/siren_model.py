@@ -8,8 +8,11 @@ answers, for a batch of 0.5 s windows of the roof array:
 * ``theta`` — bearing of the nearest siren (rad, vehicle frame, 0 ahead, positive left), from the
   (sin θ, cos θ) head normalised to unit length (SPEC §3);
 * ``distance`` — distance of the nearest siren (m, ground plane);
-* ``bearing_map`` — the per-bearing softmax of the model's bearing logits over the 360° grid, from
-  which :meth:`SirenModel.sources` reads further sirens as separate peaks.
+* ``bearing_map`` — the per-bearing softmax of the model's bearing logits over the 360° grid (the
+  direction head is its weighted mean).
+
+:meth:`SirenModel.sources` lists the sirens of a window: the nearest from the heads, further ones
+from the window's time–frequency bins (:mod:`makeway.perceive.audio.multisource`).
 
 :data:`DEFAULT_SIREN_MODEL` is the model shipped in the package (``makeway/models/siren_net.onnx``;
 model card ``docs/model_card_siren_net.md``).
@@ -25,7 +28,6 @@ does not decide whether a siren is there (model card).
 from __future__ import annotations
 
 import json
-import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -40,11 +42,12 @@ __all__ = ["DEFAULT_SIREN_LOCALIZER", "DEFAULT_SIREN_MODEL", "SirenModel", "Sire
 DEFAULT_SIREN_MODEL = Path(__file__).resolve().parents[2] / "models" / "siren_net.onnx"
 DEFAULT_SIREN_LOCALIZER = Path(__file__).resolve().parents[2] / "models" / "siren_localizer.onnx"
 
-SECOND_PEAK_FRACTION = 0.5
-"""A second bearing peak counts as another siren when its mass is at least this share of the first.
-Chosen on training-split recordings: 0.5 reports a spurious second siren in 2 % of one-siren windows
-(0.25: 4 %, 0.8: 0.6 %) while finding both sirens of two-siren windows about as often (23 % vs 24 %)."""
-PEAK_SEPARATION_DEG = 30.0
+MAX_SOURCES = 3
+"""At most this many sirens are reported per window (the nearest plus two)."""
+NEAR_ALONE_M = 10.0
+"""No further siren is reported while the nearest is closer than this: a siren passing at a few
+metres sweeps tens of degrees of bearing within one 0.5 s window, and its smeared bins look like
+a second siren (chosen on training-split recordings, ``benchmarks/bench_audio_multisource.py``)."""
 
 
 @dataclass(frozen=True)
@@ -128,6 +131,10 @@ class SirenModel:
                     "(both must be trained with the same feature settings and streams)",
                 )
             self.localizer = loc
+        self.near_alone_m = NEAR_ALONE_M
+        self.separator: Any = None
+        """The :class:`~makeway.perceive.audio.multisource.SourceSeparator` that :meth:`sources`
+        uses for further sirens (created on first use with its default constants; may be replaced)."""
 
     def __repr__(self) -> str:
         loc = f", localizer={self.localizer.path.name}" if self.localizer is not None else ""
@@ -185,37 +192,26 @@ class SirenModel:
         """Outputs for ``windows (n, channels, samples)`` or one ``(channels, samples)`` window."""
         return self.run_features(self.features.transform(windows))
 
-    def sources(self, pred: SirenPrediction, i: int) -> list[dict[str, Any]]:
-        """The sirens of window ``i``: the nearest (the heads), then any further bearing peak holding
-        at least :data:`SECOND_PEAK_FRACTION` of the first peak's mass, ≥ 30° away (distance
-        unknown: ``None``). Empty when window ``i`` is not a siren."""
+    def sources(
+        self, pred: SirenPrediction, i: int, window: np.ndarray | None = None
+    ) -> list[dict[str, Any]]:
+        """The sirens of window ``i``: first the nearest (the network's bearing and distance), then,
+        when the raw ``window (channels, samples)`` is given, up to :data:`MAX_SOURCES` − 1 further
+        sirens from :class:`~makeway.perceive.audio.multisource.SourceSeparator` (bearing only,
+        ``distance_m`` None) — none while the nearest is closer than ``near_alone_m``
+        (:data:`NEAR_ALONE_M`). Empty when window ``i`` is not a siren."""
         if pred.prob[i] < self.threshold:
             return []
+        nearest = float(pred.theta[i])
         out: list[dict[str, Any]] = [
-            {"bearing_rad": float(pred.theta[i]), "distance_m": float(pred.distance[i]), "rank": 0}
+            {"bearing_rad": nearest, "distance_m": float(pred.distance[i]), "rank": 0}
         ]
-        if pred.bearing_map is None:
+        if window is None or float(pred.distance[i]) < self.near_alone_m:
             return out
-        p = pred.bearing_map[i]
-        n = len(p)
-        step = 2.0 * math.pi / n
-        half = max(1, round(math.radians(PEAK_SEPARATION_DEG) / step / 2))
-        # mass of each peak: the map summed over ±half bins, circularly
-        kernel = np.ones(2 * half + 1)
-        mass = np.convolve(np.concatenate([p[-half:], p, p[:half]]), kernel, mode="valid")
-        is_peak = (mass >= np.roll(mass, 1)) & (mass > np.roll(mass, -1))
-        order = [int(k) for k in np.argsort(-mass) if is_peak[k]]
-        if not order:
-            return out
-        first = mass[order[0]]
-        taken = [float(pred.theta[i])]
-        for k in order[1:]:
-            if mass[k] < SECOND_PEAK_FRACTION * first:
-                break
-            az = math.atan2(math.sin(k * step), math.cos(k * step))
-            if all(
-                abs(math.remainder(az - t, 2 * math.pi)) >= math.radians(PEAK_SEPARATION_DEG) for t in taken
-            ):
-                out.append({"bearing_rad": az, "distance_m": None, "rank": len(out)})
-                taken.append(az)
+        if self.separator is None:
+            from makeway.perceive.audio.multisource import SourceSeparator
+
+            self.separator = SourceSeparator(self.mics, self.config.sample_rate)
+        for theta in self.separator.further(window, [nearest], MAX_SOURCES):
+            out.append({"bearing_rad": theta, "distance_m": None, "rank": len(out)})
         return out

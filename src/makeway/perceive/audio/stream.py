@@ -9,8 +9,9 @@ and yields one message per hop::
 
 With the trained siren network (``model``, :class:`~makeway.perceive.audio.siren_model.SirenModel`;
 the CLI's default) ``probability`` is the network's, the first source is the nearest siren with
-the network's bearing (vehicle frame, 0 ahead, positive left) and distance, and further sirens are
-the other strong peaks of its bearing map (distance ``null``). Without a model, the band-energy
+the network's bearing (vehicle frame, 0 ahead, positive left) and distance, and further sirens come
+from the window's time–frequency bins (:mod:`~makeway.perceive.audio.multisource`; distance
+``null``). Without a model, the band-energy
 :class:`~makeway.perceive.audio.doa.SirenEnergyDetector` and a classical bearing (``method``) give at
 most one source and no distance. ``approaching`` comes from
 :class:`~makeway.perceive.audio.motion.ApproachEstimator`, which sees every window (so its
@@ -52,8 +53,8 @@ def listen(
     """One message per hop over ``recording`` (see the module docstring).
 
     With ``model`` (a :class:`~makeway.perceive.audio.siren_model.SirenModel`) the network gives
-    the probability, the nearest siren's bearing and distance, and further sirens as extra bearing
-    peaks (:meth:`~makeway.perceive.audio.siren_model.SirenModel.sources`); ``method`` and
+    the probability, the nearest siren's bearing and distance, and further sirens by time–frequency
+    bin assignment (:meth:`~makeway.perceive.audio.siren_model.SirenModel.sources`); ``method`` and
     ``detector`` are then unused. Approaching/receding always comes from the level trend and Doppler
     (:class:`~makeway.perceive.audio.motion.ApproachEstimator`) and is given for the nearest siren."""
     doa = get_doa_method(method)
@@ -78,7 +79,7 @@ def listen(
             pred = model.predict(window)
             p = float(pred.prob[0])
             is_siren = p >= model.threshold
-            found = model.sources(pred, 0)
+            found = model.sources(pred, 0, window)
         else:
             p = float(det.proba_from_scores(np.array([detector_score(window, sr)]))[0])
             is_siren = p >= 0.5
