@@ -586,6 +586,13 @@ def test_cli_simulate_and_label(tmp_path: Path) -> None:
     )
     assert res.exit_code == 0, res.output
     assert sorted(p.name for p in out.iterdir()) == ["rec_00000", "rec_00001"]
+    # --start: recording 1 alone, made by a second command, is the same recording
+    part = tmp_path / "part"
+    args = ["--duration", "1", "--siren", "synth", "--noise", "generated", "--no-siren-fraction", "0.5"]
+    res = runner.invoke(audio_app, ["simulate", "--out", str(part), "--n", "1", "--start", "1", *args, "-q"])
+    assert res.exit_code == 0, res.output
+    assert [p.name for p in part.iterdir()] == ["rec_00001"]
+    assert (part / "rec_00001" / "audio.flac").read_bytes() == (out / "rec_00001" / "audio.flac").read_bytes()
     res = runner.invoke(audio_app, ["label", str(out), "--json"])
     assert res.exit_code == 0, res.output
     rows = [json.loads(ln) for ln in (out / "labels.jsonl").read_text().splitlines()]

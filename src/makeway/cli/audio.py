@@ -48,6 +48,14 @@ def simulate(
         ),
     ] = None,
     seed: Annotated[int, typer.Option(help="Seed; recording i is fully determined by (seed, i).")] = 0,
+    start: Annotated[
+        int,
+        typer.Option(
+            min=0,
+            help="Index of the first recording (rec_<start> …): commands with the same --seed and "
+            "different --start fill one --out folder in parallel, as one command would.",
+        ),
+    ] = 0,
     duration: Annotated[float, typer.Option(min=0.6, help="Seconds of audio per recording.")] = 10.0,
     siren: Annotated[
         str, typer.Option(help="Siren sounds: auto, synth (procedural) or real (data).")
@@ -129,6 +137,7 @@ def simulate(
         distractors=distractors,
         street_dba=street_dba,
         siren_pitch=pitch,
+        start_index=start,
     )
     wall = time.perf_counter() - t0
     summary = {
