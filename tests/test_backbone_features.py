@@ -1,12 +1,14 @@
-"""YOLOX-nano backbone features of crops (issue 3, transfer route without ImageNet weights).
+"""Detector-backbone features of crops (issue 3, transfer route without ImageNet weights).
 
-Runs on the real ev_crops and the real yolox_nano.onnx in ../shared/data (fixture ``data_root``).
+Runs on the real ev_crops and the real yolox_nano.onnx / nanodet_m_416.onnx in ../shared/data
+(fixture ``data_root``).
 """
 
 from __future__ import annotations
 
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 
@@ -62,6 +64,41 @@ def test_other_sizes_layers_and_grid(model_path: Path, ev_crops: CropSet) -> Non
         BackboneFeatures(model_path, input_size=100)
     with pytest.raises(ValueError):
         ext.transform(np.zeros((2, 32, 32), dtype=np.uint8))
+
+
+def test_nanodet_features_at_other_sizes_and_batches(data_root: Path, ev_crops: CropSet) -> None:
+    """NanoDet's export fixes its shuffle reshapes to 416 px and batch 1; the rewrite lifts both."""
+    import onnxruntime as ort
+
+    model = data_root / "models" / "nanodet_m_416.onnx"
+    images = ev_crops.subset(range(5)).load_images(224)
+    ext = BackboneFeatures(model, backbone="nanodet_m", input_size=224, num_threads=2)
+    assert ext.layers == ("stage2", "stage3", "stage4") and ext.dim == 2 * (116 + 232 + 464)
+    x = ext.transform(images)
+    assert x.shape == (5, ext.dim) and np.all(np.isfinite(x)) and not np.allclose(x[0], x[1])
+    single = np.concatenate([ext.transform(images[i : i + 1]) for i in range(5)])
+    assert np.allclose(x, single, rtol=1e-4, atol=1e-4)
+    # At the export's own 416 px and batch 1, the rewritten graph equals the export pruned as it is.
+    import onnx
+
+    from makeway.perceive.vision.backbone import BACKBONES, load_pruned_backbone, prune_to_tensors
+
+    blob = np.stack([cv2.resize(im, (416, 416)).transpose(2, 0, 1) for im in images[:1]]).astype(np.float32)
+    maps = {}
+    for name, graph in (
+        ("ours", load_pruned_backbone(BACKBONES["nanodet_m"], model, ["stage4"], 416)),
+        ("export", prune_to_tensors(onnx.load(str(model)), ["690"])),
+    ):
+        session = ort.InferenceSession(graph.SerializeToString(), providers=["CPUExecutionProvider"])
+        maps[name] = session.run(None, {session.get_inputs()[0].name: blob})[0]
+    assert maps["ours"].shape == (1, 464, 13, 13)
+    np.testing.assert_allclose(maps["ours"], maps["export"], rtol=1e-5, atol=1e-5)
+    pan = BackboneFeatures(model, backbone="nanodet_m", layers=("pan3", "pan5"), input_size=160)
+    assert pan.transform(images[:2]).shape == (2, 2 * (96 + 96))
+    with pytest.raises(InputError, match="nanodet_m graph"):
+        BackboneFeatures(model, backbone="nanodet_m", layers=("dark4",))
+    with pytest.raises(ValueError, match="unknown backbone"):
+        BackboneFeatures(model, backbone="resnet")
 
 
 def test_missing_model_names_where_it_looked(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:

@@ -23,13 +23,14 @@ Commands:
       makeway classify build-ambulance-crops --out ../work/ambulance_crops
 
 * ``train --data DIR [--data DIR2 ...] [--out FILE]`` — train the EV crop classifier head
-  (:class:`~makeway.perceive.vision.ev_classifier.EVCropClassifier`: YOLOX-nano features +
-  standardised logistic regression) and write it as ``.npz`` (default: the shipped
-  ``makeway/models/ev_head_yolox_logreg.npz``). On ev_crops only the training part is used, and the
-  held-out metrics are printed as a JSON line. ``--arch resnet18|small_cnn|yolox_ft`` trains a CNN
-  of SPEC §1 instead (:mod:`makeway.train.cnn`, torch; ``--input-size``, ``--width``, ``--epochs``,
-  ``--lr``, ``--pretrained FILE``, …; ``yolox_ft`` is the YOLOX-nano backbone itself, linear probe
-  then fine-tuned, :mod:`makeway.train.onnx_graph`): writes ``OUT.onnx`` + the checkpoint
+  (:class:`~makeway.perceive.vision.ev_classifier.EVCropClassifier`: pooled YOLOX-nano + NanoDet-m
+  backbone features of each crop and its mirror image + standardised logistic regression) and
+  write it as ``.npz`` (default: the shipped ``makeway/models/ev_head_logreg.npz``). On ev_crops
+  only the training part is used, and the held-out metrics are printed as a JSON line.
+  ``--arch resnet18|small_cnn|yolox_ft`` trains a CNN of SPEC §1 instead (:mod:`makeway.train.cnn`,
+  torch; ``--input-size``, ``--width``, ``--epochs``, ``--lr``, ``--pretrained FILE``, …;
+  ``yolox_ft`` is the YOLOX-nano backbone itself, linear probe then fine-tuned,
+  :mod:`makeway.train.onnx_graph`): writes ``OUT.onnx`` + the checkpoint
   ``OUT.pt`` and scores the held-out part through ONNX Runtime.
 * ``export CHECKPOINT --out FILE.onnx`` — export a CNN checkpoint to ONNX (dynamic batch axis,
   preprocessing and threshold in the metadata) for
@@ -382,7 +383,7 @@ def _train_cnn(
     from makeway.train.cnn import ARCHS, Augment, CNNClassifier
 
     if arch not in ARCHS:
-        raise ValueError(f"unknown --arch {arch!r}; choose yolox_logreg, {', '.join(ARCHS)}")
+        raise ValueError(f"unknown --arch {arch!r}; choose logreg, {', '.join(ARCHS)}")
     onnx_path = out if out.suffix.lower() == ".onnx" else out.with_suffix(".onnx")
     ckpt_path = onnx_path.with_suffix(".pt")
     clf = CNNClassifier(
@@ -467,19 +468,20 @@ def train(
         typer.Option(
             "--out",
             "-o",
-            help="yolox_logreg: head .npz [default: the shipped model]. CNNs: model .onnx (checkpoint .pt "
+            help="logreg: head .npz [default: the shipped model]. CNNs: model .onnx (checkpoint .pt "
             "beside it) [default: ev_cnn_<arch>.onnx].",
         ),
     ] = None,
     threshold: Annotated[float, typer.Option(help="Decision threshold stored with the model.")] = 0.5,
-    seed: Annotated[int, typer.Option(help="Seed (yolox_logreg: of the inner CV that picks C).")] = 0,
+    seed: Annotated[int, typer.Option(help="Seed (logreg: of the inner CV that picks C).")] = 0,
     arch: Annotated[
         str,
         typer.Option(
-            help="yolox_logreg (features + logistic head); CNNs: resnet18, small_cnn, or yolox_ft "
+            help="logreg (pooled detector-backbone features, --block, + logistic head); CNNs: resnet18, "
+            "small_cnn, or yolox_ft "
             "(the YOLOX-nano backbone fine-tuned, after a linear probe; --input-size a multiple of 32)."
         ),
-    ] = "yolox_logreg",
+    ] = "logreg",
     pretrained: Annotated[
         Path | None, typer.Option(help="torchvision ResNet-18 state dict (.pth) to start from (resnet18).")
     ] = None,
@@ -498,15 +500,25 @@ def train(
     pos_oversample: Annotated[int, typer.Option(min=1, help="CNNs: copies of each positive per epoch.")] = 1,
     neg_downsample: Annotated[int, typer.Option(min=1, help="CNNs: keep 1/N of negatives per epoch.")] = 1,
     threads: Annotated[int, typer.Option(min=1, help="CNNs: torch threads.")] = 2,
+    block: Annotated[
+        list[str] | None,
+        typer.Option(
+            help="logreg: feature block backbone@size:layer,layer (repeat; backbones yolox_nano, nanodet_m) "
+            "[default: yolox_nano@160:dark3,dark4,dark5,pan5 + nanodet_m@224:stage2,stage3,stage4].",
+        ),
+    ] = None,
+    flip: Annotated[
+        bool, typer.Option(help="logreg: train on mirror images too; judge a crop by it and its mirror.")
+    ] = True,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")] = False,
 ) -> None:
-    """Train an EV crop classifier: the YOLOX-nano features + logistic head (default) or a CNN of
+    """Train an EV crop classifier: the detector-backbone features + logistic head (default) or a CNN of
     SPEC §1 (``--arch resnet18|small_cnn``: trained from scratch, or from ``--pretrained``;
     ``--arch yolox_ft``: the COCO detector's backbone fine-tuned).
 
     On ev_crops only the training part (the complement of the committed holdout) is used, and the
     held-out metrics are printed (one JSON line last)."""
-    if arch != "yolox_logreg":
+    if arch != "logreg":
         _train_cnn(
             data,
             out if out is not None else Path(f"ev_cnn_{arch}.onnx"),
@@ -528,14 +540,21 @@ def train(
             progress=not quiet,
         )
         return
+    from makeway.perceive.vision.backbone import DEFAULT_BLOCKS, FeatureBlock
     from makeway.perceive.vision.ev_classifier import DEFAULT_MODEL, EVCropClassifier
-    from makeway.sense.crops import read_crop_folder
+    from makeway.sense.crops import near_duplicate_groups, read_crop_folder
 
     target = out if out is not None else DEFAULT_MODEL
-    clf = EVCropClassifier(threshold=threshold, seed=seed)
+    try:
+        blocks = [FeatureBlock.parse(b) for b in block] if block else list(DEFAULT_BLOCKS)
+    except ValueError as exc:
+        raise typer.BadParameter(str(exc), param_hint="--block") from None
+    clf = EVCropClassifier(blocks=blocks, flip=flip, threshold=threshold, seed=seed)
     sets = [(folder, read_crop_folder(folder)) for folder in data]  # all read before any work
     xs: list[np.ndarray] = []
+    xms: list[np.ndarray] = []
     ys: list[np.ndarray] = []
+    gs: list[np.ndarray] = []
     parts: list[str] = []
     held: list[tuple[Any, Path]] = []
     for folder, crops in sets:
@@ -549,9 +568,21 @@ def train(
             what = "all"
         err_console.print(f"{folder.name}: {what}, {len(crops)} crops ({crops.n_positive} positive)")
         parts.append(f"{folder.name}: {what}, {len(crops)} crops, {crops.n_positive} positive")
-        xs.append(clf.transform(crops.load_images(clf.input_size, cache=False)))
+        images = crops.load_images(clf.input_size, cache=False)
+        x, x_mirrored = clf.transform_pair(images)
+        xs.append(x)
+        if x_mirrored is not None:
+            xms.append(x_mirrored)
         ys.append(crops.labels)
-    clf.fit_features(np.concatenate(xs), np.concatenate(ys), training="; ".join(parts))
+        # near-duplicates stay in one inner-CV fold (as the holdout keeps them on one side)
+        gs.append(np.char.add(f"{len(gs)}:", near_duplicate_groups(images).astype(str)))
+    clf.fit_features(
+        np.concatenate(xs),
+        np.concatenate(ys),
+        x_mirrored=np.concatenate(xms) if xms else None,
+        groups=np.concatenate(gs),
+        training="; ".join(parts),
+    )
     clf.save(target)
     err_console.print(f"C = {clf.C:g}; head → {target} ({target.stat().st_size} bytes)", highlight=False)
     for test_set, folder in held:

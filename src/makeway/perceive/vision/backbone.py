@@ -1,19 +1,19 @@
-"""Crop features from the COCO detector's own network: YOLOX-nano feature maps, pooled (issue 3).
+"""Crop features from the COCO detectors' own networks: feature maps, pooled (issue 3, SPEC §1).
 
-A transfer route that needs no ImageNet weights: the YOLOX-nano detector already on disk
-(:class:`~makeway.perceive.vision.detectors.YoloxNano`) learnt vehicle appearance on COCO. Its ONNX
-graph is rewritten with the ``onnx`` package so that chosen intermediate tensors become the graph's
-outputs (the detection head is pruned away), with a symbolic batch and height/width, and every crop
-— resized to a square of ``input_size`` pixels, raw BGR 0–255 as YOLOX expects — goes through it in
-batches. Each chosen feature map ``(C, h, w)`` is pooled to a vector:
+A transfer route that needs no ImageNet file: both detectors on disk learnt vehicle appearance on
+COCO. Their ONNX graphs are rewritten with the ``onnx`` package so that chosen intermediate
+tensors become the graph's outputs (the detection heads are pruned away), with a symbolic batch,
+and every crop — resized to a square of ``input_size`` pixels and preprocessed as its detector
+expects — goes through in batches. Each chosen feature map ``(C, h, w)`` is pooled to a vector:
 
 * global average and global max per channel (``2C``);
 * with ``grid=2`` also the average of each 2×2 quadrant per channel (``4C`` more, quadrants in
   row-major order).
 
-The vectors of the layers are concatenated in the order given → ``(n, d)`` ``float32``.
+The vectors of the layers are concatenated in the order given → ``(n, d)`` ``float32``. The
+backbones are registered in :data:`BACKBONES`:
 
-Layers (names of :data:`LAYERS`; any tensor name of the graph is accepted too):
+``yolox_nano`` (CSPDarknet + PAN, trained on COCO; input raw BGR 0–255, any multiple of 32):
 
 ========  ==========  ====  ======================================================================
 name      tensor      C     what
@@ -26,32 +26,47 @@ pan4      input.531   128   PAN output at stride 16
 pan5      input.591   256   PAN output at stride 32
 ========  ==========  ====  ======================================================================
 
-The default, ``("dark4", "dark5", "pan5")`` at ``input_size=160`` with global pooling only
-(``d = 2 × (128 + 256 + 256) = 1280``), was chosen by 5-fold cross-validation (grouped by
-near-duplicate clusters) of a standardised logistic regression on the *training* part of the
-ev_crops holdout split only (996 crops; the held-out part was not looked at). CV accuracy at the
-best of C ∈ {0.001, 0.01, 0.1}, global pooling:
+``nanodet_m`` (ShuffleNetV2 1.0× + PAN; input BGR normalised by the detector's mean/std). Its
+ShuffleNetV2 backbone started from ImageNet weights before NanoDet's COCO training, which is why
+its features carry more general appearance than YOLOX-nano's (trained from scratch on COCO). The
+export fixes every channel-shuffle ``Reshape`` to 416×416 grids and a batch of one, and its PAN
+``Resize`` nodes to absolute sizes; :func:`load_pruned_backbone` rewrites those constants for the
+requested ``input_size`` (batch ``0`` = copy the input's, sizes → scale factors), so the pruned
+graph runs any batch at one square size per session:
 
-========================  ======  ======  ======
-layers                    160 px  224 px  320 px
-========================  ======  ======  ======
-dark3 + dark4 + dark5     0.889   0.883   0.890
-pan3 + pan4 + pan5        0.843   0.855   –
-dark5                     0.849   0.853   –
-dark4 + dark5             0.884   0.883   –
-dark4 + dark5 + pan5      0.894   0.885   0.892
-all six                   0.895   0.886   –
-========================  ======  ======  ======
+========  ==========  ====  ======================================================================
+name      tensor      C     what
+========  ==========  ====  ======================================================================
+stage2    492         116   ShuffleNetV2 stage 2 output, stride 8
+stage3    623         232   stage 3 output, stride 16
+stage4    690         464   stage 4 output, stride 32
+pan3      733         96    PAN output at stride 8
+pan4      753         96    PAN output at stride 16
+pan5      773         96    PAN output at stride 32
+========  ==========  ====  ======================================================================
 
-(± about 0.015 between folds.) The 2×2 quadrant averages (``grid=2``) moved CV accuracy by
-−0.01…+0.01 and 320 px by at most +0.01 at 5–10× the time, so neither is the default. On 2 CPU
-cores the three default layers cost about 0.3 s per 100 crops at 160 px (0.45 s at 224 px).
+How the layers were chosen: 5-fold cross-validation grouped by near-duplicate clusters (two
+seeds) of a standardised logistic regression on the *training* part of the ev_crops holdout split
+only (996 crops; the held-out part was not looked at); ± about 0.02 between folds.
+
+* YOLOX-nano alone, no mirroring: ``dark4 + dark5 + pan5`` at 160 px 0.894, ``dark3 + dark4 +
+  dark5`` 0.889, ``pan3 + pan4 + pan5`` 0.843 (224 and 320 px no better; 2×2 quadrants ±0.01).
+* NanoDet-m alone, no mirroring: ``stage2 + stage3 + stage4`` at 160 / 224 / 288 / 320 px 0.884 /
+  **0.909** / – / 0.892; PAN outputs 0.868, the class-head tower 0.851, the 80 COCO class scores
+  0.825 (all 224 px).
+* Both (YOLOX ``dark3 + dark4 + dark5 + pan5`` at 160 px + NanoDet stages at 224 px), trained on
+  every crop and its mirror image and judged on the mean of both (``flip`` of
+  :class:`~makeway.perceive.vision.ev_classifier.EVCropClassifier`): **0.924** — the shipped
+  head's features (:data:`DEFAULT_BLOCKS`). Adding NanoDet at 288 px too: 0.917.
+
+Cost on 2 CPU cores: YOLOX at 160 px about 3 ms per crop, NanoDet at 224 px about 2 ms.
 """
 
 from __future__ import annotations
 
 import os
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -59,9 +74,44 @@ import cv2
 import numpy as np
 
 from makeway.errors import InputError
-from makeway.perceive.vision.detectors import resolve_model_path
+from makeway.perceive.vision.detectors import NanoDetM, YoloxNano, resolve_model_path
 
-__all__ = ["DEFAULT_LAYERS", "LAYERS", "BackboneFeatures", "load_pruned_yolox", "prune_to_tensors"]
+__all__ = [
+    "BACKBONES",
+    "DEFAULT_BLOCKS",
+    "DEFAULT_LAYERS",
+    "LAYERS",
+    "BackboneFeatures",
+    "BackboneSpec",
+    "FeatureBlock",
+    "load_pruned_backbone",
+    "load_pruned_yolox",
+    "prune_to_tensors",
+]
+
+
+@dataclass(frozen=True)
+class BackboneSpec:
+    """A detector graph usable as a crop feature extractor (an entry of :data:`BACKBONES`).
+
+    Attributes:
+        name: registry name (the detector's).
+        filename: the detector's ONNX file name, found as the detectors find theirs.
+        layers: short layer names → tensor names of the graph.
+        default_layers: the layers used when none are given.
+        mean, inv_std: per-channel BGR normalisation (``None``: raw 0–255 pixels).
+        graph_size: the square input size the export fixed its shape constants for (``None``: the
+            graph takes any size as it is).
+    """
+
+    name: str
+    filename: str
+    layers: Mapping[str, str]
+    default_layers: tuple[str, ...]
+    mean: tuple[float, float, float] | None = None
+    inv_std: tuple[float, float, float] | None = None
+    graph_size: int | None = None
+
 
 #: Short names of the useful YOLOX-nano tensors (see the module docstring).
 LAYERS: dict[str, str] = {
@@ -73,19 +123,74 @@ LAYERS: dict[str, str] = {
     "pan5": "input.591",
 }
 
-#: The layers chosen by cross-validation on the training part (module docstring).
+#: YOLOX-nano's layers chosen by cross-validation on the training part when used alone.
 DEFAULT_LAYERS: tuple[str, ...] = ("dark4", "dark5", "pan5")
 
-_MODEL_FILENAME = "yolox_nano.onnx"
+#: The registered feature backbones by name.
+BACKBONES: dict[str, BackboneSpec] = {
+    "yolox_nano": BackboneSpec(YoloxNano.name, YoloxNano.default_filename, LAYERS, DEFAULT_LAYERS),
+    "nanodet_m": BackboneSpec(
+        NanoDetM.name,
+        NanoDetM.default_filename,
+        {"stage2": "492", "stage3": "623", "stage4": "690", "pan3": "733", "pan4": "753", "pan5": "773"},
+        ("stage2", "stage3", "stage4"),
+        mean=tuple(float(v) for v in NanoDetM._MEAN),  # type: ignore[arg-type]
+        inv_std=tuple(float(v) for v in NanoDetM._INV_STD),  # type: ignore[arg-type]
+        graph_size=416,
+    ),
+}
+
+
+@dataclass(frozen=True)
+class FeatureBlock:
+    """One backbone's share of a crop feature vector: which graph, which layers, which input size.
+
+    Written as text ``backbone@size:layer,layer`` (e.g. ``nanodet_m@224:stage2,stage3,stage4``) in
+    stored heads; :meth:`parse` reads it back.
+    """
+
+    backbone: str
+    layers: tuple[str, ...]
+    input_size: int
+
+    def __post_init__(self) -> None:
+        if self.backbone not in BACKBONES:
+            known = ", ".join(BACKBONES)
+            raise ValueError(f"unknown backbone {self.backbone!r}; registered: {known}")
+        if self.input_size < 32 or self.input_size % 32:
+            raise ValueError(f"input_size must be a positive multiple of 32, got {self.input_size}")
+        if not self.layers:
+            raise ValueError("a feature block needs at least one layer")
+
+    def __str__(self) -> str:
+        return f"{self.backbone}@{self.input_size}:{','.join(self.layers)}"
+
+    @classmethod
+    def parse(cls, text: str) -> FeatureBlock:
+        """Read ``backbone@size:layer,layer``; ``ValueError`` says what is wrong."""
+        head, sep, layers = text.partition(":")
+        name, at, size = head.partition("@")
+        if not (sep and at and layers and size.strip().isdigit()):
+            raise ValueError(f"feature block {text!r} is not 'backbone@size:layer,layer'")
+        return cls(name.strip(), tuple(v.strip() for v in layers.split(",") if v.strip()), int(size))
+
+
+#: The shipped head's features (module docstring): YOLOX-nano at 160 px + NanoDet-m at 224 px.
+DEFAULT_BLOCKS: tuple[FeatureBlock, ...] = (
+    FeatureBlock("yolox_nano", ("dark3", "dark4", "dark5", "pan5"), 160),
+    FeatureBlock("nanodet_m", ("stage2", "stage3", "stage4"), 224),
+)
+
 _CHUNK = 16  # on 2 cores, 16 crops a run is ~10 % faster than 64 (cache)
 
 
 def prune_to_tensors(model: Any, tensors: Sequence[str]) -> Any:
     """Rewrite a single-input ONNX ``model`` in place so that ``tensors`` are its outputs.
 
-    Only the nodes (and initializers) the tensors depend on are kept — for YOLOX-nano the detection
-    head goes away — and the input gets a symbolic batch, height and width (axes 0, 2, 3). Shared
-    by :class:`BackboneFeatures` and the fine-tuned crop network of :mod:`makeway.train.onnx_graph`.
+    Only the nodes (and initializers) the tensors depend on are kept — the detection heads go away
+    — and the input gets a symbolic batch, height and width (axes 0, 2, 3). Graph inputs that are
+    initializers (older exporters list them) are dropped from the inputs first. Shared by
+    :class:`BackboneFeatures` and the fine-tuned crop network of :mod:`makeway.train.onnx_graph`.
 
     Raises:
         ValueError: the graph has several inputs, or no node produces one of ``tensors``.
@@ -93,8 +198,12 @@ def prune_to_tensors(model: Any, tensors: Sequence[str]) -> Any:
     import onnx
 
     graph = model.graph
-    if len(graph.input) != 1:
-        raise ValueError(f"expected a graph with one input, found {len(graph.input)}")
+    init_names = {i.name for i in graph.initializer}
+    inputs = [i for i in graph.input if i.name not in init_names]
+    if len(inputs) != 1:
+        raise ValueError(f"expected a graph with one input, found {len(inputs)}")
+    del graph.input[:]
+    graph.input.extend(inputs)
     producers = {out: node for node in graph.node for out in node.output}
     missing = [t for t in tensors if t not in producers]
     if missing:
@@ -129,12 +238,66 @@ def prune_to_tensors(model: Any, tensors: Sequence[str]) -> Any:
     return model
 
 
-def load_pruned_yolox(model_path: Path, layers: Sequence[str]) -> Any:
-    """The YOLOX-nano ONNX model at ``model_path`` pruned to ``layers`` (names of :data:`LAYERS` or
-    tensor names), for :class:`BackboneFeatures` and :func:`makeway.train.onnx_graph.yolox_crop_net`.
+def _rescale_fixed_shapes(model: Any, graph_size: int, input_size: int) -> None:
+    """Make a graph exported for ``graph_size`` squares run ``input_size`` squares, any batch.
+
+    Uses the shapes ONNX shape inference gives at ``graph_size`` (call before pruning):
+
+    * ``Reshape`` to a constant shape: a leading ``1`` becomes ``0`` (keep the input's batch), and
+      trailing dims equal to the input's last two ``(h, w)`` are scaled to the new grid;
+    * ``Resize`` to constant ``sizes``: replaced by the constant scale factors they imply.
 
     Raises:
-        InputError: the file is not a valid ONNX model, or not the graph this module knows.
+        ValueError: a ``Resize`` or ``Reshape`` whose constants cannot be rescaled this way.
+    """
+    import onnx
+    from onnx import numpy_helper
+
+    graph = model.graph
+    inferred = onnx.shape_inference.infer_shapes(model).graph
+    shapes: dict[str, list[int]] = {}
+    for info in (*inferred.value_info, *inferred.input, *inferred.output):
+        dims = info.type.tensor_type.shape.dim
+        shapes[info.name] = [d.dim_value if d.HasField("dim_value") else -1 for d in dims]
+    consts = {i.name: numpy_helper.to_array(i) for i in graph.initializer}
+    ratio = input_size / graph_size
+    added: list[Any] = []
+    for k, node in enumerate(graph.node):
+        where = f"{node.op_type} node {node.name or k}"
+        if node.op_type == "Reshape" and node.input[1] in consts:
+            shape = consts[node.input[1]].astype(np.int64).copy()
+            grid = shapes.get(node.input[0], [])[-2:]
+            if len(shape) >= 4 and len(grid) == 2 and list(shape[-2:]) == grid:
+                shape[-2:] = [round(g * ratio) for g in grid]
+            if len(shape) >= 4 and shape[0] == 1:
+                shape[0] = 0
+            name = f"{node.input[1]}__{k}_at_{input_size}"
+            added.append(numpy_helper.from_array(shape, name))
+            node.input[1] = name
+        elif node.op_type == "Resize" and len(node.input) == 4 and node.input[3] in consts:
+            sizes = consts[node.input[3]].astype(np.float64)
+            src = shapes.get(node.input[0], [])
+            if len(src) != len(sizes) or min(src) <= 0:
+                raise ValueError(f"{where}: input shape unknown, cannot turn sizes into scales")
+            scales = (sizes / np.asarray(src, dtype=np.float64)).astype(np.float32)
+            roi, scl = f"__roi_{k}", f"__scales_{k}"
+            added += [
+                numpy_helper.from_array(np.zeros(0, dtype=np.float32), roi),
+                numpy_helper.from_array(scales, scl),
+            ]
+            del node.input[1:]
+            node.input.extend([roi, scl])
+        elif node.op_type == "Resize" and len(node.input) == 4 and node.input[3]:
+            raise ValueError(f"{where}: sizes come from a tensor, not a constant")
+    graph.initializer.extend(added)
+
+
+def load_pruned_backbone(spec: BackboneSpec, model_path: Path, layers: Sequence[str], input_size: int) -> Any:
+    """The ONNX model of ``spec`` at ``model_path``, pruned to ``layers`` (short names of the spec or
+    tensor names) and ready to run ``input_size`` squares in any batch.
+
+    Raises:
+        InputError: the file is not a valid ONNX model, or not the graph the spec knows.
     """
     import onnx
 
@@ -143,63 +306,81 @@ def load_pruned_yolox(model_path: Path, layers: Sequence[str]) -> Any:
     except Exception as exc:  # protobuf decode errors come in several types
         raise InputError(model_path, f"not a valid ONNX model ({type(exc).__name__}: {exc})") from exc
     try:
-        return prune_to_tensors(model, [LAYERS.get(name, name) for name in layers])
+        if spec.graph_size is not None:
+            _rescale_fixed_shapes(model, spec.graph_size, input_size)
+        return prune_to_tensors(model, [spec.layers.get(name, name) for name in layers])
     except ValueError as exc:
         raise InputError(
             model_path,
-            f"not the YOLOX-nano graph this extractor knows: {exc} (known layers: {', '.join(LAYERS)})",
+            f"not the {spec.name} graph this extractor knows: {exc} (known layers: {', '.join(spec.layers)})",
         ) from None
 
 
+def load_pruned_yolox(model_path: Path, layers: Sequence[str]) -> Any:
+    """The YOLOX-nano ONNX model at ``model_path`` pruned to ``layers`` (names of :data:`LAYERS` or
+    tensor names), for :class:`BackboneFeatures` and :func:`makeway.train.onnx_graph.yolox_crop_net`.
+
+    Raises:
+        InputError: the file is not a valid ONNX model, or not the graph this module knows.
+    """
+    return load_pruned_backbone(BACKBONES["yolox_nano"], model_path, layers, input_size=416)
+
+
 class BackboneFeatures:
-    """Pooled YOLOX-nano feature maps of crops (module docstring).
+    """Pooled feature maps of a registered detector backbone on crops (module docstring).
 
     Args:
-        model_path: ``yolox_nano.onnx`` or a folder holding it; ``None`` searches
+        model_path: the backbone's ONNX file or a folder holding it; ``None`` searches
             :func:`makeway.paths.models_candidates` (as the detectors do).
-        layers: names of :data:`LAYERS` or tensor names of the graph, in output order.
+        layers: names of the backbone's layers or tensor names of the graph, in output order
+            (``None``: the backbone's default layers).
         input_size: side of the square network input, a multiple of 32.
         grid: ``1`` global average + max per channel; ``2`` adds the 2×2 quadrant averages.
         num_threads: ONNX Runtime intra-op threads; ``None`` uses ``os.cpu_count()``.
+        backbone: a name of :data:`BACKBONES`.
 
     Raises:
         InputError: the model is missing (the message lists where it looked), is not a valid ONNX
             model, or lacks a requested tensor.
         ValueError: an argument is out of range.
 
-    Not thread-safe in the sense that one session serves all calls; ONNX Runtime itself allows
-    concurrent ``run`` calls.
+    One ONNX Runtime session serves all calls; ONNX Runtime itself allows concurrent ``run`` calls.
     """
 
     def __init__(
         self,
         model_path: str | Path | None = None,
         *,
-        layers: Sequence[str] = DEFAULT_LAYERS,
+        layers: Sequence[str] | None = None,
         input_size: int = 160,
         grid: int = 1,
         num_threads: int | None = None,
+        backbone: str = "yolox_nano",
     ) -> None:
+        if backbone not in BACKBONES:
+            raise ValueError(f"unknown backbone {backbone!r}; registered: {', '.join(BACKBONES)}")
         if input_size < 32 or input_size % 32:
             raise ValueError(f"input_size must be a positive multiple of 32, got {input_size}")
         if grid not in (1, 2):
             raise ValueError(f"grid must be 1 or 2, got {grid}")
         if num_threads is not None and num_threads < 1:
             raise ValueError(f"num_threads must be >= 1, got {num_threads}")
-        if not layers:
+        self.spec = BACKBONES[backbone]
+        self.layers = tuple(layers) if layers is not None else self.spec.default_layers
+        if not self.layers:
             raise ValueError("layers must name at least one tensor")
-        self.layers = tuple(layers)
         self.input_size = int(input_size)
         self.grid = int(grid)
         self.num_threads = int(num_threads) if num_threads is not None else (os.cpu_count() or 1)
-        self.model_path = resolve_model_path(_MODEL_FILENAME, model_path)
-        self._tensors = [LAYERS.get(name, name) for name in self.layers]
+        self.model_path = resolve_model_path(self.spec.filename, model_path)
+        self._tensors = [self.spec.layers.get(name, name) for name in self.layers]
         self._session, self._channels = self._build_session()
 
     def __repr__(self) -> str:
         return (
-            f"{type(self).__name__}(model_path={str(self.model_path)!r}, layers={self.layers}, "
-            f"input_size={self.input_size}, grid={self.grid}, num_threads={self.num_threads})"
+            f"{type(self).__name__}(model_path={str(self.model_path)!r}, backbone={self.spec.name!r}, "
+            f"layers={self.layers}, input_size={self.input_size}, grid={self.grid}, "
+            f"num_threads={self.num_threads})"
         )
 
     @property
@@ -213,7 +394,7 @@ class BackboneFeatures:
     def _build_session(self) -> tuple[Any, list[int]]:
         import onnxruntime as ort
 
-        model = load_pruned_yolox(self.model_path, self.layers)
+        model = load_pruned_backbone(self.spec, self.model_path, self.layers, self.input_size)
         opts = ort.SessionOptions()
         opts.intra_op_num_threads = self.num_threads
         opts.inter_op_num_threads = 1
@@ -246,6 +427,9 @@ class BackboneFeatures:
                 interp = cv2.INTER_AREA if h > size or w > size else cv2.INTER_LINEAR
                 image = cv2.resize(image, (size, size), interpolation=interp)
             out[i] = image.transpose(2, 0, 1)
+        if self.spec.mean is not None and self.spec.inv_std is not None:
+            out -= np.asarray(self.spec.mean, dtype=np.float32).reshape(1, 3, 1, 1)
+            out *= np.asarray(self.spec.inv_std, dtype=np.float32).reshape(1, 3, 1, 1)
         return out
 
     def _pool(self, fmap: np.ndarray) -> np.ndarray:

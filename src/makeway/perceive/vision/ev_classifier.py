@@ -29,7 +29,7 @@ import numpy as np
 from makeway.atomic import atomic_path
 from makeway.errors import InputError
 from makeway.messages import EVObservation, Track
-from makeway.perceive.vision.backbone import DEFAULT_LAYERS, BackboneFeatures
+from makeway.perceive.vision.backbone import BACKBONES, DEFAULT_BLOCKS, BackboneFeatures, FeatureBlock
 from makeway.perceive.vision.crops import MIN_CROP_WIDTH_PX, crops_for_tracks
 
 __all__ = [
@@ -45,7 +45,7 @@ __all__ = [
 ]
 
 #: The head shipped with the package (trained on the ev_crops training part; see the model card).
-DEFAULT_MODEL = Path(__file__).resolve().parents[2] / "models" / "ev_head_yolox_logreg.npz"
+DEFAULT_MODEL = Path(__file__).resolve().parents[2] / "models" / "ev_head_logreg.npz"
 #: The seeds' small CNN at 64 px (ONNX), shipped as the fast alternative: a few points less accurate
 #: than the head, several times cheaper per crop (``docs/model_card_ev_cnn.md``).
 FAST_MODEL = Path(__file__).resolve().parents[2] / "models" / "ev_cnn_small64.onnx"
@@ -54,44 +54,67 @@ FAST_MODEL = Path(__file__).resolve().parents[2] / "models" / "ev_cnn_small64.on
 FASTEST_MODEL = Path(__file__).resolve().parents[2] / "models" / "ev_cnn_small32.onnx"
 SHIPPED_MODELS = {"default": DEFAULT_MODEL, "fast": FAST_MODEL, "fastest": FASTEST_MODEL}
 
-#: Version of the ``.npz`` layout written by :meth:`EVCropClassifier.save`.
-FORMAT_VERSION = 1
+#: Version of the ``.npz`` layout written by :meth:`EVCropClassifier.save` (1: one YOLOX-nano block,
+#: no mirroring — still read).
+FORMAT_VERSION = 2
 
 _ARRAYS = ("mean", "scale", "coef", "intercept")
-_META = ("format_version", "layers", "input_size", "threshold", "C", "training")
+_META = {1: ("layers", "input_size"), 2: ("blocks", "flip")}
+_COMMON = ("format_version", "threshold", "C", "training")
+
+
+def _model_path_for(model_path: str | Path | None, filename: str) -> Path | None:
+    """Where one backbone's ONNX file is: ``model_path`` is a folder holding the detector files, or
+    one detector file (then the other is looked for beside it)."""
+    if model_path is None:
+        return None
+    path = Path(model_path).expanduser()
+    if path.suffix.lower() == ".onnx" and path.name != filename:
+        return path.parent
+    return path
 
 
 class EVCropClassifier:
-    """YOLOX-nano backbone features + standardised logistic regression on square vehicle crops.
+    """Detector-backbone features + standardised logistic regression on square vehicle crops.
+
+    The features are the pooled feature maps of one or more :class:`FeatureBlock` s (a registered
+    detector graph, its layers, its input size; :data:`~makeway.perceive.vision.backbone.
+    DEFAULT_BLOCKS` = YOLOX-nano at 160 px + NanoDet-m at 224 px), concatenated. With ``flip`` the
+    head is trained on every crop and its mirror image, and a crop's probability is the mean of
+    its own and its mirror image's.
 
     Args:
-        layers: backbone layers (names of :data:`~makeway.perceive.vision.backbone.LAYERS`).
-        input_size: side of the square the crops are resized to (a multiple of 32).
+        blocks: feature blocks (objects or ``backbone@size:layer,layer`` strings), in order.
+        flip: mirror-image training copies and test-time averaging (module docstring).
         threshold: decision threshold of :meth:`predict` on the probability.
         Cs: inverse regularisation strengths tried by the inner 5-fold CV of :meth:`fit`.
-        model_path: ``yolox_nano.onnx`` or its folder (``None`` searches as the detectors do).
-        num_threads: ONNX Runtime threads of the feature extractor (``None``: all cores).
+        model_path: a folder holding the detector ONNX files, or one of them (the other is looked
+            for beside it); ``None`` searches as the detectors do.
+        num_threads: ONNX Runtime threads of each feature extractor (``None``: all cores).
         seed: seed of the inner CV folds.
 
-    The feature extractor is built on first use. Images are ``uint8`` BGR ``(n, H, W, 3)`` of any
-    square-ish size (they are stretched to ``input_size``).
+    The feature extractors are built on first use. Images are ``uint8`` BGR ``(n, H, W, 3)`` of
+    any square-ish size (each block stretches them to its input size); :attr:`input_size`, the
+    largest block's, is the size to load crops at.
     """
 
     def __init__(
         self,
         *,
-        layers: Sequence[str] = DEFAULT_LAYERS,
-        input_size: int = 160,
+        blocks: Sequence[FeatureBlock | str] = DEFAULT_BLOCKS,
+        flip: bool = True,
         threshold: float = 0.5,
-        Cs: Sequence[float] = (1e-4, 1e-3, 1e-2, 1e-1, 1.0),
+        Cs: Sequence[float] = (1e-3, 3e-3, 1e-2, 3e-2, 1e-1),
         model_path: str | Path | None = None,
         num_threads: int | None = None,
         seed: int = 0,
     ) -> None:
         if not 0.0 < threshold < 1.0:
             raise ValueError(f"threshold must be in (0, 1), got {threshold}")
-        self.layers = tuple(layers)
-        self.input_size = int(input_size)
+        self.blocks = tuple(b if isinstance(b, FeatureBlock) else FeatureBlock.parse(b) for b in blocks)
+        if not self.blocks:
+            raise ValueError("blocks must name at least one feature block")
+        self.flip = bool(flip)
         self.threshold = float(threshold)
         self.Cs = tuple(float(c) for c in Cs)
         self.model_path = model_path
@@ -103,45 +126,87 @@ class EVCropClassifier:
         self.scale_: np.ndarray | None = None
         self.coef_: np.ndarray | None = None
         self.intercept_: float | None = None
-        self._features: BackboneFeatures | None = None
+        self._extractors: list[BackboneFeatures] | None = None
 
     def __repr__(self) -> str:
         state = f"C={self.C:g}" if self.C is not None else "unfitted"
-        return (
-            f"{type(self).__name__}(layers={self.layers}, input_size={self.input_size}, "
-            f"threshold={self.threshold:g}, {state})"
-        )
+        blocks = ", ".join(str(b) for b in self.blocks)
+        name = type(self).__name__
+        return f"{name}(blocks=[{blocks}], flip={self.flip}, threshold={self.threshold:g}, {state})"
+
+    @property
+    def input_size(self) -> int:
+        """The size to load crops at: the largest block's input size."""
+        return max(b.input_size for b in self.blocks)
 
     # -------------------------------------------------------------------------------- features
 
     @property
-    def features(self) -> BackboneFeatures:
-        """The YOLOX-nano feature extractor (built on first use)."""
-        if self._features is None:
-            self._features = BackboneFeatures(
-                self.model_path, layers=self.layers, input_size=self.input_size, num_threads=self.num_threads
-            )
-        return self._features
+    def extractors(self) -> list[BackboneFeatures]:
+        """One feature extractor per block (built on first use)."""
+        if self._extractors is None:
+            self._extractors = [
+                BackboneFeatures(
+                    _model_path_for(self.model_path, BACKBONES[b.backbone].filename),
+                    backbone=b.backbone,
+                    layers=b.layers,
+                    input_size=b.input_size,
+                    num_threads=self.num_threads,
+                )
+                for b in self.blocks
+            ]
+        return self._extractors
 
-    def transform(self, images: np.ndarray) -> np.ndarray:
-        """Backbone features ``(n, d)`` of ``uint8`` BGR crops ``(n, H, W, 3)``."""
+    @property
+    def dim(self) -> int:
+        """Length of one feature vector."""
+        return sum(e.dim for e in self.extractors)
+
+    def transform(self, images: np.ndarray, *, mirrored: bool = False) -> np.ndarray:
+        """Features ``(n, d)`` of ``uint8`` BGR crops ``(n, H, W, 3)`` (of their mirror images with
+        ``mirrored``)."""
         arr = np.asarray(images)
         if arr.ndim != 4 or arr.shape[3] != 3 or arr.dtype != np.uint8:
             raise ValueError(f"expected uint8 BGR images (n, H, W, 3), got {arr.dtype} {arr.shape}")
         if len(arr) == 0:
-            return np.empty((0, self.features.dim), dtype=np.float32)
-        return self.features.transform(arr)
+            return np.empty((0, self.dim), dtype=np.float32)
+        if mirrored:
+            arr = np.ascontiguousarray(arr[:, :, ::-1])
+        return np.concatenate([e.transform(arr) for e in self.extractors], axis=1)
+
+    def transform_pair(self, images: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+        """``(features, mirror-image features or None)``: what :meth:`fit_features` and
+        :meth:`predict_proba_features` take; the mirror half only with :attr:`flip`."""
+        return self.transform(images), (self.transform(images, mirrored=True) if self.flip else None)
 
     # ------------------------------------------------------------------------------------- fit
 
-    def fit(self, images: np.ndarray, labels: np.ndarray, *, training: str = "") -> EVCropClassifier:
-        """Fit the head on crops and 0/1 labels; ``training`` describes the data (stored on save)."""
-        return self.fit_features(self.transform(images), labels, training=training)
+    def fit(
+        self,
+        images: np.ndarray,
+        labels: np.ndarray,
+        *,
+        groups: np.ndarray | None = None,
+        training: str = "",
+    ) -> EVCropClassifier:
+        """Fit the head on crops and 0/1 labels; ``groups`` (e.g. near-duplicate clusters) keep
+        related crops in one inner-CV fold; ``training`` describes the data (stored on save)."""
+        x, x_mirrored = self.transform_pair(images)
+        return self.fit_features(x, labels, x_mirrored=x_mirrored, groups=groups, training=training)
 
-    def fit_features(self, x: np.ndarray, labels: np.ndarray, *, training: str = "") -> EVCropClassifier:
-        """Fit the head on precomputed features ``(n, d)`` (as :meth:`transform` returns them)."""
+    def fit_features(
+        self,
+        x: np.ndarray,
+        labels: np.ndarray,
+        *,
+        x_mirrored: np.ndarray | None = None,
+        groups: np.ndarray | None = None,
+        training: str = "",
+    ) -> EVCropClassifier:
+        """Fit the head on precomputed features ``(n, d)`` (and those of the mirror images, which
+        join the training rows in the crop's inner-CV fold)."""
         from sklearn.linear_model import LogisticRegressionCV
-        from sklearn.model_selection import StratifiedKFold
+        from sklearn.model_selection import StratifiedGroupKFold
 
         x = np.asarray(x, dtype=np.float64)
         y = np.asarray(labels).astype(np.int64).ravel()
@@ -149,11 +214,19 @@ class EVCropClassifier:
             raise ValueError(f"{len(x)} feature rows but {len(y)} labels")
         if set(np.unique(y).tolist()) != {0, 1}:
             raise ValueError("labels must contain both classes 0 and 1")
+        g = np.arange(len(y)) if groups is None else np.unique(np.asarray(groups), return_inverse=True)[1]
+        if len(g) != len(y):
+            raise ValueError(f"{len(g)} groups for {len(y)} crops")
+        if x_mirrored is not None:
+            xm = np.asarray(x_mirrored, dtype=np.float64)
+            if xm.shape != x.shape:
+                raise ValueError(f"mirror-image features {xm.shape} differ from the features {x.shape}")
+            x, y, g = np.concatenate([x, xm]), np.concatenate([y, y]), np.concatenate([g, g])
         mean = x.mean(axis=0)
         scale = x.std(axis=0)
         scale[scale < 1e-12] = 1.0
         z = (x - mean) / scale
-        folds = StratifiedKFold(n_splits=5, shuffle=True, random_state=self.seed)
+        folds = list(StratifiedGroupKFold(n_splits=5, shuffle=True, random_state=self.seed).split(z, y, g))
         model = LogisticRegressionCV(Cs=list(self.Cs), cv=folds, max_iter=5000, scoring="accuracy")
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", FutureWarning)  # scikit-learn 1.8 API transition notices
@@ -180,19 +253,25 @@ class EVCropClassifier:
         result: np.ndarray = ((x - mean) / scale) @ coef + intercept
         return result
 
-    def predict_proba_features(self, x: np.ndarray) -> np.ndarray:
-        """P(emergency vehicle) ``(n,)`` of precomputed features."""
-        logit = np.clip(self.decision_function_features(x), -50.0, 50.0)
-        result: np.ndarray = 1.0 / (1.0 + np.exp(-logit))
-        return result
+    def predict_proba_features(self, x: np.ndarray, x_mirrored: np.ndarray | None = None) -> np.ndarray:
+        """P(emergency vehicle) ``(n,)`` of precomputed features; with the mirror images' features
+        too, the mean of both probabilities."""
+
+        def sigmoid(f: np.ndarray) -> np.ndarray:
+            result: np.ndarray = 1.0 / (1.0 + np.exp(-np.clip(self.decision_function_features(f), -50, 50)))
+            return result
+
+        p = sigmoid(x)
+        return p if x_mirrored is None else 0.5 * (p + sigmoid(x_mirrored))
 
     def predict_proba(self, images: np.ndarray) -> np.ndarray:
-        """P(emergency vehicle) ``(n,)`` of ``uint8`` BGR crops ``(n, H, W, 3)``.
+        """P(emergency vehicle) ``(n,)`` of ``uint8`` BGR crops ``(n, H, W, 3)`` (with :attr:`flip`,
+        the mean over the crop and its mirror image).
 
         (Unlike scikit-learn's two-column output: one probability per crop.)
         """
         self._check_fitted()
-        return self.predict_proba_features(self.transform(images))
+        return self.predict_proba_features(*self.transform_pair(images))
 
     def predict(self, images: np.ndarray) -> np.ndarray:
         """0/1 ``(n,)``: probability at or above :attr:`threshold`."""
@@ -210,8 +289,8 @@ class EVCropClassifier:
             "coef": coef.astype(np.float64),
             "intercept": np.float64(intercept),
             "format_version": np.int64(FORMAT_VERSION),
-            "layers": np.asarray(self.layers, dtype=str),
-            "input_size": np.int64(self.input_size),
+            "blocks": np.asarray([str(b) for b in self.blocks], dtype=str),
+            "flip": np.bool_(self.flip),
             "threshold": np.float64(self.threshold),
             "C": np.float64(self.C if self.C is not None else np.nan),
             "training": np.asarray(self.training, dtype=str),
@@ -224,10 +303,10 @@ class EVCropClassifier:
     def load(
         cls, path: str | Path = DEFAULT_MODEL, *, model_path: str | Path | None = None, **kwargs: Any
     ) -> EVCropClassifier:
-        """Read a head written by :meth:`save`.
+        """Read a head written by :meth:`save` (format 2, or format 1: one YOLOX-nano block).
 
-        ``model_path`` and other keyword arguments (``num_threads``) go to the constructor; layers,
-        input size and threshold come from the file.
+        ``model_path`` and other keyword arguments (``num_threads``) go to the constructor; feature
+        blocks, mirroring and threshold come from the file.
 
         Raises:
             InputError: the file is missing, not an ``.npz``, or lacks / has malformed entries
@@ -243,13 +322,16 @@ class EVCropClassifier:
             raise InputError(
                 path, f"not a readable EV classifier head .npz ({type(exc).__name__}: {exc})"
             ) from None
-        missing = [k for k in (*_ARRAYS, *_META) if k not in data]
+        missing = [k for k in (*_ARRAYS, *_COMMON) if k not in data]
         if missing:
             raise InputError(path, f"not an EV classifier head: missing {', '.join(missing)}")
         try:
             version = int(data["format_version"])
-            if version != FORMAT_VERSION:
-                raise ValueError(f"format version {version}, this makeway reads {FORMAT_VERSION}")
+            if version not in _META:
+                raise ValueError(f"format version {version}, this makeway reads {', '.join(map(str, _META))}")
+            missing = [k for k in _META[version] if k not in data]
+            if missing:
+                raise ValueError(f"format {version} but missing {', '.join(missing)}")
             mean = np.asarray(data["mean"], dtype=np.float64).ravel()
             scale = np.asarray(data["scale"], dtype=np.float64).ravel()
             coef = np.asarray(data["coef"], dtype=np.float64).ravel()
@@ -260,10 +342,16 @@ class EVCropClassifier:
                 raise ValueError("non-finite values")
             if np.any(scale <= 0):
                 raise ValueError("scale must be positive")
-            layers = tuple(str(v) for v in np.atleast_1d(data["layers"]).tolist())
+            if version == 1:
+                layers = tuple(str(v) for v in np.atleast_1d(data["layers"]).tolist())
+                blocks = [FeatureBlock("yolox_nano", layers, int(data["input_size"]))]
+                flip = False
+            else:
+                blocks = [FeatureBlock.parse(str(v)) for v in np.atleast_1d(data["blocks"]).tolist()]
+                flip = bool(data["flip"])
             clf = cls(
-                layers=layers,
-                input_size=int(data["input_size"]),
+                blocks=blocks,
+                flip=flip,
                 threshold=float(data["threshold"]),
                 model_path=model_path,
                 **kwargs,
@@ -280,8 +368,12 @@ class EVCropClassifier:
 class CropClassifier(Protocol):
     """What :class:`EVTrackClassifier` and the data engine need from a crop classifier."""
 
-    input_size: int
     threshold: float
+
+    @property
+    def input_size(self) -> int:
+        """Side of the square crops it wants."""
+        ...
 
     def predict_proba(self, images: np.ndarray) -> np.ndarray: ...
 
