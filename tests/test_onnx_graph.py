@@ -1,4 +1,4 @@
-"""The YOLOX-nano backbone as a trainable torch module (issue 3's fine-tuning transfer route)."""
+"""The detector backbones as trainable torch modules (issue 3's fine-tuning transfer route)."""
 
 from __future__ import annotations
 
@@ -14,7 +14,7 @@ from makeway.perceive.vision.backbone import BackboneFeatures  # noqa: E402
 from makeway.perceive.vision.cnn_classifier import OnnxCropClassifier  # noqa: E402
 from makeway.sense.crops import CropSet  # noqa: E402
 from makeway.train.cnn import CNNClassifier, preprocess  # noqa: E402
-from makeway.train.onnx_graph import OnnxGraph, yolox_crop_net  # noqa: E402
+from makeway.train.onnx_graph import OnnxGraph, backbone_crop_net, yolox_crop_net  # noqa: E402
 
 _SIZE = 64
 
@@ -67,8 +67,32 @@ def test_errors(tmp_path: Path, data_root: Path) -> None:
     garbage.write_bytes(b"not protobuf at all" * 20)
     with pytest.raises(InputError, match=r"yolox_nano\.onnx"):
         yolox_crop_net(64, garbage)
-    import onnx
+    from onnx import TensorProto, helper
 
-    nanodet = onnx.load(str(data_root / "models" / "nanodet_m_416.onnx"))
-    with pytest.raises(ValueError, match="not supported"):
-        OnnxGraph(nanodet, [nanodet.graph.output[0].name])
+    graph = helper.make_graph(
+        [helper.make_node("Softmax", ["x"], ["y"])],
+        "g",
+        [helper.make_tensor_value_info("x", TensorProto.FLOAT, [1, 3, 4, 4])],
+        [helper.make_tensor_value_info("y", TensorProto.FLOAT, [1, 3, 4, 4])],
+    )
+    with pytest.raises(ValueError, match="not supported by OnnxGraph: Softmax"):
+        OnnxGraph(helper.make_model(graph), ["y"])
+    with pytest.raises(ValueError, match="unknown backbone"):
+        backbone_crop_net("resnet50", 64)
+
+
+def test_nanodet_backbone_matches_onnx_runtime_and_trains(crops: CropSet, data_root: Path) -> None:
+    """NanoDet-m's ShuffleNetV2 (LeakyRelu, Split, channel-shuffle Reshape/Transpose) in torch gives the
+    frozen extractor's features, at a batch and size the export was not made for, and trains."""
+    images = crops.load_images(_SIZE)[:6]
+    reference = BackboneFeatures(
+        data_root / "models", backbone="nanodet_m", input_size=_SIZE, num_threads=1
+    ).transform(images)
+    net = backbone_crop_net("nanodet_m", _SIZE, data_root / "models").eval()
+    with torch.no_grad():
+        ours = net.features(preprocess(images, _SIZE)).numpy()
+    assert ours.shape == reference.shape == (6, 2 * (116 + 232 + 464))
+    np.testing.assert_allclose(ours, reference, rtol=1e-3, atol=2e-3)
+    clf = CNNClassifier("nanodet_ft", input_size=_SIZE, epochs=1, batch_size=16, lr=1e-5, num_threads=1)
+    clf.fit(crops.load_images(_SIZE), crops.labels, training="32 ev_crops")
+    assert len(clf.history) == 1 and np.isfinite(clf.history[0]["train_loss"])

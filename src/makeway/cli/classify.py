@@ -27,9 +27,10 @@ Commands:
   backbone features of each crop and its mirror image + standardised logistic regression) and
   write it as ``.npz`` (default: the shipped ``makeway/models/ev_head_logreg.npz``). On ev_crops
   only the training part is used, and the held-out metrics are printed as a JSON line.
-  ``--arch resnet18|small_cnn|yolox_ft`` trains a CNN of SPEC §1 instead (:mod:`makeway.train.cnn`,
-  torch; ``--input-size``, ``--width``, ``--epochs``, ``--lr``, ``--pretrained FILE``, …;
-  ``yolox_ft`` is the YOLOX-nano backbone itself, linear probe then fine-tuned,
+  ``--arch resnet18|small_cnn|yolox_ft|nanodet_ft`` trains a CNN of SPEC §1 instead
+  (:mod:`makeway.train.cnn`, torch; ``--input-size``, ``--width``, ``--epochs``, ``--lr``,
+  ``--pretrained FILE``, …; ``yolox_ft`` / ``nanodet_ft`` is a detector's backbone itself, linear
+  probe then fine-tuned,
   :mod:`makeway.train.onnx_graph`): writes ``OUT.onnx`` + the checkpoint
   ``OUT.pt`` and scores the held-out part through ONNX Runtime.
 * ``export CHECKPOINT --out FILE.onnx`` — export a CNN checkpoint to ONNX (dynamic batch axis,
@@ -376,8 +377,8 @@ def _train_cnn(
     threads: int,
     progress: bool,
 ) -> None:
-    """``classify train --arch resnet18|small_cnn|yolox_ft``: fit, write OUT (.onnx) + its .pt checkpoint,
-    score the committed ev_crops holdout through ONNX Runtime (torch imported here only)."""
+    """``classify train --arch resnet18|small_cnn|yolox_ft|nanodet_ft``: fit, write OUT (.onnx) + its .pt
+    checkpoint, score the committed ev_crops holdout through ONNX Runtime (torch imported here only)."""
     from makeway.perceive.vision.cnn_classifier import OnnxCropClassifier
     from makeway.sense.crops import near_duplicate_groups, read_crop_folder
     from makeway.train.cnn import ARCHS, Augment, CNNClassifier
@@ -478,8 +479,8 @@ def train(
         str,
         typer.Option(
             help="logreg (pooled detector-backbone features, --block, + logistic head); CNNs: resnet18, "
-            "small_cnn, or yolox_ft "
-            "(the YOLOX-nano backbone fine-tuned, after a linear probe; --input-size a multiple of 32)."
+            "small_cnn, or yolox_ft / nanodet_ft "
+            "(a detector's backbone fine-tuned after a linear probe; --input-size a multiple of 32)."
         ),
     ] = "logreg",
     pretrained: Annotated[

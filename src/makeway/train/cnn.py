@@ -14,6 +14,8 @@ runs the exported ONNX file through :class:`~makeway.perceive.vision.cnn_classif
   no pretrained weights; the models are trained from scratch.
 * :func:`small_cnn` — the seeds' CNN of the classifier study: three blocks of 3×3 conv + ReLU +
   2×2 max-pool, a dense ReLU layer, one sigmoid unit (logit here; sigmoid at export).
+* ``yolox_ft`` / ``nanodet_ft`` — a COCO detector's own backbone, fine-tuned
+  (:func:`makeway.train.onnx_graph.backbone_crop_net`).
 
 **Input**: RGB ``float32`` ``(n, 3, S, S)``, ``(pixel / 255 - mean) / std`` with ImageNet's
 mean/std (:data:`MEAN_RGB`, :data:`STD_RGB`; what torchvision's pretrained weights expect). The
@@ -253,14 +255,15 @@ def small_cnn(input_size: int = 128, width: int = 16, hidden: int = 64) -> Small
 ARCHS: dict[str, Callable[[int, int], nn.Module]] = {
     "resnet18": lambda input_size, width: resnet18_binary(width),
     "small_cnn": lambda input_size, width: small_cnn(input_size, width),
-    "yolox_ft": lambda input_size, width: _yolox_ft(input_size),
+    "yolox_ft": lambda input_size, width: _backbone_ft("yolox_nano", input_size),
+    "nanodet_ft": lambda input_size, width: _backbone_ft("nanodet_m", input_size),
 }
 
 
-def _yolox_ft(input_size: int) -> nn.Module:
-    from makeway.train.onnx_graph import yolox_crop_net
+def _backbone_ft(backbone: str, input_size: int) -> nn.Module:
+    from makeway.train.onnx_graph import backbone_crop_net
 
-    return yolox_crop_net(input_size)
+    return backbone_crop_net(backbone, input_size)
 
 
 def build_model(arch: str, input_size: int, width: int) -> nn.Module:

@@ -1,26 +1,29 @@
-"""Fine-tuning the COCO detector's backbone on crops: an ONNX graph as a trainable torch module (issue 3).
+"""Fine-tuning a COCO detector's backbone on crops: an ONNX graph as a trainable torch module (issue 3).
 
-The issue's transfer route without ImageNet weights (SPEC §1): YOLOX-nano (on disk as ONNX only)
-learnt vehicle appearance on COCO. :mod:`makeway.perceive.vision.backbone` uses its feature maps
-frozen, with a linear head. Here the same pruned graph becomes an :class:`torch.nn.Module`
-(:class:`OnnxGraph`) whose convolution weights are :class:`~torch.nn.Parameter` s, so the whole
-backbone can be trained on the crops and exported back to ONNX as one file.
+The issue's transfer route without ImageNet weights (SPEC §1): YOLOX-nano and NanoDet-m (on disk
+as ONNX only) learnt vehicle appearance on COCO. :mod:`makeway.perceive.vision.backbone` uses their
+feature maps frozen, with a linear head. Here the same pruned graph becomes an
+:class:`torch.nn.Module` (:class:`OnnxGraph`) whose convolution weights are
+:class:`~torch.nn.Parameter` s, so the whole backbone can be trained on the crops and exported back
+to ONNX as one file.
 
-:class:`OnnxGraph` interprets a small set of ONNX operators — exactly those in the YOLOX-nano
-backbone and PAN (``Conv`` with batch-norm folded in, ``Sigmoid``, ``Mul``, ``Add``, ``Concat``,
-``Slice`` with constant bounds (the Focus stem), ``MaxPool`` (SPP) and nearest ``Resize``) — and
-raises :class:`ValueError` naming any other. Node order is the graph's (ONNX requires it to be
-topological).
+:class:`OnnxGraph` interprets a small set of ONNX operators — exactly those in the two backbones
+(``Conv`` with batch-norm folded in, ``Sigmoid``, ``Mul``, ``Add``, ``Concat``, ``Slice`` with
+constant bounds (YOLOX's Focus stem), ``MaxPool``, nearest ``Resize``, and for NanoDet's
+ShuffleNetV2 ``LeakyRelu``, ``Split`` with sizes and the channel shuffle's constant ``Reshape`` +
+``Transpose``) — and raises :class:`ValueError` naming any other. Node order is the graph's (ONNX
+requires it to be topological).
 
-:class:`YoloxCropNet` puts it together for :class:`~makeway.train.cnn.CNNClassifier`
-(``arch="yolox_ft"``):
+:class:`BackboneCropNet` puts it together for :class:`~makeway.train.cnn.CNNClassifier`
+(``arch="yolox_ft"`` or ``"nanodet_ft"``, :func:`backbone_crop_net`):
 
 * input: the CNN convention of :mod:`makeway.train.cnn` (RGB, ImageNet mean/std), turned back
-  inside the network into what YOLOX expects (BGR, raw 0–255), so the exported file runs through
+  inside the network into what the detector expects (BGR 0–255, NanoDet: normalised by its own
+  mean/std), so the exported file runs through
   :class:`~makeway.perceive.vision.cnn_classifier.OnnxCropClassifier` like any other crop CNN;
-* the tensors :data:`~makeway.perceive.vision.backbone.DEFAULT_LAYERS` (``dark4``, ``dark5``,
-  ``pan5``, the layers the frozen head chose by cross-validation), each pooled by global average
-  and global max → batch norm → dropout → one linear unit (logit).
+* the backbone's default layers (YOLOX: ``dark4``, ``dark5``, ``pan5``; NanoDet: ``stage2..4``),
+  each pooled by global average and global max → batch norm → dropout → one linear unit (logit),
+  started from the frozen features' logistic regression ("linear probe, then fine-tune").
 """
 
 from __future__ import annotations
@@ -36,10 +39,15 @@ from torch import nn
 
 from makeway.errors import InputError
 
-__all__ = ["SUPPORTED_OPS", "OnnxGraph", "YoloxCropNet", "yolox_crop_net"]
+__all__ = ["SUPPORTED_OPS", "BackboneCropNet", "OnnxGraph", "backbone_crop_net", "yolox_crop_net"]
 
 #: ONNX operator types :class:`OnnxGraph` can run.
-SUPPORTED_OPS = frozenset({"Conv", "Sigmoid", "Mul", "Add", "Concat", "Slice", "MaxPool", "Resize"})
+SUPPORTED_OPS = frozenset(
+    {
+        "Conv", "Sigmoid", "Mul", "Add", "Concat", "Slice", "MaxPool", "Resize",
+        "LeakyRelu", "Reshape", "Transpose", "Split",
+    }
+)  # fmt: skip
 
 
 def _attrs(node: Any) -> dict[str, Any]:
@@ -78,7 +86,7 @@ class OnnxGraph(nn.Module):
         consts = {i.name: numpy_helper.to_array(i) for i in graph.initializer}
         self.weights = nn.ParameterDict()
         self._keys: dict[str, str] = {}
-        self._steps: list[tuple[str, tuple[str, ...], str, dict[str, Any]]] = []
+        self._steps: list[tuple[str, tuple[str, ...], tuple[str, ...], dict[str, Any]]] = []
         unsupported = sorted({n.op_type for n in graph.node} - SUPPORTED_OPS)
         if unsupported:
             raise ValueError(f"ONNX operators not supported by OnnxGraph: {', '.join(unsupported)}")
@@ -95,13 +103,13 @@ class OnnxGraph(nn.Module):
                     "dilation": tuple(attrs.get("dilations", (1, 1))),
                     "groups": int(attrs.get("group", 1)),
                 }
-                self._steps.append(("Conv", tuple(node.input), node.output[0], spec))
+                self._steps.append(("Conv", tuple(node.input), tuple(node.output), spec))
             elif node.op_type == "Slice":
                 starts, ends, axes, steps = (
                     consts[name].astype(np.int64).tolist() for name in node.input[1:5]
                 )
                 spec = {"slices": list(zip(axes, starts, ends, steps, strict=True))}
-                self._steps.append(("Slice", (node.input[0],), node.output[0], spec))
+                self._steps.append(("Slice", (node.input[0],), tuple(node.output), spec))
             elif node.op_type == "MaxPool":
                 ph, pw = _symmetric_pads(attrs.get("pads", []), where)
                 if attrs.get("ceil_mode", 0):
@@ -111,20 +119,37 @@ class OnnxGraph(nn.Module):
                     "stride": tuple(attrs.get("strides", (1, 1))),
                     "padding": (ph, pw),
                 }
-                self._steps.append(("MaxPool", (node.input[0],), node.output[0], spec))
+                self._steps.append(("MaxPool", (node.input[0],), tuple(node.output), spec))
             elif node.op_type == "Resize":
                 if attrs.get("mode", b"nearest") not in (b"nearest", "nearest"):
                     raise ValueError(f"{where}: only nearest resizing is supported")
                 scales = consts[node.input[2]].tolist() if len(node.input) > 2 else []
                 if len(scales) != 4 or scales[:2] != [1.0, 1.0] or scales[2] != scales[3]:
                     raise ValueError(f"{where}: only constant equal spatial scales are supported")
-                self._steps.append(("Resize", (node.input[0],), node.output[0], {"scale": float(scales[2])}))
+                self._steps.append(
+                    ("Resize", (node.input[0],), tuple(node.output), {"scale": float(scales[2])})
+                )
             elif node.op_type == "Concat":
                 self._steps.append(
-                    ("Concat", tuple(node.input), node.output[0], {"axis": int(attrs["axis"])})
+                    ("Concat", tuple(node.input), tuple(node.output), {"axis": int(attrs["axis"])})
                 )
+            elif node.op_type == "Reshape":  # 0 copies the input's dim (the batch), as ONNX says
+                shape = consts[node.input[1]].astype(np.int64).tolist()
+                self._steps.append(("Reshape", (node.input[0],), tuple(node.output), {"shape": shape}))
+            elif node.op_type == "Transpose":
+                perm = [int(v) for v in attrs["perm"]]
+                self._steps.append(("Transpose", (node.input[0],), tuple(node.output), {"perm": perm}))
+            elif node.op_type == "Split":
+                sizes = [int(v) for v in attrs.get("split", [])]
+                if not sizes:
+                    raise ValueError(f"{where}: only splits with explicit sizes are supported")
+                spec = {"axis": int(attrs.get("axis", 0)), "sizes": sizes}
+                self._steps.append(("Split", (node.input[0],), tuple(node.output), spec))
+            elif node.op_type == "LeakyRelu":
+                spec = {"alpha": float(attrs.get("alpha", 0.01))}
+                self._steps.append(("LeakyRelu", (node.input[0],), tuple(node.output), spec))
             else:  # Sigmoid, Mul, Add
-                self._steps.append((node.op_type, tuple(node.input), node.output[0], {}))
+                self._steps.append((node.op_type, tuple(node.input), tuple(node.output), {}))
 
     def _param(self, name: str, value: np.ndarray) -> None:
         key = "".join(c if c.isalnum() or c == "_" else "_" for c in name)
@@ -134,7 +159,13 @@ class OnnxGraph(nn.Module):
     def forward(self, x: torch.Tensor) -> list[torch.Tensor]:
         env: dict[str, torch.Tensor] = {self.input_name: x}
         w = self.weights
-        for op, inputs, output, spec in self._steps:
+        for op, inputs, outputs, spec in self._steps:
+            if op == "Split":
+                for name, part in zip(
+                    outputs, torch.split(env[inputs[0]], spec["sizes"], spec["axis"]), strict=True
+                ):
+                    env[name] = part
+                continue
             if op == "Conv":
                 bias = w[self._keys[inputs[2]]] if len(inputs) > 2 and inputs[2] else None
                 out = nnf.conv2d(env[inputs[0]], w[self._keys[inputs[1]]], bias, **spec)
@@ -154,19 +185,36 @@ class OnnxGraph(nn.Module):
                     out = out[tuple(index)]
             elif op == "MaxPool":
                 out = nnf.max_pool2d(env[inputs[0]], **spec)
+            elif op == "LeakyRelu":
+                out = nnf.leaky_relu(env[inputs[0]], spec["alpha"])
+            elif op == "Reshape":
+                src = env[inputs[0]]
+                out = src.reshape([src.shape[i] if d == 0 else d for i, d in enumerate(spec["shape"])])
+            elif op == "Transpose":
+                out = env[inputs[0]].permute(spec["perm"])
             else:  # Resize
                 out = nnf.interpolate(env[inputs[0]], scale_factor=spec["scale"], mode="nearest")
-            env[output] = out
+            env[outputs[0]] = out
         return [env[name] for name in self.outputs]
 
 
-class YoloxCropNet(nn.Module):
-    """YOLOX-nano backbone (trainable) → pooled layers → batch norm → dropout → one logit.
+class BackboneCropNet(nn.Module):
+    """A detector backbone (trainable) → pooled layers → batch norm → dropout → one logit.
 
     Input: normalised RGB ``(n, 3, S, S)`` as in :mod:`makeway.train.cnn`; ``S`` a multiple of 32.
+    Inside, it is turned back into what the detector expects (BGR 0–255, normalised by the
+    backbone's mean and standard deviation where it has them).
     """
 
-    def __init__(self, graph: OnnxGraph, channels: Sequence[int], dropout: float = 0.2) -> None:
+    def __init__(
+        self,
+        graph: OnnxGraph,
+        channels: Sequence[int],
+        dropout: float = 0.2,
+        *,
+        bgr_mean: Sequence[float] | None = None,
+        bgr_inv_std: Sequence[float] | None = None,
+    ) -> None:
         from makeway.train.cnn import MEAN_RGB, STD_RGB
 
         super().__init__()
@@ -177,10 +225,16 @@ class YoloxCropNet(nn.Module):
         self.fc = nn.Linear(dim, 1)
         self.mean: torch.Tensor
         self.std: torch.Tensor
+        self.bgr_mean: torch.Tensor
+        self.bgr_inv_std: torch.Tensor
         self.register_buffer("mean", torch.tensor(MEAN_RGB).view(1, 3, 1, 1) * 255.0)
         self.register_buffer("std", torch.tensor(STD_RGB).view(1, 3, 1, 1) * 255.0)
+        self.register_buffer("bgr_mean", torch.tensor(list(bgr_mean or (0.0, 0.0, 0.0))).view(1, 3, 1, 1))
+        self.register_buffer(
+            "bgr_inv_std", torch.tensor(list(bgr_inv_std or (1.0, 1.0, 1.0))).view(1, 3, 1, 1)
+        )
 
-    def train(self, mode: bool = True) -> YoloxCropNet:
+    def train(self, mode: bool = True) -> BackboneCropNet:
         """As :meth:`torch.nn.Module.train`, but the head's batch norm keeps the statistics
         :meth:`linear_probe` set (it stays in eval mode)."""
         super().train(mode)
@@ -189,8 +243,8 @@ class YoloxCropNet(nn.Module):
 
     def features(self, x: torch.Tensor) -> torch.Tensor:
         """Pooled backbone features ``(n, 2·ΣC)`` (average then max per layer, the frozen head's)."""
-        raw_bgr = (x * self.std + self.mean).flip(1)
-        maps = self.backbone(raw_bgr)
+        bgr = (x * self.std + self.mean).flip(1)
+        maps = self.backbone((bgr - self.bgr_mean) * self.bgr_inv_std)
         return torch.cat([torch.cat([m.mean(dim=(2, 3)), m.amax(dim=(2, 3))], dim=1) for m in maps], dim=1)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
@@ -220,32 +274,54 @@ class YoloxCropNet(nn.Module):
         self.train(was_training)
 
 
+def backbone_crop_net(
+    backbone: str = "yolox_nano",
+    input_size: int = 160,
+    model_path: str | Path | None = None,
+    layers: Sequence[str] | None = None,
+    dropout: float = 0.2,
+) -> BackboneCropNet:
+    """:class:`BackboneCropNet` from a registered detector's ONNX file on disk (its COCO weights as
+    the start; :data:`~makeway.perceive.vision.backbone.BACKBONES`).
+
+    Raises:
+        InputError: the model file is missing or is not the graph the backbone spec knows.
+        ValueError: unknown backbone, or ``input_size`` is not a positive multiple of 32.
+    """
+    from makeway.perceive.vision.backbone import BACKBONES, load_pruned_backbone
+    from makeway.perceive.vision.detectors import resolve_model_path
+
+    if backbone not in BACKBONES:
+        raise ValueError(f"unknown backbone {backbone!r}; registered: {', '.join(BACKBONES)}")
+    if input_size < 32 or input_size % 32:
+        raise ValueError(
+            f"input_size must be a positive multiple of 32 for a detector backbone, got {input_size}"
+        )
+    spec = BACKBONES[backbone]
+    path = resolve_model_path(spec.filename, model_path)
+    names = tuple(layers or spec.default_layers)
+    model = load_pruned_backbone(spec, path, names, input_size)
+    try:
+        graph = OnnxGraph(model, [spec.layers.get(n, n) for n in names])
+    except ValueError as exc:
+        raise InputError(path, str(exc)) from None
+    probe = torch.full((1, 3, input_size, input_size), 114.0)
+    if spec.mean is not None and spec.inv_std is not None:
+        probe = (probe - torch.tensor(spec.mean).view(1, 3, 1, 1)) * torch.tensor(spec.inv_std).view(
+            1, 3, 1, 1
+        )
+    with torch.no_grad():
+        outs = graph(probe)
+    return BackboneCropNet(
+        graph, [int(o.shape[1]) for o in outs], dropout=dropout, bgr_mean=spec.mean, bgr_inv_std=spec.inv_std
+    )
+
+
 def yolox_crop_net(
     input_size: int = 160,
     model_path: str | Path | None = None,
     layers: Sequence[str] | None = None,
     dropout: float = 0.2,
-) -> YoloxCropNet:
-    """:class:`YoloxCropNet` from the YOLOX-nano ONNX file on disk (COCO weights as the start).
-
-    Raises:
-        InputError: the model file is missing or is not the YOLOX-nano graph.
-        ValueError: ``input_size`` is not a positive multiple of 32.
-    """
-    from makeway.perceive.vision.backbone import DEFAULT_LAYERS, LAYERS, load_pruned_yolox
-    from makeway.perceive.vision.detectors import resolve_model_path
-
-    if input_size < 32 or input_size % 32:
-        raise ValueError(
-            f"input_size must be a positive multiple of 32 for the YOLOX backbone, got {input_size}"
-        )
-    path = resolve_model_path("yolox_nano.onnx", model_path)
-    names = tuple(layers or DEFAULT_LAYERS)
-    model = load_pruned_yolox(path, names)
-    try:
-        graph = OnnxGraph(model, [LAYERS.get(n, n) for n in names])
-    except ValueError as exc:
-        raise InputError(path, str(exc)) from None
-    with torch.no_grad():
-        outs = graph(torch.full((1, 3, input_size, input_size), 114.0))
-    return YoloxCropNet(graph, [int(o.shape[1]) for o in outs], dropout=dropout)
+) -> BackboneCropNet:
+    """:func:`backbone_crop_net` of YOLOX-nano (``--arch yolox_ft``)."""
+    return backbone_crop_net("yolox_nano", input_size, model_path, layers, dropout)
