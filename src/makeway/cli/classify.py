@@ -356,6 +356,43 @@ def _metrics(probs: np.ndarray, labels: np.ndarray, threshold: float) -> dict[st
     }
 
 
+def _teacher_targets(
+    pools: list[Path], teacher: str, input_size: int, held_out: list[Any], progress: bool
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, str]:
+    """Distillation data: the crops of unlabelled ``pools`` at ``input_size`` with the ``teacher``'s
+    probabilities (soft targets) and decisions, leaving out crops that are near-duplicates of a
+    held-out crop (they would leak the test set into training). Returns ``(images, probabilities,
+    labels, description)``."""
+    from makeway.perceive.vision.ev_classifier import SHIPPED_MODELS, load_crop_classifier
+    from makeway.perceive.vision.mining import list_pool, score_pool
+    from makeway.progress import progress_bar
+    from makeway.sense.crops import CropSet, near_duplicates_of
+
+    files = [f for pool in pools for f in list_pool(pool)]  # every pool checked before any work
+    model = load_crop_classifier(SHIPPED_MODELS.get(teacher.strip().lower(), Path(teacher)))
+    with progress_bar(
+        "teacher on the unlabelled crops", len(files), enabled=progress, unit="crops"
+    ) as advance:
+        paths, probs, unreadable = score_pool(files, model, advance=advance)
+    crops = CropSet(paths=tuple(paths), labels=np.zeros(len(paths), dtype=np.int64))
+    reference = [test.load_images(64, cache=False) for test in held_out]
+    leak = (
+        near_duplicates_of(crops.load_images(64, cache=False), np.concatenate(reference))
+        if reference and len(crops)
+        else np.zeros(len(crops), dtype=bool)
+    )
+    keep = np.flatnonzero(~leak)
+    labels = (probs[keep] >= model.threshold).astype(np.int64)
+    note = (
+        f"unlabelled {', '.join(p.name for p in pools)}: {len(keep)} crops with soft targets from the "
+        f"teacher {teacher} ({int(labels.sum())} judged EV; {int(leak.sum())} near-duplicates of held-out "
+        f"crops and {len(unreadable)} unreadable files left out)"
+    )
+    err_console.print(note, highlight=False)
+    images = crops.subset(keep).load_images(input_size, cache=False)
+    return images, probs[keep].astype(np.float64), labels, note
+
+
 def _train_cnn(
     data: list[Path],
     out: Path,
@@ -376,6 +413,8 @@ def _train_cnn(
     neg_downsample: int,
     threads: int,
     progress: bool,
+    unlabelled: list[Path] | None = None,
+    teacher: str = "default",
 ) -> None:
     """``classify train --arch resnet18|small_cnn|yolox_ft|nanodet_ft``: fit, write OUT (.onnx) + its .pt
     checkpoint, score the committed ev_crops holdout through ONNX Runtime (torch imported here only)."""
@@ -425,6 +464,17 @@ def _train_cnn(
         xs.append(images)
         ys.append(crops.labels)
         gs.append(np.asarray([f"{k}:{g}" for g in groups]))
+    soft: np.ndarray | None = None
+    if unlabelled:
+        soft = np.concatenate([np.full(len(y), np.nan) for y in ys])
+        pool_images, pool_probs, pool_labels, note = _teacher_targets(
+            unlabelled, teacher, input_size, [test for test, _ in held], progress
+        )
+        xs.append(pool_images)
+        ys.append(pool_labels)
+        gs.append(np.asarray([f"pool:{i}" for i in range(len(pool_labels))]))
+        soft = np.concatenate([soft, pool_probs])
+        parts.append(note)
 
     def show(row: dict[str, float]) -> None:
         if progress:
@@ -437,6 +487,7 @@ def _train_cnn(
         np.concatenate(xs),
         np.concatenate(ys),
         np.concatenate(gs),
+        soft_targets=soft,
         training="; ".join(parts),
         progress=progress,
         on_epoch=show,
@@ -511,6 +562,16 @@ def train(
     flip: Annotated[
         bool, typer.Option(help="logreg: train on mirror images too; judge a crop by it and its mirror.")
     ] = True,
+    unlabelled: Annotated[
+        list[Path] | None,
+        typer.Option(
+            help="CNNs: folder of unlabelled crops (repeat) trained on the --teacher's probabilities "
+            "(distillation); crops copying a held-out crop are left out.",
+        ),
+    ] = None,
+    teacher: Annotated[
+        str, typer.Option(help="CNNs: the model judging --unlabelled: default|fast|fastest or a file.")
+    ] = "default",
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")] = False,
 ) -> None:
     """Train an EV crop classifier: the detector-backbone features + logistic head (default) or a CNN of
@@ -539,6 +600,8 @@ def train(
             neg_downsample=neg_downsample,
             threads=threads,
             progress=not quiet,
+            unlabelled=unlabelled,
+            teacher=teacher,
         )
         return
     from makeway.perceive.vision.backbone import DEFAULT_BLOCKS, FeatureBlock

@@ -57,6 +57,7 @@ __all__ = [
     "holdout_split",
     "names_fingerprint",
     "near_duplicate_groups",
+    "near_duplicates_of",
     "read_crop_folder",
     "read_holdout",
     "read_yolo_set",
@@ -436,6 +437,19 @@ def thumbnail_signatures(images: np.ndarray, side: int = 32) -> tuple[np.ndarray
     return norm(thumbs), norm(thumbs[:, :, ::-1])
 
 
+def _near_duplicate_links(images: np.ndarray, others: np.ndarray, min_correlation: float) -> np.ndarray:
+    """``(n, m)`` bool: image i of ``images`` and image j of ``others`` are near-duplicates (the rule
+    of :func:`near_duplicate_groups`)."""
+    sig, mirrored = thumbnail_signatures(images)
+    other_sig, _ = thumbnail_signatures(others)
+    corr = np.maximum(sig @ other_sig.T, mirrored @ other_sig.T)
+    a = average_hash(images).astype(np.float64)
+    b = average_hash(others).astype(np.float64)
+    same_hash = (a @ b.T + (1 - a) @ (1 - b).T) >= 64
+    linked: np.ndarray = (corr >= min_correlation) | same_hash
+    return linked
+
+
 def near_duplicate_groups(images: np.ndarray, *, min_correlation: float = 0.85) -> np.ndarray:
     """Cluster ids ``(n,)`` that put near-duplicate images together.
 
@@ -446,15 +460,21 @@ def near_duplicate_groups(images: np.ndarray, *, min_correlation: float = 0.85) 
     links unrelated crops from a Hamming distance of 2 on); 0.85 keeps the largest cluster at 7.
     O(n²) memory in float64: fine for a few thousand crops.
     """
-    sig, mirrored = thumbnail_signatures(images)
-    corr = np.maximum(sig @ sig.T, sig @ mirrored.T)
-    hashes = average_hash(images).astype(np.float64)
-    same_hash = (hashes @ hashes.T + (1 - hashes) @ (1 - hashes).T) >= 64
-    linked = (corr >= min_correlation) | same_hash
+    linked = _near_duplicate_links(images, images, min_correlation)
     i, j = np.nonzero(linked)
-    graph = coo_matrix((np.ones(len(i), dtype=np.int8), (i, j)), shape=(len(sig), len(sig)))
+    graph = coo_matrix((np.ones(len(i), dtype=np.int8), (i, j)), shape=(len(images), len(images)))
     _, ids = connected_components(graph, directed=False)
     return ids.astype(np.int64)
+
+
+def near_duplicates_of(
+    images: np.ndarray, reference: np.ndarray, *, min_correlation: float = 0.85
+) -> np.ndarray:
+    """``(n,)`` bool: which of ``images`` is a near-duplicate of some image of ``reference`` (the
+    rule of :func:`near_duplicate_groups`), e.g. pool crops that copy a held-out crop."""
+    if len(images) == 0 or len(reference) == 0:
+        return np.zeros(len(images), dtype=bool)
+    return np.asarray(_near_duplicate_links(images, reference, min_correlation).any(axis=1), dtype=bool)
 
 
 def split_holdout(

@@ -90,6 +90,7 @@ __all__ = [
     "preprocess",
     "resnet18_binary",
     "small_cnn",
+    "validation_split",
 ]
 
 #: ImageNet mean / std of RGB pixels scaled to [0, 1] (what torchvision's pretrained weights expect).
@@ -497,6 +498,29 @@ def preprocess(images: np.ndarray, size: int) -> torch.Tensor:
 # ----------------------------------------------------------------------------------------- trainer
 
 
+def validation_split(
+    labels: np.ndarray,
+    groups: Sequence[Any] | np.ndarray | None,
+    fraction: float,
+    seed: int,
+    *,
+    labelled: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """``(train_idx, validation_idx)`` for :meth:`CNNClassifier.fit`: ``fraction`` of the crops by
+    source group (:func:`makeway.sense.crops.split_holdout`), drawn from the ``labelled`` crops only
+    (crops with teacher targets always train). ``fraction = 0``: no validation part."""
+    from makeway.sense.crops import CropSet, split_holdout
+
+    y = np.asarray(labels)
+    own = np.arange(len(y)) if labelled is None else np.flatnonzero(labelled)
+    if fraction <= 0 or groups is None:
+        return np.arange(len(y)), np.zeros(0, dtype=np.int64)
+    fake = CropSet(paths=tuple(Path(str(i)) for i in own), labels=y[own])
+    tr_own, va_own = split_holdout(fake, fraction, seed, groups=np.asarray(groups)[own])
+    rest = np.setdiff1d(np.arange(len(y)), own)
+    return np.sort(np.concatenate([own[tr_own], rest])).astype(np.int64), own[va_own]
+
+
 class CNNClassifier:
     """Trainable crop CNN (scikit-learn style; SPEC §1). Images are uint8 BGR ``(n, H, W, 3)``.
 
@@ -606,14 +630,19 @@ class CNNClassifier:
         labels: np.ndarray,
         groups: Sequence[Any] | np.ndarray | None = None,
         *,
+        soft_targets: np.ndarray | None = None,
         training: str = "",
         progress: bool = False,
         on_epoch: Callable[[dict[str, float]], Any] | None = None,
     ) -> CNNClassifier:
         """Train on crops and 0/1 labels; ``groups`` (source per crop) keep the validation split honest
-        (``None``: near-duplicate clusters). ``training`` describes the data (stored on save)."""
+        (``None``: near-duplicate clusters). ``training`` describes the data (stored on save).
+
+        ``soft_targets`` (distillation): a target probability per crop, NaN where the hard label is
+        the target. Crops with a soft target — a teacher's judgement of an unlabelled crop — are
+        trained on it (their ``labels``, the teacher's decision, only choose box jitter and
+        sampling) and never enter the validation part, which stays labelled crops only."""
         from makeway.progress import progress_bar
-        from makeway.sense.crops import CropSet, split_holdout
 
         y = np.asarray(labels).astype(np.int64).ravel()
         if len(y) != len(images):
@@ -626,17 +655,24 @@ class CNNClassifier:
             torch.manual_seed(self.seed)
             gen = torch.Generator().manual_seed(self.seed)
             rng = np.random.default_rng(self.seed)
-            x_all = _to_unit_rgb(images, self.input_size)
-            if self.val_fraction > 0:
-                if groups is None:
-                    from makeway.sense.crops import near_duplicate_groups
-
-                    groups = near_duplicate_groups(_resize_batch(images, 64))
-                fake = CropSet(paths=tuple(Path(str(i)) for i in range(len(y))), labels=y)
-                tr, va = split_holdout(fake, self.val_fraction, self.seed, groups=groups)
+            target = y.astype(np.float32)
+            if soft_targets is not None:
+                soft = np.asarray(soft_targets, dtype=np.float32).ravel()
+                if len(soft) != len(y):
+                    raise ValueError(f"{len(soft)} soft targets for {len(y)} crops")
+                if np.any((soft < 0) | (soft > 1)):
+                    raise ValueError("soft targets must be probabilities in [0, 1] (or NaN)")
+                target = np.where(np.isnan(soft), target, soft)
+                labelled = np.isnan(soft)
             else:
-                tr, va = np.arange(len(y)), np.zeros(0, dtype=np.int64)
-            x_tr, y_tr = x_all[tr], y[tr]
+                labelled = np.ones(len(y), dtype=bool)
+            x_all = _to_unit_rgb(images, self.input_size)
+            if self.val_fraction > 0 and groups is None:
+                from makeway.sense.crops import near_duplicate_groups
+
+                groups = near_duplicate_groups(_resize_batch(images, 64))
+            tr, va = validation_split(y, groups, self.val_fraction, self.seed, labelled=labelled)
+            x_tr, y_tr, t_tr = x_all[tr], y[tr], target[tr]
             x_va, y_va = _normalise(x_all[va]), torch.from_numpy(y[va]).float()
             model = self.new_model()
             probe = getattr(model, "linear_probe", None)
@@ -663,7 +699,7 @@ class CNNClassifier:
                             continue
                         yb = torch.from_numpy(y_tr).float()[idx]
                         xb = _normalise(self.augment(x_tr[idx], yb, gen))
-                        loss = focal_loss(model(xb), yb, self.gamma, self.alpha)
+                        loss = focal_loss(model(xb), torch.from_numpy(t_tr)[idx], self.gamma, self.alpha)
                         opt.zero_grad()
                         loss.backward()
                         opt.step()
