@@ -78,6 +78,7 @@ def test_nanodet_features_at_other_sizes_and_batches(data_root: Path, ev_crops: 
     assert x.shape == (5, ext.dim) and np.all(np.isfinite(x)) and not np.allclose(x[0], x[1])
     single = np.concatenate([ext.transform(images[i : i + 1]) for i in range(5)])
     assert np.allclose(x, single, rtol=1e-4, atol=1e-4)
+    assert np.allclose(FEATURES["nanodet"](images), x, rtol=1e-4, atol=1e-4)  # the study's feature
     # At the export's own 416 px and batch 1, the rewritten graph equals the export pruned as it is.
     import onnx
 

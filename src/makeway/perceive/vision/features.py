@@ -15,6 +15,7 @@ rgb_hist   32768   3-D colour histogram, 32 bins per channel (OpenCV ``calcHist`
 hsv8       8       the custom red/blue light vector (:func:`hsv_red_blue`)
 yolox      1280    pooled YOLOX-nano feature maps (:mod:`makeway.perceive.vision.backbone`; needs
                    ``yolox_nano.onnx`` and the ``onnx`` package; the extractor is built on first use)
+nanodet    1624    pooled NanoDet-m ShuffleNetV2 stages at 224 px (same module; ``nanodet_m_416.onnx``)
 =========  ======  ==================================================================================
 
 ``hsv8`` per colour *c* of the colour set (default: blue, red): area of the colour's HSV mask and
@@ -51,6 +52,7 @@ __all__ = [
     "hog_features",
     "hsv_feature_names",
     "hsv_red_blue",
+    "nanodet_backbone",
     "pixels",
     "rgb_histogram",
     "yolox_backbone",
@@ -186,15 +188,27 @@ def hsv_red_blue(
 _EXTRACTORS: dict[str, Any] = {}
 
 
-def yolox_backbone(images: np.ndarray) -> np.ndarray:
-    """Pooled YOLOX-nano feature maps with the default layers (one cached extractor per process)."""
+def _backbone(images: np.ndarray, backbone: str, input_size: int) -> np.ndarray:
+    """Pooled feature maps of a detector backbone with its default layers (one cached extractor per
+    backbone and process)."""
     arr = _check_batch(images)
-    extractor = _EXTRACTORS.get("yolox")
+    key = f"{backbone}@{input_size}"
+    extractor = _EXTRACTORS.get(key)
     if extractor is None:
         from makeway.perceive.vision.backbone import BackboneFeatures
 
-        extractor = _EXTRACTORS["yolox"] = BackboneFeatures()
+        extractor = _EXTRACTORS[key] = BackboneFeatures(backbone=backbone, input_size=input_size)
     return np.asarray(extractor.transform(arr), dtype=np.float32)
+
+
+def yolox_backbone(images: np.ndarray) -> np.ndarray:
+    """Pooled YOLOX-nano feature maps with the default layers at 160 px."""
+    return _backbone(images, "yolox_nano", 160)
+
+
+def nanodet_backbone(images: np.ndarray) -> np.ndarray:
+    """Pooled NanoDet-m ShuffleNetV2 stages at 224 px."""
+    return _backbone(images, "nanodet_m", 224)
 
 
 #: The study's features by name (see the module docstring).
@@ -204,6 +218,7 @@ FEATURES: dict[str, Callable[[np.ndarray], np.ndarray]] = {
     "rgb_hist": rgb_histogram,
     "hsv8": partial(hsv_red_blue, colours=DEFAULT_LIGHT_COLOURS),
     "yolox": yolox_backbone,
+    "nanodet": nanodet_backbone,
 }
 
 
