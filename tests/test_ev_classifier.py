@@ -167,3 +167,12 @@ def test_detect_with_default_classifier(video_dir: Path, tmp_path: Path) -> None
     assert _last_json(r.output)["ms_per_frame"]["classify"] > 0
     r = runner.invoke(app, ["detect", str(clip), "-o", str(tmp_path / "x"), "--classifier", str(tmp_path)])
     assert r.exit_code == 2
+
+
+def test_cli_train_rejects_bad_blocks_and_logreg_distillation(ev_root: Path) -> None:
+    r = runner.invoke(app, ["classify", "train", "--data", str(ev_root), "--block", "resnet@224:layer4"])
+    assert r.exit_code == 2 and "unknown backbone" in r.output
+    r = runner.invoke(app, ["classify", "train", "--data", str(ev_root), "--block", "yolox_nano:dark4"])
+    assert r.exit_code == 2 and "backbone@size" in r.output
+    r = runner.invoke(app, ["classify", "train", "--data", str(ev_root), "--unlabelled", str(ev_root)])
+    assert r.exit_code == 2 and "distillation is for the CNN" in r.output

@@ -555,8 +555,8 @@ def train(
     block: Annotated[
         list[str] | None,
         typer.Option(
-            help="logreg: feature block backbone@size:layer,layer (repeat; backbones yolox_nano, nanodet_m) "
-            "[default: yolox_nano@160:dark3,dark4,dark5,pan5 + nanodet_m@224:stage2,stage3,stage4].",
+            help="logreg: feature block backbone@size:layer,layer (repeat; backbones yolox_nano, nanodet_m). "
+            "Default: yolox_nano@160:dark3,dark4,dark5,pan5 and nanodet_m@224:stage2,stage3,stage4.",
         ),
     ] = None,
     flip: Annotated[
@@ -609,6 +609,10 @@ def train(
     from makeway.sense.crops import near_duplicate_groups, read_crop_folder
 
     target = out if out is not None else DEFAULT_MODEL
+    if unlabelled:
+        raise typer.BadParameter(
+            "distillation is for the CNN archs (--arch small_cnn, …)", param_hint="--unlabelled"
+        )
     try:
         blocks = [FeatureBlock.parse(b) for b in block] if block else list(DEFAULT_BLOCKS)
     except ValueError as exc:
