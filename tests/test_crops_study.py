@@ -280,6 +280,7 @@ def test_feature_shapes_on_real_crops(ev_crops: CropSet) -> None:
     images = ev_crops.subset([0, 1, 2, 3]).load_images(224)
     expected = {"pixels": 128 * 128 * 3, "hog": 10 * 10 * 3 * 3 * 8, "rgb_hist": 32**3, "hsv8": 8}
     expected["yolox"] = 2 * (128 + 256 + 256)  # tests/test_backbone_features.py
+    expected["nanodet"] = 2 * (116 + 232 + 464)
     assert set(FEATURES) == set(expected)
     for name, fn in FEATURES.items():
         x = fn(images)
