@@ -23,7 +23,7 @@ from pathlib import Path
 
 from makeway.paths import data_dir
 from makeway.perceive.vision.detectors import create_detector
-from makeway.perceive.vision.ev_classifier import SHIPPED_MODELS, EVTrackClassifier, load_crop_classifier
+from makeway.perceive.vision.ev_classifier import EVTrackClassifier, named_crop_classifier
 from makeway.pipeline.video import TrackClassifier, VideoRunSummary, run_video
 from makeway.sense.video import VideoReader
 
@@ -73,8 +73,7 @@ def main() -> int:
     factors: list[float] = []
     variants: dict[int, TrackClassifier] = {}
     if args.classifier.strip().lower() != "none":
-        head = SHIPPED_MODELS.get(args.classifier.strip().lower(), Path(args.classifier))
-        crop_clf = load_crop_classifier(head, num_threads=args.classifier_threads)
+        crop_clf = named_crop_classifier(args.classifier, num_threads=args.classifier_threads)
         variants = {int(k): EVTrackClassifier(crop_clf, every=int(k)) for k in args.classify_every.split(",")}
     with_clf: dict[int, list[VideoRunSummary]] = {k: [] for k in variants}
     with tempfile.TemporaryDirectory() as tmp:

@@ -176,3 +176,15 @@ def test_cli_train_rejects_bad_blocks_and_logreg_distillation(ev_root: Path) -> 
     assert r.exit_code == 2 and "backbone@size" in r.output
     r = runner.invoke(app, ["classify", "train", "--data", str(ev_root), "--unlabelled", str(ev_root)])
     assert r.exit_code == 2 and "distillation is for the CNN" in r.output
+
+
+def test_named_crop_classifiers(tmp_path: Path) -> None:
+    from makeway.perceive.vision.cnn_classifier import OnnxCropClassifier
+    from makeway.perceive.vision.ev_classifier import FAST_MODEL, named_crop_classifier
+
+    assert isinstance(named_crop_classifier("default"), EVCropClassifier)
+    fast = named_crop_classifier(" Fast ")
+    assert isinstance(fast, OnnxCropClassifier) and fast.input_size == 64
+    assert named_crop_classifier(FAST_MODEL).input_size == 64  # a file works too
+    with pytest.raises(InputError, match=r"nowhere\.onnx"):
+        named_crop_classifier(tmp_path / "nowhere.onnx")

@@ -363,13 +363,13 @@ def _teacher_targets(
     probabilities (soft targets) and decisions, leaving out crops that are near-duplicates of a
     held-out crop (they would leak the test set into training). Returns ``(images, probabilities,
     labels, description)``."""
-    from makeway.perceive.vision.ev_classifier import SHIPPED_MODELS, load_crop_classifier
+    from makeway.perceive.vision.ev_classifier import named_crop_classifier
     from makeway.perceive.vision.mining import list_pool, score_pool
     from makeway.progress import progress_bar
     from makeway.sense.crops import CropSet, near_duplicates_of
 
     files = [f for pool in pools for f in list_pool(pool)]  # every pool checked before any work
-    model = load_crop_classifier(SHIPPED_MODELS.get(teacher.strip().lower(), Path(teacher)))
+    model = named_crop_classifier(teacher)
     with progress_bar(
         "teacher on the unlabelled crops", len(files), enabled=progress, unit="crops"
     ) as advance:
@@ -570,7 +570,8 @@ def train(
         ),
     ] = None,
     teacher: Annotated[
-        str, typer.Option(help="CNNs: the model judging --unlabelled: default|fast|fastest or a file.")
+        str,
+        typer.Option(help="CNNs: the model judging --unlabelled: default|fast|fastest or a file."),
     ] = "default",
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")] = False,
 ) -> None:
@@ -664,9 +665,9 @@ def train(
 def eval_cmd(
     data: Annotated[Path, typer.Option("--data", help="Crop folder: images/ + labels.csv (any image size).")],
     model: Annotated[
-        Path | None,
-        typer.Option("--model", help="Head .npz or CNN .onnx [default: the shipped head]."),
-    ] = None,
+        str,
+        typer.Option("--model", help="default|fast|fastest (shipped models) or a head .npz / CNN .onnx."),
+    ] = "default",
     plot: Annotated[
         Path | None,
         typer.Option(
@@ -678,10 +679,10 @@ def eval_cmd(
     line last.
 
     On ev_crops only the committed held-out part is scored."""
-    from makeway.perceive.vision.ev_classifier import DEFAULT_MODEL, load_crop_classifier
+    from makeway.perceive.vision.ev_classifier import SHIPPED_MODELS, named_crop_classifier
     from makeway.sense.crops import read_crop_folder
 
-    clf = load_crop_classifier(model if model is not None else DEFAULT_MODEL)
+    clf = named_crop_classifier(model)
     crops = read_crop_folder(data)
     split = _ev_crops_split(crops)
     if split is not None:
@@ -695,7 +696,7 @@ def eval_cmd(
     if plot is not None:
         from makeway.viz.pr_plot import plot_pr_curve
 
-        name = (model or DEFAULT_MODEL).name
+        name = Path(SHIPPED_MODELS.get(model.strip().lower(), model)).name
         what = "held-out part" if split is not None else "all crops"
         plot_pr_curve(
             probs, crops.labels, plot, threshold=clf.threshold, title=f"{name} on {data.name} ({what})"
@@ -710,9 +711,9 @@ def eval_cmd(
 def mine(
     pool: Annotated[Path, typer.Argument(help="Folder of unlabelled crops (searched recursively).")],
     model: Annotated[
-        Path | None,
-        typer.Option("--model", help="Head .npz or CNN .onnx [default: the shipped head]."),
-    ] = None,
+        str,
+        typer.Option("--model", help="default|fast|fastest (shipped models) or a head .npz / CNN .onnx."),
+    ] = "default",
     out: Annotated[
         Path,
         typer.Option("--out", "-o", help="Where candidates.csv, contact_sheet.png, labels_template.csv go."),
@@ -730,10 +731,10 @@ def mine(
     false positive — ranked for review: OUT/candidates.csv (rank, image, probability, blank
     emergency), OUT/contact_sheet.png (top N) and OUT/labels_template.csv (image,emergency, ready to
     fill and append to a crop folder). Unreadable files are skipped and counted. One JSON line last."""
-    from makeway.perceive.vision.ev_classifier import DEFAULT_MODEL, load_crop_classifier
+    from makeway.perceive.vision.ev_classifier import named_crop_classifier
     from makeway.perceive.vision.mining import mine as mine_pool
 
-    clf = load_crop_classifier(model if model is not None else DEFAULT_MODEL)
+    clf = named_crop_classifier(model)
     result = mine_pool(pool, clf, out, top=top, threshold=threshold, progress=not quiet)
     summary = result.summary()
     if result.unreadable:

@@ -61,7 +61,7 @@ def detect(
         typer.Option(
             help="Per-track EV crop classifier: 'default' (the shipped head on YOLOX-nano + NanoDet-m "
             "features: the accurate one, ~13 ms per crop on 2 cores), 'fast' (the "
-            "shipped 64 px small CNN), 'fastest' (the 32 px small CNN: 100 crops in ~3 ms), a model "
+            "shipped 64 px small CNN), 'fastest' (the 32 px small CNN: 100 crops in ~4 ms), a model "
             "file (.npz head or .onnx CNN) or 'none'. With one, tracks get smoothed EV states (see "
             "docs/model_card_ev_head.md, docs/model_card_ev_cnn.md)."
         ),
@@ -86,14 +86,9 @@ def detect(
 
     track_classifier = None
     if classifier.strip().lower() != "none":
-        from makeway.perceive.vision.ev_classifier import (
-            SHIPPED_MODELS,
-            EVTrackClassifier,
-            load_crop_classifier,
-        )
+        from makeway.perceive.vision.ev_classifier import EVTrackClassifier, named_crop_classifier
 
-        head = SHIPPED_MODELS.get(classifier.strip().lower(), Path(classifier))
-        track_classifier = EVTrackClassifier(load_crop_classifier(head), every=classify_every)
+        track_classifier = EVTrackClassifier(named_crop_classifier(classifier), every=classify_every)
         getattr(track_classifier.classifier, "extractors", None)  # build them now: bad weights fail early
     out_dir = out if out is not None else Path("makeway_out") / video.stem
     summary = run_video(

@@ -42,6 +42,7 @@ __all__ = [
     "EVCropClassifier",
     "EVTrackClassifier",
     "load_crop_classifier",
+    "named_crop_classifier",
 ]
 
 #: The head shipped with the package (trained on the ev_crops training part; see the model card).
@@ -397,6 +398,20 @@ def load_crop_classifier(path: str | Path = DEFAULT_MODEL, **kwargs: Any) -> Cro
 
         return OnnxCropClassifier(path, **kwargs)
     raise InputError(path, "unknown crop classifier format: expected a head .npz or a CNN .onnx")
+
+
+def named_crop_classifier(name: str | Path, **kwargs: Any) -> CropClassifier:
+    """A shipped classifier by name — ``default`` (the head), ``fast`` (64 px CNN), ``fastest``
+    (32 px CNN) — or a model file (:func:`load_crop_classifier`). ``kwargs`` (e.g.
+    ``num_threads``) go to the loader.
+
+    Raises:
+        InputError: a file that is missing or cannot be loaded (names it).
+    """
+    key = str(name).strip().lower()
+    if key in SHIPPED_MODELS:
+        return load_crop_classifier(SHIPPED_MODELS[key], **kwargs)
+    return load_crop_classifier(Path(name), **kwargs)
 
 
 class EVTrackClassifier:
