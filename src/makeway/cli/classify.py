@@ -383,8 +383,9 @@ def _teacher_targets(
     )
     keep = np.flatnonzero(~leak)
     labels = (probs[keep] >= model.threshold).astype(np.int64)
+    where = ", ".join("/".join(p.parts[-2:]) for p in pools)
     note = (
-        f"unlabelled {', '.join(p.name for p in pools)}: {len(keep)} crops with soft targets from the "
+        f"unlabelled {where}: {len(keep)} crops with soft targets from the "
         f"teacher {teacher} ({int(labels.sum())} judged EV; {int(leak.sum())} near-duplicates of held-out "
         f"crops and {len(unreadable)} unreadable files left out)"
     )
