@@ -454,7 +454,7 @@ def test_cli_train_export_eval(tmp_path: Path, subset: CropSet, data_root: Path,
 @pytest.mark.parametrize(
     ("name", "size", "min_accuracy", "min_max_f1"),
     [
-        ("fast", 64, 0.84, 0.80),  # the 64 px small CNN, distilled: 0.864 when shipped (model card)
+        ("fast", 64, 0.83, 0.80),  # the 64 px small CNN, distilled: 0.852 when shipped (model card)
         ("fastest", 32, 0.76, 0.70),  # the 32 px one, the latency-target model: 0.792 when shipped
     ],
 )
