@@ -105,7 +105,12 @@ def main() -> int:
         "--clips", default=",".join((*EV_CLIPS, *NO_EV_CLIPS)), help="clip stems in <data>/video/"
     )
     ap.add_argument("--cache", type=Path, default=Path("reports/track_probs"), help="probability cache")
-    ap.add_argument("--head", type=Path, default=DEFAULT_MODEL, help="crop classifier head (.npz)")
+    ap.add_argument(
+        "--head", type=Path, default=DEFAULT_MODEL, help="crop classifier (.npz head or .onnx CNN)"
+    )
+    ap.add_argument(
+        "--single-view", action="store_true", help="head judges each crop without its mirror image"
+    )
     ap.add_argument("--labels", type=Path, default=TRACK_LABELS)
     ap.add_argument("--every", default="1", help="judge each track every k-th frame; comma list")
     ap.add_argument("--max-frames", type=int, default=None)
@@ -125,7 +130,14 @@ def main() -> int:
     records = []
     for clip in [c.strip() for c in args.clips.split(",") if c.strip()]:
         video = root / "video" / f"{clip}.mp4"
-        rec, hit = cached_clip(video, args.cache, args.head, max_frames=args.max_frames, progress=True)
+        rec, hit = cached_clip(
+            video,
+            args.cache,
+            args.head,
+            max_frames=args.max_frames,
+            progress=True,
+            single_view=args.single_view,
+        )
         n_valid = int(np.sum(~np.isnan(rec.probability)))
         print(
             f"{clip:28s} {rec.frames:4d} frames, {len(rec.track_ids):3d} tracks, {n_valid:5d} judged "

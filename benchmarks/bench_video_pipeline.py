@@ -51,6 +51,7 @@ def main() -> int:
         help="comma list of k: each track judged every k-th frame (one classifier setting per k)",
     )
     ap.add_argument("--classifier-threads", type=int, default=None, help="ONNX threads of the classifier")
+    ap.add_argument("--single-view", action="store_true", help="the head judges crops without mirror images")
     args = ap.parse_args()
 
     root = data_dir()
@@ -74,6 +75,8 @@ def main() -> int:
     variants: dict[int, TrackClassifier] = {}
     if args.classifier.strip().lower() != "none":
         crop_clf = named_crop_classifier(args.classifier, num_threads=args.classifier_threads)
+        if args.single_view and hasattr(crop_clf, "mirror_at_test"):
+            crop_clf.mirror_at_test = False
         variants = {int(k): EVTrackClassifier(crop_clf, every=int(k)) for k in args.classify_every.split(",")}
     with_clf: dict[int, list[VideoRunSummary]] = {k: [] for k in variants}
     with tempfile.TemporaryDirectory() as tmp:

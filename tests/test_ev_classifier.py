@@ -63,6 +63,11 @@ def test_save_load_round_trip(ev_split: tuple[CropSet, CropSet], tmp_path: Path)
     assert before.shape == (12,) and np.all((before >= 0) & (before <= 1))
     # with flip, a crop and its mirror image get the same probability
     np.testing.assert_allclose(clf.predict_proba(np.ascontiguousarray(images[:, :, ::-1])), before, atol=1e-6)
+    clf.mirror_at_test = False  # single view: the crop alone
+    single = clf.predict_proba(images)
+    np.testing.assert_allclose(single, clf.predict_proba_features(clf.transform(images)), atol=1e-9)
+    assert not np.allclose(single, before)
+    clf.mirror_at_test = True
     path = clf.save(tmp_path / "head.npz")
     again = EVCropClassifier.load(path)
     assert again.training == "80 crops" and again.blocks == clf.blocks and again.C == clf.C and again.flip
@@ -188,3 +193,13 @@ def test_named_crop_classifiers(tmp_path: Path) -> None:
     assert named_crop_classifier(FAST_MODEL).input_size == 64  # a file works too
     with pytest.raises(InputError, match=r"nowhere\.onnx"):
         named_crop_classifier(tmp_path / "nowhere.onnx")
+
+
+def test_cli_detect_single_view(video_dir: Path, tmp_path: Path) -> None:
+    clip = video_dir / "night_ambulance_lights.mp4"
+    args = ["detect", str(clip), "--out", str(tmp_path / "o"), "--max-frames", "4", "--no-video", "-q"]
+    args.append("--json")
+    r = runner.invoke(app, [*args, "--classifier", "default", "--single-view"])
+    assert r.exit_code == 0, r.output
+    summary = _last_json(r.output)
+    assert summary["frames"] == 4 and summary["ms_per_frame"]["classify"] > 0

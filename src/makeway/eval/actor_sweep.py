@@ -250,11 +250,13 @@ def cached_clip(
     *,
     max_frames: int | None = None,
     progress: bool = False,
+    single_view: bool = False,
 ) -> tuple[ClipRecord, bool]:
-    """:func:`record_clip` with the shipped-style head ``head`` (``.npz``), cached in ``cache_dir``.
+    """:func:`record_clip` with the crop classifier file ``head`` (``.npz`` head or ``.onnx`` CNN),
+    cached in ``cache_dir``; ``single_view`` judges each crop without its mirror image (heads only).
 
-    The cache key covers the clip (name and size), the head file's contents, :data:`RECORD_CONFIG`
-    and ``max_frames``; returns ``(record, from_cache)``.
+    The cache key covers the clip (name and size), the head file's contents, :data:`RECORD_CONFIG`,
+    ``max_frames`` and ``single_view``; returns ``(record, from_cache)``.
     """
     from makeway.perceive.vision.ev_classifier import EVTrackClassifier, load_crop_classifier
 
@@ -268,6 +270,7 @@ def cached_clip(
             "head": _sha256(head) if head.is_file() else str(head),
             "config": RECORD_CONFIG,
             "max_frames": max_frames,
+            **({"single_view": True} if single_view else {}),
         },
         sort_keys=True,
     )
@@ -275,8 +278,11 @@ def cached_clip(
     target = Path(cache_dir) / f"{video.stem}.{key}.npz"
     if target.is_file():
         return ClipRecord.load(target), True
+    crop_classifier = load_crop_classifier(head, num_threads=1)
+    if single_view and hasattr(crop_classifier, "mirror_at_test"):
+        crop_classifier.mirror_at_test = False
     clf = EVTrackClassifier(
-        load_crop_classifier(head, num_threads=1),
+        crop_classifier,
         margin=RECORD_CONFIG["crop_margin"],
         min_width=RECORD_CONFIG["min_width_px"],
     )

@@ -97,6 +97,10 @@ class EVCropClassifier:
     The feature extractors are built on first use. Images are ``uint8`` BGR ``(n, H, W, 3)`` of
     any square-ish size (each block stretches them to its input size); :attr:`input_size`, the
     largest block's, is the size to load crops at.
+
+    :attr:`mirror_at_test` (default ``True``) can be set ``False`` on a fitted ``flip`` head to
+    judge each crop by itself only: half the cost per crop, for video (``makeway detect
+    --single-view``), at a small loss (docs/benchmarks.md).
     """
 
     def __init__(
@@ -116,6 +120,7 @@ class EVCropClassifier:
         if not self.blocks:
             raise ValueError("blocks must name at least one feature block")
         self.flip = bool(flip)
+        self.mirror_at_test = True
         self.threshold = float(threshold)
         self.Cs = tuple(float(c) for c in Cs)
         self.model_path = model_path
@@ -266,12 +271,14 @@ class EVCropClassifier:
         return p if x_mirrored is None else 0.5 * (p + sigmoid(x_mirrored))
 
     def predict_proba(self, images: np.ndarray) -> np.ndarray:
-        """P(emergency vehicle) ``(n,)`` of ``uint8`` BGR crops ``(n, H, W, 3)`` (with :attr:`flip`,
-        the mean over the crop and its mirror image).
+        """P(emergency vehicle) ``(n,)`` of ``uint8`` BGR crops ``(n, H, W, 3)`` (with :attr:`flip`
+        and :attr:`mirror_at_test`, the mean over the crop and its mirror image).
 
         (Unlike scikit-learn's two-column output: one probability per crop.)
         """
         self._check_fitted()
+        if not self.mirror_at_test:
+            return self.predict_proba_features(self.transform(images))
         return self.predict_proba_features(*self.transform_pair(images))
 
     def predict(self, images: np.ndarray) -> np.ndarray:
