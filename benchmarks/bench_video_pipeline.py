@@ -74,9 +74,9 @@ def main() -> int:
     factors: list[float] = []
     variants: dict[int, TrackClassifier] = {}
     if args.classifier.strip().lower() != "none":
-        crop_clf = named_crop_classifier(args.classifier, num_threads=args.classifier_threads)
-        if args.single_view and hasattr(crop_clf, "mirror_at_test"):
-            crop_clf.mirror_at_test = False
+        crop_clf = named_crop_classifier(
+            args.classifier, single_view=args.single_view, num_threads=args.classifier_threads
+        )
         variants = {int(k): EVTrackClassifier(crop_clf, every=int(k)) for k in args.classify_every.split(",")}
     with_clf: dict[int, list[VideoRunSummary]] = {k: [] for k in variants}
     with tempfile.TemporaryDirectory() as tmp:

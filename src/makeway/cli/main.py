@@ -96,9 +96,7 @@ def detect(
     if classifier.strip().lower() != "none":
         from makeway.perceive.vision.ev_classifier import EVTrackClassifier, named_crop_classifier
 
-        crop_classifier = named_crop_classifier(classifier)
-        if single_view and hasattr(crop_classifier, "mirror_at_test"):
-            crop_classifier.mirror_at_test = False
+        crop_classifier = named_crop_classifier(classifier, single_view=single_view)
         track_classifier = EVTrackClassifier(crop_classifier, every=classify_every)
         getattr(track_classifier.classifier, "extractors", None)  # build them now: bad weights fail early
     out_dir = out if out is not None else Path("makeway_out") / video.stem

@@ -258,7 +258,7 @@ def cached_clip(
     The cache key covers the clip (name and size), the head file's contents, :data:`RECORD_CONFIG`,
     ``max_frames`` and ``single_view``; returns ``(record, from_cache)``.
     """
-    from makeway.perceive.vision.ev_classifier import EVTrackClassifier, load_crop_classifier
+    from makeway.perceive.vision.ev_classifier import EVTrackClassifier, named_crop_classifier
 
     video, head = Path(video), Path(head)
     if not video.is_file():
@@ -278,11 +278,8 @@ def cached_clip(
     target = Path(cache_dir) / f"{video.stem}.{key}.npz"
     if target.is_file():
         return ClipRecord.load(target), True
-    crop_classifier = load_crop_classifier(head, num_threads=1)
-    if single_view and hasattr(crop_classifier, "mirror_at_test"):
-        crop_classifier.mirror_at_test = False
     clf = EVTrackClassifier(
-        crop_classifier,
+        named_crop_classifier(head, single_view=single_view, num_threads=1),
         margin=RECORD_CONFIG["crop_margin"],
         min_width=RECORD_CONFIG["min_width_px"],
     )

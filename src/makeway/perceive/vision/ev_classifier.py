@@ -407,18 +407,20 @@ def load_crop_classifier(path: str | Path = DEFAULT_MODEL, **kwargs: Any) -> Cro
     raise InputError(path, "unknown crop classifier format: expected a head .npz or a CNN .onnx")
 
 
-def named_crop_classifier(name: str | Path, **kwargs: Any) -> CropClassifier:
+def named_crop_classifier(name: str | Path, *, single_view: bool = False, **kwargs: Any) -> CropClassifier:
     """A shipped classifier by name — ``default`` (the head), ``fast`` (64 px CNN), ``fastest``
-    (32 px CNN) — or a model file (:func:`load_crop_classifier`). ``kwargs`` (e.g.
-    ``num_threads``) go to the loader.
+    (32 px CNN) — or a model file (:func:`load_crop_classifier`). ``single_view`` makes a head judge
+    each crop without its mirror image (:attr:`EVCropClassifier.mirror_at_test`; CNNs have none).
+    ``kwargs`` (e.g. ``num_threads``) go to the loader.
 
     Raises:
         InputError: a file that is missing or cannot be loaded (names it).
     """
     key = str(name).strip().lower()
-    if key in SHIPPED_MODELS:
-        return load_crop_classifier(SHIPPED_MODELS[key], **kwargs)
-    return load_crop_classifier(Path(name), **kwargs)
+    clf = load_crop_classifier(SHIPPED_MODELS[key] if key in SHIPPED_MODELS else Path(name), **kwargs)
+    if single_view and isinstance(clf, EVCropClassifier):
+        clf.mirror_at_test = False
+    return clf
 
 
 class EVTrackClassifier:
