@@ -305,13 +305,8 @@ def backbone_crop_net(
         graph = OnnxGraph(model, [spec.layers.get(n, n) for n in names])
     except ValueError as exc:
         raise InputError(path, str(exc)) from None
-    probe = torch.full((1, 3, input_size, input_size), 114.0)
-    if spec.mean is not None and spec.inv_std is not None:
-        probe = (probe - torch.tensor(spec.mean).view(1, 3, 1, 1)) * torch.tensor(spec.inv_std).view(
-            1, 3, 1, 1
-        )
-    with torch.no_grad():
-        outs = graph(probe)
+    with torch.no_grad():  # one pass only to read each layer's channel count
+        outs = graph(torch.zeros((1, 3, input_size, input_size)))
     return BackboneCropNet(
         graph, [int(o.shape[1]) for o in outs], dropout=dropout, bgr_mean=spec.mean, bgr_inv_std=spec.inv_std
     )

@@ -85,7 +85,6 @@ __all__ = [
     "BackboneSpec",
     "FeatureBlock",
     "load_pruned_backbone",
-    "load_pruned_yolox",
     "prune_to_tensors",
 ]
 
@@ -314,16 +313,6 @@ def load_pruned_backbone(spec: BackboneSpec, model_path: Path, layers: Sequence[
             model_path,
             f"not the {spec.name} graph this extractor knows: {exc} (known layers: {', '.join(spec.layers)})",
         ) from None
-
-
-def load_pruned_yolox(model_path: Path, layers: Sequence[str]) -> Any:
-    """The YOLOX-nano ONNX model at ``model_path`` pruned to ``layers`` (names of :data:`LAYERS` or
-    tensor names), for :class:`BackboneFeatures` and :func:`makeway.train.onnx_graph.yolox_crop_net`.
-
-    Raises:
-        InputError: the file is not a valid ONNX model, or not the graph this module knows.
-    """
-    return load_pruned_backbone(BACKBONES["yolox_nano"], model_path, layers, input_size=416)
 
 
 class BackboneFeatures:
