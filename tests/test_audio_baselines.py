@@ -17,7 +17,7 @@ from makeway.perceive.audio.doa import (
     wrap_angle,
 )
 from makeway.perceive.audio.evaluate import METRIC_KEYS as EVAL_METRIC_KEYS
-from makeway.perceive.audio.evaluate import evaluate
+from makeway.perceive.audio.evaluate import evaluate, smoothed_probability
 from makeway.perceive.audio.features import bandpass, log_mel, mfcc, window_batch
 from makeway.perceive.audio.labels import label_recording
 from makeway.sense.recording import REFERENCE_SAMPLE_RATE, Trajectory, reference_mics, write_recording
@@ -185,6 +185,24 @@ def test_evaluate_returns_all_keys(tiny_recordings: Path) -> None:
     assert sum(b["n"] for b in res["by_distance"]) == res["positives"]
     with pytest.raises(ValueError, match="unknown DOA method"):
         evaluate(paths, "beamformer")
+
+
+def test_evaluate_smoothed_decision(tiny_recordings: Path) -> None:
+    paths = sorted(p for p in tiny_recordings.iterdir() if p.is_dir())
+    single: dict = {}
+    res1 = evaluate(paths, "gccphat", arrays=single)
+    assert res1["smooth"] == 1 and res1["dropped_windows"] == 0
+    smoothed: dict = {}
+    res3 = evaluate(paths, "gccphat", smooth=3, arrays=smoothed)
+    assert res3["smooth"] == 3 and res3["windows"] == res1["windows"]
+    # per recording (5 windows each), the causal mean of the window and the two before it
+    expected = np.concatenate([smoothed_probability(single["prob"][k : k + 5], 3) for k in (0, 5)])
+    np.testing.assert_allclose(smoothed["prob"], expected, atol=1e-12)
+    np.testing.assert_allclose(expected[:3], np.cumsum(single["prob"][:3]) / np.arange(1, 4), atol=1e-12)
+    assert res3["recall"] == pytest.approx(np.mean(expected[smoothed["siren"]] >= 0.5), abs=1e-5)
+    np.testing.assert_array_equal(smoothed["theta_hat"], single["theta_hat"])  # bearings untouched
+    with pytest.raises(ValueError, match="smooth must be >= 1"):
+        evaluate(paths, "gccphat", smooth=0)
 
 
 def test_cli_eval(tiny_recordings: Path) -> None:

@@ -19,7 +19,7 @@ from makeway.perceive.audio.stream import listen, plot_listen
 from makeway.sense.recording import Recording, write_recording
 from makeway.sim.audio_scenarios import simulate_recording
 
-MESSAGE_KEYS = {"t_end", "is_siren", "probability", "sources"}
+MESSAGE_KEYS = {"t_end", "is_siren", "probability", "smoothed_probability", "sources"}
 SOURCE_KEYS = {"bearing_rad", "bearing_deg", "distance_m", "approaching"}
 
 
@@ -38,15 +38,32 @@ def test_one_message_per_window_with_keys(pass_rec: Recording, messages: list[di
     labels = label_recording(pass_rec)
     assert len(messages) == len(labels) > 0
     np.testing.assert_allclose([m["t_end"] for m in messages], labels.t_end, atol=1e-6)
-    for m in messages:
+    probs = np.array([m["probability"] for m in messages])
+    for i, m in enumerate(messages):
         assert set(m) == MESSAGE_KEYS
-        assert 0.0 <= m["probability"] <= 1.0 and m["is_siren"] == (m["probability"] >= 0.5)
+        # the decision is on the mean of this window's and the two before it (LISTEN_SMOOTH = 3)
+        assert m["smoothed_probability"] == pytest.approx(probs[max(0, i - 2) : i + 1].mean(), abs=2e-6)
+        assert 0.0 <= m["probability"] <= 1.0 and m["is_siren"] == (m["smoothed_probability"] >= 0.5)
         assert len(m["sources"]) == (1 if m["is_siren"] else 0)
         for s in m["sources"]:
             assert set(s) == SOURCE_KEYS and s["distance_m"] is None
             assert s["approaching"] in (True, False, None)
             assert s["bearing_deg"] == pytest.approx(math.degrees(s["bearing_rad"]), abs=1e-3)
     json.dumps(messages)  # JSON-ready
+
+
+def test_smoothing_one_window_is_each_window_alone(pass_rec: Recording, messages: list[dict]) -> None:
+    single = list(listen(pass_rec, smooth=1))
+    assert [m["probability"] for m in single] == [m["probability"] for m in messages]
+    assert all(m["smoothed_probability"] == m["probability"] for m in single)
+    assert [m["is_siren"] for m in single] == [m["probability"] >= 0.5 for m in single]
+    # averaging can only decide differently where a window and its neighbours disagree
+    changed = [
+        i for i, (a, b) in enumerate(zip(single, messages, strict=True)) if a["is_siren"] != b["is_siren"]
+    ]
+    assert len(changed) < 0.2 * len(single)
+    with pytest.raises(ValueError, match="smooth must be >= 1"):
+        next(listen(pass_rec, smooth=0))
 
 
 def test_bearings_follow_the_labels(pass_rec: Recording, messages: list[dict]) -> None:
@@ -102,6 +119,12 @@ def test_cli_listen(tmp_path: Path) -> None:
     assert res.exit_code == 0, res.output
     lines = [json.loads(x) for x in res.stdout.splitlines() if x.strip()]
     assert len(lines) == len(label_recording(rec)) and set(lines[0]) == MESSAGE_KEYS
+    res = runner.invoke(audio_app, ["listen", str(folder), "--smooth", "1"])
+    assert res.exit_code == 0, res.output
+    single = [json.loads(x) for x in res.stdout.splitlines() if x.strip()]
+    assert all(m["smoothed_probability"] == m["probability"] for m in single)
+    res = runner.invoke(audio_app, ["listen", str(folder), "--smooth", "0"])
+    assert res.exit_code == 2 and "--smooth" in res.output
 
     out, png = tmp_path / "o" / "msgs.jsonl", tmp_path / "o" / "plot.png"
     res = runner.invoke(audio_app, ["listen", str(folder), "--jsonl", str(out), "--plot", str(png)])

@@ -21,7 +21,14 @@ of ``makeway audio eval``:
 
 Plus ``method``, ``recordings``, ``windows``, ``positives``, ``negatives``, ``dropped_windows``
 (skipped: sirens only beyond 100 m), ``ms_per_window`` (the
-method's wall time per window: detector + bearing).
+method's wall time per window: detector + bearing), ``smooth``.
+
+**Decision smoothing** (``smooth`` = K > 1): the decision for a window uses the mean probability of
+that window and the K − 1 windows before it in the same recording (:func:`smoothed_probability`),
+as a live listener would (``makeway audio listen --smooth K``): causal, about (K − 1) × 0.17 s of
+added latency. Every window of a recording is then run, including those skipped for the metrics, so
+the history is the one a live listener has. ``smooth = 1`` (the default) is seed 002's per-window
+decision.
 """
 
 from __future__ import annotations
@@ -35,10 +42,12 @@ from typing import Any
 
 import numpy as np
 
+from makeway.messages import EVObservation
 from makeway.perceive.audio.doa import SirenEnergyDetector, get_doa_method, wrap_angle
 from makeway.perceive.audio.features import window_batch
-from makeway.perceive.audio.labels import label_recording
+from makeway.perceive.audio.labels import HOP_S, label_recording
 from makeway.sense.recording import Recording, read_recording
+from makeway.track.smoother import TrackSmoother
 
 METRIC_KEYS = (
     "recall",
@@ -176,12 +185,30 @@ def model_estimator(model: Any, source: str | Path | None = None) -> WindowEstim
     return estimate
 
 
+def smoothed_probability(prob: np.ndarray, smooth: int) -> np.ndarray:
+    """The causal mean of each window's probability and the ``smooth - 1`` before it (fewer at the
+    start), over consecutive windows of one recording: the
+    :class:`~makeway.track.smoother.TrackSmoother` mean with a ``smooth``-window buffer."""
+    if smooth < 1:
+        raise ValueError(f"smooth must be >= 1 window, got {smooth}")
+    p = np.asarray(prob, dtype=np.float64)
+    if smooth == 1:
+        return p.copy()
+    smoother = TrackSmoother(window=smooth, min_frames=1)
+    out = [
+        smoother.update([EVObservation(0, i, i * HOP_S, float(v), "audio")])[0].mean_probability
+        for i, v in enumerate(p)
+    ]
+    return np.array(out, dtype=np.float64)
+
+
 def evaluate(
     recordings: Iterable[Recording | str | Path],
     method: str | WindowEstimator,
     *,
     detector: SirenEnergyDetector | None = None,
     threshold: float = 0.5,
+    smooth: int = 1,
     on_recording: Callable[[], None] | None = None,
     name: str | None = None,
     arrays: dict[str, np.ndarray] | None = None,
@@ -190,9 +217,12 @@ def evaluate(
 
     ``method`` is a :data:`~makeway.perceive.audio.doa.DOA_METHODS` name (run with ``detector``,
     see :func:`baseline_estimator`) or any :data:`WindowEstimator` (e.g. :func:`model_estimator`).
-    ``on_recording`` is called after each recording; ``arrays``, when given, receives the pooled
-    per-window arrays (``siren``, ``theta``, ``distance``, ``prob``, ``theta_hat``,
+    ``smooth`` > 1 decides on the causal mean probability of that many windows (module
+    docstring). ``on_recording`` is called after each recording; ``arrays``, when given, receives
+    the pooled per-window arrays (``siren``, ``theta``, ``distance``, ``prob``, ``theta_hat``,
     ``distance_hat``)."""
+    if smooth < 1:
+        raise ValueError(f"smooth must be >= 1 window, got {smooth}")
     estimate = baseline_estimator(method, detector) if isinstance(method, str) else method
     res = WindowResults()
     n_recs = n_windows = n_dropped = 0
@@ -201,12 +231,16 @@ def evaluate(
         rec = item if isinstance(item, Recording) else read_recording(item)
         labels = label_recording(rec)
         kept = labels.kept
-        windows = window_batch(rec, labels)[kept]
+        run = np.ones_like(kept) if smooth > 1 else kept  # smoothing needs every window's history
+        windows = window_batch(rec, labels)[run]
         theta, dist = labels.nearest()
         n_dropped += int((~kept).sum())
         t0 = time.perf_counter()
         prob, theta_hat, distance_hat = estimate(rec, windows)
         busy += time.perf_counter() - t0
+        if smooth > 1:
+            prob = smoothed_probability(prob, smooth)[kept]
+            theta_hat, distance_hat = theta_hat[kept], distance_hat[kept]
         res.siren.append(labels.siren[kept])
         res.theta.append(theta[kept])
         res.distance.append(dist[kept])
@@ -226,6 +260,7 @@ def evaluate(
     out["dropped_windows"] = n_dropped
     out["ms_per_window"] = round(1000.0 * busy / n_windows, 2) if n_windows else None
     out["threshold"] = threshold
+    out["smooth"] = smooth
     return out
 
 

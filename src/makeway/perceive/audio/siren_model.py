@@ -194,14 +194,21 @@ class SirenModel:
         return self.run_features(self.features.transform(windows))
 
     def sources(
-        self, pred: SirenPrediction, i: int, window: np.ndarray | None = None
+        self,
+        pred: SirenPrediction,
+        i: int,
+        window: np.ndarray | None = None,
+        *,
+        is_siren: bool | None = None,
     ) -> list[dict[str, Any]]:
         """The sirens of window ``i``: first the nearest (the network's bearing and distance), then,
         when the raw ``window (channels, samples)`` is given, up to :data:`MAX_SOURCES` − 1 further
         sirens from :class:`~makeway.perceive.audio.multisource.SourceSeparator` (bearing only,
         ``distance_m`` None) — none while the nearest is closer than ``near_alone_m``
-        (:data:`NEAR_ALONE_M`). Empty when window ``i`` is not a siren."""
-        if pred.prob[i] < self.threshold:
+        (:data:`NEAR_ALONE_M`). Empty when window ``i`` is not a siren: its probability is below
+        the threshold, or ``is_siren`` (a decision made elsewhere, e.g. smoothed over windows) is
+        ``False``."""
+        if not (pred.prob[i] >= self.threshold if is_siren is None else is_siren):
             return []
         nearest = float(pred.theta[i])
         out: list[dict[str, Any]] = [
