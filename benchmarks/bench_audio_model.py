@@ -1,8 +1,8 @@
 """The siren network (issue 4) against the classical baselines and seed 002, on held-out recordings.
 
     .venv/bin/python benchmarks/bench_audio_model.py [--data DIR | --n 30 --seeds 2026,2027 --duration 8]
-        [--model FILE] [--localizer FILE|none|auto] [--baselines gccphat,srp,normmusic] [--latency-reps 60]
-        [--smooth 1,3] [--keep DIR] [--json FILE]
+        [--model FILE] [--localizer FILE|none|auto] [--ranger FILE|none|auto]
+        [--baselines gccphat,srp,normmusic] [--latency-reps 60] [--smooth 1,3] [--keep DIR] [--json FILE]
 
 1. Held-out recordings: ``--data`` (a folder of recordings), or ``--n`` recordings per seed
    simulated with seeds 2026 and 2027 (``--seeds``; pooled: one 30-recording set moves recall by
@@ -104,6 +104,12 @@ def main() -> int:
         help="second model for bearing and distance: a file, 'none', or 'auto' (the shipped "
         "localizer with the shipped model)",
     )
+    ap.add_argument(
+        "--ranger",
+        default="auto",
+        help="further model whose distance is averaged in: a file, 'none', or 'auto' (the shipped "
+        "ranger with the shipped model)",
+    )
     ap.add_argument("--baselines", default="gccphat,srp,normmusic")
     ap.add_argument(
         "--smooth",
@@ -147,7 +153,8 @@ def main() -> int:
         recs = [read_recording(f) for f in folders]  # read once, shared by every method
 
         loc: Path | bool = {"auto": True, "none": False}.get(args.localizer, Path(args.localizer))
-        model = SirenModel(args.model, threads=2, localizer=loc)
+        rng: Path | bool = {"auto": True, "none": False}.get(args.ranger, Path(args.ranger))
+        model = SirenModel(args.model, threads=2, localizer=loc, ranger=rng)
         print(f"model: {model!r} ({args.model.stat().st_size / 1e6:.2f} MB)")
         results: dict[str, dict[str, Any]] = {}
         smooths = sorted({1, *(int(v) for v in args.smooth.split(",") if v.strip())})  # 1: the table's anchor

@@ -18,7 +18,12 @@ from makeway.perceive.audio.evaluate import METRIC_KEYS as EVAL_METRIC_KEYS
 from makeway.perceive.audio.features import bandpass, window_batch
 from makeway.perceive.audio.labels import label_recording
 from makeway.perceive.audio.siren_features import MIRROR_CHANNELS, SirenFeatureConfig, SirenFeatures
-from makeway.perceive.audio.siren_model import DEFAULT_SIREN_LOCALIZER, DEFAULT_SIREN_MODEL, SirenModel
+from makeway.perceive.audio.siren_model import (
+    DEFAULT_SIREN_LOCALIZER,
+    DEFAULT_SIREN_MODEL,
+    DEFAULT_SIREN_RANGER,
+    SirenModel,
+)
 from makeway.sense.recording import Recording, reference_mics, write_recording
 from makeway.sim.audio_scenarios import simulate_recording
 from makeway.sim.siren import group_split, load_siren_sources, split_sources
@@ -281,11 +286,12 @@ def test_shipped_model_on_a_held_out_recording(windows: tuple[np.ndarray, ...]) 
 def test_shipped_localizer_gives_bearing_and_distance(windows: tuple[np.ndarray, ...]) -> None:
     """The shipped pair: the detector decides, the localizer (pitch-variety training) localizes."""
     assert DEFAULT_SIREN_LOCALIZER.is_file() and DEFAULT_SIREN_LOCALIZER.stat().st_size <= 5_000_000
-    pair, alone = SirenModel(threads=1), SirenModel(threads=1, localizer=False)
+    pair = SirenModel(threads=1, ranger=False)
+    alone = SirenModel(threads=1, localizer=False, ranger=False)
     assert pair.localizer is not None and pair.localizer.path == DEFAULT_SIREN_LOCALIZER
     assert alone.localizer is None and "localizer" not in repr(alone)
     loc = SirenModel(DEFAULT_SIREN_LOCALIZER, threads=1)
-    assert loc.localizer is None  # another model never picks the shipped localizer by itself
+    assert loc.localizer is None and loc.ranger is None  # other models never pick the shipped ones
     w, siren, _, dist = windows
     p, a, b = pair.predict(w), alone.predict(w), loc.predict(w)
     np.testing.assert_allclose(p.prob, a.prob, rtol=1e-6)  # detection: the detector's
@@ -295,6 +301,23 @@ def test_shipped_localizer_gives_bearing_and_distance(windows: tuple[np.ndarray,
     np.testing.assert_allclose(p.bearing_map, b.bearing_map, atol=1e-6)
     sel = siren & (dist > 20) & (dist < 80)
     assert np.median(np.abs(p.distance[sel] - dist[sel])) <= 15.0
+
+
+def test_shipped_ranger_joins_the_distance(windows: tuple[np.ndarray, ...]) -> None:
+    """The shipped trio: the ranger's distance is averaged (geometric mean) with the localizer's;
+    detection and bearing are untouched."""
+    assert DEFAULT_SIREN_RANGER.is_file() and DEFAULT_SIREN_RANGER.stat().st_size <= 5_000_000
+    trio, pair = SirenModel(threads=1), SirenModel(threads=1, ranger=False)
+    assert trio.ranger is not None and trio.ranger.path == DEFAULT_SIREN_RANGER
+    assert "ranger=siren_ranger.onnx" in repr(trio) and pair.ranger is None
+    ranger = SirenModel(DEFAULT_SIREN_RANGER, threads=1)
+    w, siren, _, dist = windows
+    t, p, r = trio.predict(w), pair.predict(w), ranger.predict(w)
+    np.testing.assert_allclose(t.prob, p.prob, rtol=1e-6)
+    np.testing.assert_allclose(t.theta, p.theta, atol=1e-6)
+    np.testing.assert_allclose(t.distance, np.sqrt(p.distance * r.distance), rtol=1e-5)
+    sel = siren & (dist > 20) & (dist < 80)
+    assert np.median(np.abs(t.distance[sel] - dist[sel])) <= 15.0
 
 
 def test_localizer_must_read_the_same_features(tiny_model: tuple[Path, Path, dict], tmp_path: Path) -> None:
@@ -315,6 +338,10 @@ def test_localizer_must_read_the_same_features(tiny_model: tuple[Path, Path, dic
         SirenModel(path, localizer=other)
     with pytest.raises(InputError, match=r"missing\.onnx"):
         SirenModel(path, localizer=tmp_path / "missing.onnx")
+    with pytest.raises(InputError, match=r"other_features\.onnx.*ranger reads other features"):
+        SirenModel(path, ranger=other)
+    ranged = SirenModel(path, threads=1, ranger=path)  # same network twice: the same distance
+    assert ranged.ranger is not None and ranged.localizer is None
 
 
 def test_cli_eval_and_listen_with_the_shipped_model(pass_rec: Recording, tmp_path: Path) -> None:
@@ -327,6 +354,7 @@ def test_cli_eval_and_listen_with_the_shipped_model(pass_rec: Recording, tmp_pat
     assert result["distance_median_m"] is not None and result["range_10_50"]["positives"] > 0
     assert result["threshold"] == SirenModel().threshold  # the model's stored decision threshold
     assert result["localizer"] == DEFAULT_SIREN_LOCALIZER.name
+    assert result["ranger"] == DEFAULT_SIREN_RANGER.name
     res = runner.invoke(audio_app, ["listen", str(folder), "--jsonl", str(tmp_path / "m.jsonl")])
     assert res.exit_code == 0, res.output
     msgs = [json.loads(x) for x in (tmp_path / "m.jsonl").read_text().splitlines()]

@@ -249,6 +249,13 @@ def eval_cmd(
             "[default: the shipped localizer, with the shipped model only]."
         ),
     ] = None,
+    ranger: Annotated[
+        Path | None,
+        typer.Option(
+            help="A further siren model whose distance is averaged in (geometric mean) "
+            "[default: the shipped ranger, with the shipped model only]."
+        ),
+    ] = None,
     threads: Annotated[int | None, typer.Option(min=1, help="ONNX Runtime threads [default: all].")] = None,
     smooth: Annotated[
         int,
@@ -273,8 +280,8 @@ def eval_cmd(
     choices = "|".join(DOA_METHODS)
     if baseline is not None and baseline not in DOA_METHODS:
         raise ValueError(f"--baseline must be one of {choices}, not {baseline!r}")
-    if baseline is not None and (model is not None or localizer is not None):
-        raise ValueError("give either --model/--localizer or --baseline, not both")
+    if baseline is not None and (model is not None or localizer is not None or ranger is not None):
+        raise ValueError("give either --model/--localizer/--ranger or --baseline, not both")
     if baseline is None and fit is not None:
         raise ValueError("--fit fits the baseline detector; it needs --baseline")
     from makeway.perceive.audio.doa import SirenEnergyDetector
@@ -305,7 +312,12 @@ def eval_cmd(
     if baseline is None:
         from makeway.perceive.audio.siren_model import SirenModel
 
-        net = SirenModel(model, threads=threads, localizer=localizer if localizer is not None else True)
+        net = SirenModel(
+            model,
+            threads=threads,
+            localizer=localizer if localizer is not None else True,
+            ranger=ranger if ranger is not None else True,
+        )
         method = model_estimator(net)
         name = f"model:{net.path.name}"
         threshold = net.threshold  # the decision threshold stored with the model
@@ -323,6 +335,7 @@ def eval_cmd(
     result["data"] = str(data)
     if net is not None:
         result["localizer"] = net.localizer.path.name if net.localizer is not None else None
+        result["ranger"] = net.ranger.path.name if net.ranger is not None else None
     result["seconds"] = round(time.perf_counter() - t0, 2)
     if detector is not None:
         result["detector"] = {"slope": round(detector.slope, 6), "offset": round(detector.offset, 6)}
@@ -565,6 +578,13 @@ def listen(
             "[default: the shipped localizer, with the shipped model only]."
         ),
     ] = None,
+    ranger: Annotated[
+        Path | None,
+        typer.Option(
+            help="A further siren model whose distance is averaged in (geometric mean) "
+            "[default: the shipped ranger, with the shipped model only]."
+        ),
+    ] = None,
     baseline: Annotated[
         str | None,
         typer.Option(help="Classical bearing + band-energy detector instead: gccphat, srp or normmusic."),
@@ -600,13 +620,18 @@ def listen(
 
     if baseline is not None and baseline not in DOA_METHODS:
         raise ValueError(f"--baseline must be one of {'|'.join(DOA_METHODS)}, not {baseline!r}")
-    if baseline is not None and (model is not None or localizer is not None):
-        raise ValueError("give either --model/--localizer or --baseline, not both")
+    if baseline is not None and (model is not None or localizer is not None or ranger is not None):
+        raise ValueError("give either --model/--localizer/--ranger or --baseline, not both")
     if not path.exists():
         raise InputError(path, "no such folder")
     net = None
     if baseline is None:
-        net = SirenModel(model, threads=1, localizer=localizer if localizer is not None else True)
+        net = SirenModel(
+            model,
+            threads=1,
+            localizer=localizer if localizer is not None else True,
+            ranger=ranger if ranger is not None else True,
+        )
     rec = read_recording(path)
     t0 = time.perf_counter()
     messages = []
