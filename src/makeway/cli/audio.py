@@ -174,7 +174,7 @@ def _recording_folders(folder: Path) -> list[Path]:
 def label(
     folder: Annotated[Path, typer.Argument(help="A recording folder, or a folder of recording folders.")],
     out: Annotated[
-        Path | None, typer.Option("--out", "-o", help="JSONL output [default: FOLDER/labels.jsonl].")
+        Path | None, typer.Option("--out", "-o", help="JSONL output (default: FOLDER/labels.jsonl).")
     ] = None,
     window: Annotated[float, typer.Option(min=0.01, help="Window length (s).")] = 0.5,
     hop: Annotated[float, typer.Option(min=0.01, help="Hop between windows (s).")] = 0.17,
@@ -236,33 +236,33 @@ def eval_cmd(
         Path | None,
         typer.Option(
             help="Fit the baseline detector's two logistic constants on these recordings first "
-            "[default: the shipped constants]."
+            "(default: the shipped constants)."
         ),
     ] = None,
     model: Annotated[
-        Path | None, typer.Option("--model", help="Siren model (.onnx) [default: the shipped one].")
+        Path | None, typer.Option("--model", help="Siren model (.onnx) (default: the shipped one).")
     ] = None,
     localizer: Annotated[
         Path | None,
         typer.Option(
             help="A second siren model whose bearing and distance replace the model's "
-            "[default: the shipped localizer, with the shipped model only]."
+            "(default: the shipped localizer, with the shipped model only)."
         ),
     ] = None,
     ranger: Annotated[
         Path | None,
         typer.Option(
             help="A further siren model whose distance is averaged in (geometric mean) "
-            "[default: the shipped ranger, with the shipped model only]."
+            "(default: the shipped ranger, with the shipped model only)."
         ),
     ] = None,
-    threads: Annotated[int | None, typer.Option(min=1, help="ONNX Runtime threads [default: all].")] = None,
+    threads: Annotated[int | None, typer.Option(min=1, help="ONNX Runtime threads (default: all).")] = None,
     smooth: Annotated[
         int,
         typer.Option(
             min=1,
             help="Decide on the mean probability of each window and the K-1 before it, as "
-            "'audio listen --smooth K' does live [default: 1, seed 002's per-window decision].",
+            "'audio listen --smooth K' does live (default: 1, seed 002's per-window decision).",
         ),
     ] = 1,
     as_json: Annotated[bool, typer.Option("--json", help="Print only the JSON line.")] = False,
@@ -362,7 +362,7 @@ def train(
         typer.Option("--data", help="Training recordings: a folder of recording folders (repeatable)."),
     ],
     out: Annotated[
-        Path | None, typer.Option("--out", "-o", help="ONNX model to write [default: the shipped model].")
+        Path | None, typer.Option("--out", "-o", help="ONNX model to write (default: the shipped model).")
     ] = None,
     test: Annotated[
         Path | None,
@@ -381,7 +381,7 @@ def train(
             min=0.0,
             max=1.0,
             help="Raise the stored decision threshold (from 0.5) until the validation false-alarm rate "
-            "per window is at most this [default: keep 0.5].",
+            "per window is at most this (default: keep 0.5).",
         ),
     ] = None,
     patience: Annotated[
@@ -398,7 +398,7 @@ def train(
         str | None,
         typer.Option(
             help="Weights of the siren, direction and distance losses, e.g. 10,10,0.008 "
-            "[default: 10,10,0.008 with --distance-loss squared, 10,10,10 with log]."
+            "(default: 10,10,0.008 with --distance-loss squared, 10,10,10 with log)."
         ),
     ] = None,
     mirror: Annotated[bool, typer.Option(help="Add every window mirrored left/right.")] = True,
@@ -413,7 +413,7 @@ def train(
     """Train the siren network (SPEC §3): detection, bearing and distance heads, exported to ONNX.
 
     Windows are auto-labelled from the trajectories; 15 % of the training recordings are held out
-    for validation (by recording). Needs torch (`pip install -e .[train]`).
+    for validation (by recording). Needs torch (`pip install -e ".\\[train]"`).
     """
     import sys
 
@@ -569,20 +569,20 @@ def train(
 def listen(
     path: Annotated[Path, typer.Argument(help="A recording folder.")],
     model: Annotated[
-        Path | None, typer.Option("--model", help="Siren model (.onnx) [default: the shipped one].")
+        Path | None, typer.Option("--model", help="Siren model (.onnx) (default: the shipped one).")
     ] = None,
     localizer: Annotated[
         Path | None,
         typer.Option(
             help="A second siren model whose bearing and distance replace the model's "
-            "[default: the shipped localizer, with the shipped model only]."
+            "(default: the shipped localizer, with the shipped model only)."
         ),
     ] = None,
     ranger: Annotated[
         Path | None,
         typer.Option(
             help="A further siren model whose distance is averaged in (geometric mean) "
-            "[default: the shipped ranger, with the shipped model only]."
+            "(default: the shipped ranger, with the shipped model only)."
         ),
     ] = None,
     baseline: Annotated[

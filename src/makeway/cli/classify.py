@@ -521,8 +521,8 @@ def train(
         typer.Option(
             "--out",
             "-o",
-            help="logreg: head .npz [default: the shipped model]. CNNs: model .onnx (checkpoint .pt "
-            "beside it) [default: ev_cnn_<arch>.onnx].",
+            help="logreg: head .npz (default: the shipped model). CNNs: model .onnx (checkpoint .pt "
+            "beside it) (default: ev_cnn_<arch>.onnx).",
         ),
     ] = None,
     threshold: Annotated[float, typer.Option(help="Decision threshold stored with the model.")] = 0.5,
@@ -723,7 +723,7 @@ def mine(
     threshold: Annotated[
         float | None,
         typer.Option(
-            min=0.0, max=1.0, help="Keep images at or above this probability [default: the model's]."
+            min=0.0, max=1.0, help="Keep images at or above this probability (default: the model's)."
         ),
     ] = None,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")] = False,
@@ -759,7 +759,7 @@ def export_cmd(
     ],
     out: Annotated[Path, typer.Option("--out", "-o", help="ONNX file to write.")],
     threshold: Annotated[
-        float | None, typer.Option(help="Decision threshold to store [default: the checkpoint's].")
+        float | None, typer.Option(help="Decision threshold to store (default: the checkpoint's).")
     ] = None,
 ) -> None:
     """Export a CNN checkpoint to ONNX (dynamic batch axis; input size, threshold and preprocessing in

@@ -42,14 +42,14 @@ def detect(
     video: Annotated[Path, typer.Argument(help="Road video (any format OpenCV/FFmpeg reads).")],
     out: Annotated[
         Path | None,
-        typer.Option("--out", "-o", help="Output folder [default: makeway_out/<video name>]."),
+        typer.Option("--out", "-o", help="Output folder (default: makeway_out/<video name>)."),
     ] = None,
     detector: Annotated[str, typer.Option(help="Vehicle detector: yolox_nano or nanodet_m.")] = "yolox_nano",
     model: Annotated[
         Path | None,
         typer.Option(
             help="ONNX weights for the detector "
-            "[default: searched in $MAKEWAY_MODELS, ../shared/data/models]."
+            "(default: searched in $MAKEWAY_MODELS, ../shared/data/models)."
         ),
     ] = None,
     score_threshold: Annotated[float, typer.Option(help="Detector score threshold.")] = 0.3,
