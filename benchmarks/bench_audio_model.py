@@ -152,9 +152,12 @@ def main() -> int:
             )
         recs = [read_recording(f) for f in folders]  # read once, shared by every method
 
-        loc: Path | bool = {"auto": True, "none": False}.get(args.localizer, Path(args.localizer))
-        rng: Path | bool = {"auto": True, "none": False}.get(args.ranger, Path(args.ranger))
-        model = SirenModel(args.model, threads=2, localizer=loc, ranger=rng)
+        def companion(value: str) -> Path | bool:  # 'auto' (the shipped one), 'none' or a file
+            return {"auto": True, "none": False}.get(value, Path(value))
+
+        model = SirenModel(
+            args.model, threads=2, localizer=companion(args.localizer), ranger=companion(args.ranger)
+        )
         print(f"model: {model!r} ({args.model.stat().st_size / 1e6:.2f} MB)")
         results: dict[str, dict[str, Any]] = {}
         smooths = sorted({1, *(int(v) for v in args.smooth.split(",") if v.strip())})  # 1: the table's anchor

@@ -10,13 +10,16 @@ from __future__ import annotations
 import json
 import time
 from pathlib import Path
-from typing import Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 
 from makeway.cli.common import err_console, friendly_errors, new_app, print_json_line
 from makeway.errors import InputError
 from makeway.perceive.audio.labels import LISTEN_SMOOTH
+
+if TYPE_CHECKING:
+    from makeway.perceive.audio.siren_model import SirenModel
 
 audio_app = new_app(
     "audio", "Siren recordings from the car-roof microphone array: simulate, label, evaluate."
@@ -219,6 +222,51 @@ def label(
         )
 
 
+ModelOption = Annotated[
+    Path | None, typer.Option("--model", help="Siren model (.onnx) (default: the shipped one).")
+]
+LocalizerOption = Annotated[
+    Path | None,
+    typer.Option(
+        help="A second siren model whose bearing and distance replace the model's "
+        "(default: the shipped localizer, with the shipped model only)."
+    ),
+]
+RangerOption = Annotated[
+    Path | None,
+    typer.Option(
+        help="A further siren model whose distance is averaged in (geometric mean) "
+        "(default: the shipped ranger, with the shipped model only)."
+    ),
+]
+
+
+def _check_baseline(baseline: str | None, *networks: Path | None) -> None:
+    """``--baseline`` names a classical method and excludes ``--model/--localizer/--ranger``."""
+    from makeway.perceive.audio.doa import DOA_METHODS
+
+    if baseline is None:
+        return
+    if baseline not in DOA_METHODS:
+        raise ValueError(f"--baseline must be one of {'|'.join(DOA_METHODS)}, not {baseline!r}")
+    if any(n is not None for n in networks):
+        raise ValueError("give either --model/--localizer/--ranger or --baseline, not both")
+
+
+def _siren_networks(
+    model: Path | None, localizer: Path | None, ranger: Path | None, threads: int | None
+) -> SirenModel:
+    """The siren network with its localizer and ranger (the shipped ones unless named)."""
+    from makeway.perceive.audio.siren_model import SirenModel
+
+    return SirenModel(
+        model,
+        threads=threads,
+        localizer=localizer if localizer is not None else True,
+        ranger=ranger if ranger is not None else True,
+    )
+
+
 @audio_app.command("eval")
 @friendly_errors
 def eval_cmd(
@@ -239,23 +287,9 @@ def eval_cmd(
             "(default: the shipped constants)."
         ),
     ] = None,
-    model: Annotated[
-        Path | None, typer.Option("--model", help="Siren model (.onnx) (default: the shipped one).")
-    ] = None,
-    localizer: Annotated[
-        Path | None,
-        typer.Option(
-            help="A second siren model whose bearing and distance replace the model's "
-            "(default: the shipped localizer, with the shipped model only)."
-        ),
-    ] = None,
-    ranger: Annotated[
-        Path | None,
-        typer.Option(
-            help="A further siren model whose distance is averaged in (geometric mean) "
-            "(default: the shipped ranger, with the shipped model only)."
-        ),
-    ] = None,
+    model: ModelOption = None,
+    localizer: LocalizerOption = None,
+    ranger: RangerOption = None,
     threads: Annotated[int | None, typer.Option(min=1, help="ONNX Runtime threads (default: all).")] = None,
     smooth: Annotated[
         int,
@@ -275,13 +309,7 @@ def eval_cmd(
     distance_median_m, distance_mean_m (null for the baselines), the same inside "range_10_50", and
     "by_distance" (10 m bins).
     """
-    from makeway.perceive.audio.doa import DOA_METHODS
-
-    choices = "|".join(DOA_METHODS)
-    if baseline is not None and baseline not in DOA_METHODS:
-        raise ValueError(f"--baseline must be one of {choices}, not {baseline!r}")
-    if baseline is not None and (model is not None or localizer is not None or ranger is not None):
-        raise ValueError("give either --model/--localizer/--ranger or --baseline, not both")
+    _check_baseline(baseline, model, localizer, ranger)
     if baseline is None and fit is not None:
         raise ValueError("--fit fits the baseline detector; it needs --baseline")
     from makeway.perceive.audio.doa import SirenEnergyDetector
@@ -310,14 +338,7 @@ def eval_cmd(
     threshold = 0.5
     net: Any = None
     if baseline is None:
-        from makeway.perceive.audio.siren_model import SirenModel
-
-        net = SirenModel(
-            model,
-            threads=threads,
-            localizer=localizer if localizer is not None else True,
-            ranger=ranger if ranger is not None else True,
-        )
+        net = _siren_networks(model, localizer, ranger, threads)
         method = model_estimator(net)
         name = f"model:{net.path.name}"
         threshold = net.threshold  # the decision threshold stored with the model
@@ -568,23 +589,9 @@ def train(
 @friendly_errors
 def listen(
     path: Annotated[Path, typer.Argument(help="A recording folder.")],
-    model: Annotated[
-        Path | None, typer.Option("--model", help="Siren model (.onnx) (default: the shipped one).")
-    ] = None,
-    localizer: Annotated[
-        Path | None,
-        typer.Option(
-            help="A second siren model whose bearing and distance replace the model's "
-            "(default: the shipped localizer, with the shipped model only)."
-        ),
-    ] = None,
-    ranger: Annotated[
-        Path | None,
-        typer.Option(
-            help="A further siren model whose distance is averaged in (geometric mean) "
-            "(default: the shipped ranger, with the shipped model only)."
-        ),
-    ] = None,
+    model: ModelOption = None,
+    localizer: LocalizerOption = None,
+    ranger: RangerOption = None,
     baseline: Annotated[
         str | None,
         typer.Option(help="Classical bearing + band-energy detector instead: gccphat, srp or normmusic."),
@@ -612,26 +619,14 @@ def listen(
 
     is_siren is decided on the mean probability of the last --smooth windows (default 3: fewer
     false alarms on brief tonal street sounds, about 0.34 s later)."""
-    from makeway.perceive.audio.doa import DOA_METHODS
-    from makeway.perceive.audio.siren_model import SirenModel
     from makeway.perceive.audio.stream import listen as listen_stream
     from makeway.perceive.audio.stream import plot_listen
     from makeway.sense.recording import read_recording
 
-    if baseline is not None and baseline not in DOA_METHODS:
-        raise ValueError(f"--baseline must be one of {'|'.join(DOA_METHODS)}, not {baseline!r}")
-    if baseline is not None and (model is not None or localizer is not None or ranger is not None):
-        raise ValueError("give either --model/--localizer/--ranger or --baseline, not both")
+    _check_baseline(baseline, model, localizer, ranger)
     if not path.exists():
         raise InputError(path, "no such folder")
-    net = None
-    if baseline is None:
-        net = SirenModel(
-            model,
-            threads=1,
-            localizer=localizer if localizer is not None else True,
-            ranger=ranger if ranger is not None else True,
-        )
+    net = _siren_networks(model, localizer, ranger, 1) if baseline is None else None
     rec = read_recording(path)
     t0 = time.perf_counter()
     messages = []
