@@ -15,9 +15,11 @@ import yaml
 from makeway.errors import InputError
 from makeway.perceive.audio.labels import label_recording, window_starts
 from makeway.sense.recording import (
+    REFERENCE_FULL_SCALE_DB_SPL,
     REFERENCE_SAMPLE_RATE,
     Recording,
     Trajectory,
+    calibration_gain,
     read_recording,
     reference_mics,
     write_recording,
@@ -179,6 +181,34 @@ def test_error_malformed_yaml(good_folder: Path) -> None:
 def test_error_missing_yaml_key(good_folder: Path) -> None:
     (good_folder / "array.yaml").write_text("sample_rate: 48000\n")
     _expect(good_folder, "array.yaml", "missing key(s) mics")
+
+
+def test_calibration_round_trip_and_gain(tmp_path: Path) -> None:
+    """``full_scale_db_spl`` in array.yaml: optional, written and read back, and the gain it implies
+    (a sound at L dB SPL is at L − full scale dBFS)."""
+    rec = _small_recording()
+    assert rec.full_scale_db_spl is None
+    back = read_recording(write_recording(tmp_path / "plain", rec))
+    assert (
+        back.full_scale_db_spl is None
+        and "full_scale_db_spl" not in (tmp_path / "plain/array.yaml").read_text()
+    )
+    rec.full_scale_db_spl = 120.5
+    back = read_recording(write_recording(tmp_path / "cal", rec))
+    assert back.full_scale_db_spl == 120.5
+    assert calibration_gain(None) == 1.0 and calibration_gain(135.0) == pytest.approx(1.0)
+    # an array whose full scale is 120 dB SPL records a 100 dB SPL tone at -20 dBFS; at the
+    # networks' 135 dB SPL scale the same tone is at -35 dBFS
+    assert 20 * np.log10(calibration_gain(120.0)) == pytest.approx(-15.0)
+    assert calibration_gain(140.0, reference_db_spl=120.0) == pytest.approx(10.0)
+    assert REFERENCE_FULL_SCALE_DB_SPL == 135.0
+
+
+@pytest.mark.parametrize("value", ["'loud'", "-41", "true", "300", "[135]"])
+def test_error_bad_calibration(good_folder: Path, value: str) -> None:
+    doc = (good_folder / "array.yaml").read_text()
+    (good_folder / "array.yaml").write_text(doc + f"full_scale_db_spl: {value}\n")
+    _expect(good_folder, "array.yaml", "full_scale_db_spl must be the dB SPL", "from 60 to 200")
 
 
 def test_error_csv_missing_column(good_folder: Path) -> None:
@@ -531,6 +561,7 @@ def test_simulate_recording_without_data(tmp_path: Path, monkeypatch: pytest.Mon
     assert len(rec.sources) == 1 and rec.sources[0].span == (0.0, 2.0)
     back = read_recording(write_recording(tmp_path / "r", rec))
     assert back.meta["scenario"] == "opposite_direction"
+    assert rec.full_scale_db_spl == back.full_scale_db_spl == REFERENCE_FULL_SCALE_DB_SPL  # stated
     neg = simulate_recording("crossing", 1.0, seed=4, siren="none", noise="generated")
     assert neg.sources == [] and "sirens" in neg.meta and neg.meta["sirens"] == []
 

@@ -364,6 +364,57 @@ def test_cli_eval_and_listen_with_the_shipped_model(pass_rec: Recording, tmp_pat
     assert res.exit_code == 2 and "--baseline must be one of" in res.output
 
 
+def test_calibration_brings_another_array_to_the_networks_scale(windows: tuple[np.ndarray, ...]) -> None:
+    """An array 12 dB less sensitive than the simulator's (full scale 147 dB SPL) gives the shipped
+    networks' outputs exactly once its calibration is stated; taken at the networks' 135 dB SPL
+    instead, every level reads 12 dB low: sirens are missed and placed farther away."""
+    trio = SirenModel(threads=1)
+    assert trio.full_scale_db_spl == 135.0  # models from before the metadata key: the reference
+    w, siren, _, _ = windows
+    quiet = w * np.float32(10 ** (-12 / 20))
+    ref, cal, raw = trio.predict(w), trio.predict(quiet, 147.0), trio.predict(quiet)
+    np.testing.assert_allclose(cal.prob, ref.prob, atol=1e-5)
+    np.testing.assert_allclose(cal.distance, ref.distance, rtol=1e-4)
+    np.testing.assert_allclose(cal.theta, ref.theta, atol=1e-4)
+    detected = lambda p: np.mean(p.prob[siren] >= trio.threshold)  # noqa: E731
+    assert detected(ref) >= 0.9 and detected(raw) <= detected(ref) - 0.2
+    assert np.median(raw.distance[siren] / ref.distance[siren]) >= 1.2
+
+
+def test_cli_eval_and_listen_state_the_calibration(pass_rec: Recording, tmp_path: Path) -> None:
+    """A recording whose array.yaml states no calibration is taken at the networks' scale, with a
+    note; --full-scale-db-spl gives it one (here: a 6 dB quieter array, which then scores like the
+    stated original)."""
+    from dataclasses import replace
+
+    stated = write_recording(tmp_path / "stated" / "rec_00000", pass_rec)
+    quiet = replace(pass_rec, audio=pass_rec.audio * np.float32(0.5), full_scale_db_spl=None)
+    unstated = write_recording(tmp_path / "unstated" / "rec_00000", quiet)
+    assert "full_scale_db_spl" not in (unstated / "array.yaml").read_text()
+    runner = CliRunner()
+
+    def run(*args: str) -> tuple[dict, str]:
+        res = runner.invoke(audio_app, ["eval", *args, "-q"])
+        assert res.exit_code == 0, res.output
+        return json.loads(res.stdout.strip().splitlines()[-1]), res.stderr
+
+    ref, note = run("--data", str(stated.parent))
+    assert ref["recordings_without_calibration"] == 0 and "full_scale_db_spl" not in note
+    raw, note = run("--data", str(unstated.parent))
+    assert raw["recordings_without_calibration"] == 1
+    assert "1 recording(s) state no full_scale_db_spl" in note and "--full-scale-db-spl" in note
+    # 0.5 = -6.02 dB: the array's full scale stands for 135 + 6.02 dB SPL
+    cal, note = run("--data", str(unstated.parent), "--full-scale-db-spl", "141.0206")
+    assert cal["recordings_without_calibration"] == 0 and "full_scale_db_spl" not in note
+    for key in ("recall", "distance_median_m", "angle_median_deg"):
+        assert cal[key] == pytest.approx(ref[key], abs=2e-3), key
+    assert raw["recall"] < ref["recall"] - 0.05  # read 6 dB low, sirens are missed
+    res = runner.invoke(audio_app, ["listen", str(unstated), "--jsonl", str(tmp_path / "m.jsonl")])
+    assert res.exit_code == 0 and "state no full_scale_db_spl" in res.stderr
+    res = runner.invoke(audio_app, ["eval", "--data", str(unstated), "--full-scale-db-spl", "-41"])
+    assert res.exit_code == 2 and "--full-scale-db-spl" in res.output  # a sensitivity, not a full scale
+
+
 def test_calibrate_threshold() -> None:
     from makeway.train.siren import calibrate_threshold
 

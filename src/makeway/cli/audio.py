@@ -7,6 +7,7 @@ exit code 2, and no half-written output.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import time
 from pathlib import Path
@@ -240,6 +241,30 @@ RangerOption = Annotated[
     ),
 ]
 
+FullScaleOption = Annotated[
+    float | None,
+    typer.Option(
+        "--full-scale-db-spl",
+        min=60.0,
+        max=200.0,
+        help="The array's calibration for recordings whose array.yaml states no full_scale_db_spl: "
+        "the dB SPL that a digital RMS of 1.0 stands for (97 minus the capsules' sensitivity in dBFS "
+        "at 94 dB SPL). Without it such recordings are taken at the networks' 135 dB SPL, and every "
+        "6 dB of error about doubles the distance error.",
+    ),
+]
+
+
+def _calibration_note(n_without: int, baseline: str | None) -> None:
+    """Say on stderr when recordings had no calibration and a network read their levels."""
+    if n_without and baseline is None:
+        err_console.print(
+            f"note: {n_without} recording(s) state no full_scale_db_spl in array.yaml; taken at the "
+            "networks' 135 dB SPL full scale (give --full-scale-db-spl if the array differs: "
+            "distances scale with a level error, ×2 per 6 dB)",
+            highlight=False,
+        )
+
 
 def _check_baseline(baseline: str | None, *networks: Path | None) -> None:
     """``--baseline`` names a classical method and excludes ``--model/--localizer/--ranger``."""
@@ -299,6 +324,7 @@ def eval_cmd(
             "'audio listen --smooth K' does live (default: 1, seed 002's per-window decision).",
         ),
     ] = 1,
+    full_scale_db_spl: FullScaleOption = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print only the JSON line.")] = False,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")] = False,
 ) -> None:
@@ -352,6 +378,7 @@ def eval_cmd(
             name=name,
             threshold=threshold,
             smooth=smooth,
+            full_scale_db_spl=full_scale_db_spl,
         )
     result["data"] = str(data)
     if net is not None:
@@ -361,6 +388,7 @@ def eval_cmd(
     if detector is not None:
         result["detector"] = {"slope": round(detector.slope, 6), "offset": round(detector.offset, 6)}
     if not as_json:
+        _calibration_note(result["recordings_without_calibration"], baseline)
         r = result["range_10_50"]
 
         def pct(v: float | None) -> str:
@@ -612,6 +640,7 @@ def listen(
             help="Decide on the mean probability of the last K windows (1: each window alone).",
         ),
     ] = LISTEN_SMOOTH,
+    full_scale_db_spl: FullScaleOption = None,
 ) -> None:
     """Slide over a recording: one JSON line per hop (is_siren, probability, smoothed_probability,
     one entry per detected siren with bearing, distance — null for the baselines and for further
@@ -628,6 +657,11 @@ def listen(
         raise InputError(path, "no such folder")
     net = _siren_networks(model, localizer, ranger, 1) if baseline is None else None
     rec = read_recording(path)
+    if rec.full_scale_db_spl is None:
+        if full_scale_db_spl is not None:
+            rec = dataclasses.replace(rec, full_scale_db_spl=full_scale_db_spl)
+        else:
+            _calibration_note(1, baseline)
     t0 = time.perf_counter()
     messages = []
     method = baseline or "gccphat"

@@ -8,6 +8,8 @@ A recording folder holds
 * ``ego.csv`` — columns ``t,x,y,yaw``: the vehicle-frame origin in the world frame (metres, radians),
   ≥ 10 Hz, ``t = 0`` at the first audio sample;
 * ``source_<k>.csv`` — columns ``t,x,y`` for each siren source ``k = 0, 1, …`` (none: no siren);
+  ``array.yaml`` may also state ``full_scale_db_spl``: the sound pressure level (dB re 20 µPa, RMS)
+  that a digital RMS of 1.0 stands for, i.e. the array's calibration (see **Calibration** below);
 * optionally ``meta.yaml`` — free-form facts about how the recording was made (the simulator writes
   the scenario, seed, siren and noise ingredients and levels there); readers may ignore it.
 
@@ -18,6 +20,17 @@ problem, naming the file. :func:`write_recording` writes all-or-nothing.
 :data:`CLIP_FRACTION` (0.1 %) of the samples sit at full scale (``|x| >= CLIP_LEVEL`` = 0.999). FLAC
 stores integers, so a recorder that overloads leaves runs of samples pinned at ±full scale; a clean
 signal that merely touches full scale now and then stays far below 0.1 %.
+
+**Calibration.** The trained siren networks read absolute levels (the level stream, and the
+distance they give leans on it), so they must know what pressure a sample value stands for.
+``full_scale_db_spl`` in ``array.yaml`` says it: a 94 dB SPL tone reads as a digital RMS of
+``10^((94 − full_scale_db_spl) / 20)``. A capsule whose datasheet sensitivity is ``S`` dBFS at 94 dB
+SPL (AES17: a full-scale sine is 0 dBFS) has ``full_scale_db_spl = 97 − S``. The simulator writes
+:data:`REFERENCE_FULL_SCALE_DB_SPL` (135 dB SPL), the scale every shipped network was trained at;
+:func:`calibration_gain` is the factor that brings a recording's samples to a model's scale. A
+recording without the key has ``full_scale_db_spl = None`` and is taken to be at the model's
+scale (the tools say so). A wrong calibration moves the distance by the same factor as the level
+error (6 dB ≈ ×2; ``benchmarks/bench_audio_calibration.py``).
 
 **Coverage.** Every trajectory must span the audio: first timestamp ≤ ``COVER_TOLERANCE_S`` (50 ms)
 after 0 and last timestamp ≥ duration − 50 ms (a 10 Hz log may stop just short of the last sample;
@@ -57,6 +70,13 @@ EGO_COLUMNS = ("t", "x", "y", "yaw")
 SOURCE_COLUMNS = ("t", "x", "y")
 
 REFERENCE_SAMPLE_RATE = 48_000
+REFERENCE_FULL_SCALE_DB_SPL = 135.0
+"""The calibration of the simulator's recordings and of every shipped siren network: a digital RMS of
+1.0 stands for 135 dB SPL (module docstring, **Calibration**)."""
+FULL_SCALE_KEY = "full_scale_db_spl"
+FULL_SCALE_RANGE_DB = (60.0, 200.0)
+"""Accepted ``full_scale_db_spl`` values: from a very sensitive capsule (1.0 = 60 dB SPL) to a
+blast gauge; anything outside is taken for a mistake (a sensitivity in dBFS or mV/Pa, say)."""
 REFERENCE_CHANNELS = ("L-front", "L-left", "L-back", "L-right", "R-front", "R-left", "R-back", "R-right")
 
 
@@ -129,7 +149,8 @@ class Recording:
     ``audio (n, channels)`` float32 in full-scale units, ``sample_rate`` Hz, ``mics (channels, 3)``
     vehicle-frame capsule positions, ``ego`` with yaw, ``sources`` one trajectory per siren (empty:
     no siren), ``path`` the folder it was read from or written to, ``meta`` the optional
-    ``meta.yaml`` content.
+    ``meta.yaml`` content, ``full_scale_db_spl`` the array's calibration from ``array.yaml``
+    (``None``: not stated; module docstring, **Calibration**).
     """
 
     audio: np.ndarray
@@ -139,6 +160,7 @@ class Recording:
     sources: list[Trajectory] = field(default_factory=list)
     path: Path | None = None
     meta: dict[str, Any] = field(default_factory=dict)
+    full_scale_db_spl: float | None = None
 
     @property
     def n_samples(self) -> int:
@@ -173,7 +195,7 @@ def read_recording(folder: str | Path) -> Recording:
                 root / name, f"missing: a recording folder needs {AUDIO_FILE}, {ARRAY_FILE}, {EGO_FILE}"
             )
 
-    sample_rate, mics = _read_array_yaml(root / ARRAY_FILE)
+    sample_rate, mics, full_scale = _read_array_yaml(root / ARRAY_FILE)
     audio, audio_rate = _read_audio(root / AUDIO_FILE)
     if audio.shape[1] != len(mics):
         raise InputError(
@@ -210,7 +232,19 @@ def read_recording(folder: str | Path) -> Recording:
             raise InputError(root / META_FILE, f"is not valid YAML ({_first_line(exc)})") from None
         if isinstance(loaded, dict):
             meta = loaded
-    return Recording(audio, sample_rate, mics, ego, sources, root, meta)
+    return Recording(audio, sample_rate, mics, ego, sources, root, meta, full_scale)
+
+
+def calibration_gain(
+    full_scale_db_spl: float | None, reference_db_spl: float = REFERENCE_FULL_SCALE_DB_SPL
+) -> float:
+    """The factor that takes samples of an array whose full scale stands for ``full_scale_db_spl``
+    to the scale ``reference_db_spl`` (a model's; module docstring, **Calibration**): a sound at
+    ``L`` dB SPL sits at ``L − full_scale_db_spl`` dBFS in the recording and at
+    ``L − reference_db_spl`` dBFS after the gain. ``None`` (not stated) gives 1.0."""
+    if full_scale_db_spl is None:
+        return 1.0
+    return float(10.0 ** ((float(full_scale_db_spl) - float(reference_db_spl)) / 20.0))
 
 
 def check_audio(audio: np.ndarray, path: str | Path) -> None:
@@ -249,7 +283,7 @@ def _read_audio(path: Path) -> tuple[np.ndarray, int]:
     return np.ascontiguousarray(data, dtype=np.float32), int(rate)
 
 
-def _read_array_yaml(path: Path) -> tuple[int, np.ndarray]:
+def _read_array_yaml(path: Path) -> tuple[int, np.ndarray, float | None]:
     try:
         doc = yaml.safe_load(path.read_text(encoding="utf-8"))
     except (yaml.YAMLError, UnicodeDecodeError) as exc:
@@ -277,7 +311,22 @@ def _read_array_yaml(path: Path) -> tuple[int, np.ndarray]:
         ):
             raise InputError(path, f"mics[{i}] must be [x, y, z] in metres, got {m!r}")
         rows.append([float(v) for v in m])
-    return int(rate), np.asarray(rows, dtype=np.float64)
+    full_scale = doc.get(FULL_SCALE_KEY)
+    if full_scale is not None:
+        lo, hi = FULL_SCALE_RANGE_DB
+        if (
+            isinstance(full_scale, bool)
+            or not isinstance(full_scale, int | float)
+            or not lo <= float(full_scale) <= hi
+        ):
+            raise InputError(
+                path,
+                f"{FULL_SCALE_KEY} must be the dB SPL that a digital RMS of 1.0 stands for, a number "
+                f"from {lo:g} to {hi:g} (97 minus the capsules' sensitivity in dBFS at 94 dB SPL), "
+                f"got {full_scale!r}",
+            )
+        full_scale = float(full_scale)
+    return int(rate), np.asarray(rows, dtype=np.float64), full_scale
 
 
 def _read_trajectory_csv(path: Path, columns: tuple[str, ...]) -> Trajectory:
@@ -391,6 +440,8 @@ def write_recording(folder: str | Path, rec: Recording, *, overwrite: bool = Tru
             "sample_rate": int(rec.sample_rate),
             "mics": [[round(float(v), 6) for v in m] for m in mics],
         }
+        if rec.full_scale_db_spl is not None:
+            array_doc[FULL_SCALE_KEY] = round(float(rec.full_scale_db_spl), 3)
         (tmp / ARRAY_FILE).write_text(yaml.safe_dump(array_doc, sort_keys=False), encoding="utf-8")
         _write_csv(tmp / EGO_FILE, EGO_COLUMNS, (rec.ego.t, rec.ego.x, rec.ego.y, rec.ego.yaw))
         for k, src in enumerate(rec.sources):

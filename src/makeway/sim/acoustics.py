@@ -47,7 +47,9 @@ the level grows as ``50·log10 U``. ``L_10`` (level at 10 m/s) is 60–72 dB SPL
 capsule on a car roof. A slow log-normal gust envelope (σ ≈ 3 dB, < 2 Hz) modulates it.
 
 **Calibration.** Simulated pressures are in pascal; :data:`FULL_SCALE_PA` (digital 1.0 = 135 dB SPL
-peak, a typical MEMS acoustic overload point) converts them to full-scale units.
+peak, a typical MEMS acoustic overload point) converts them to full-scale units: a digital RMS of
+1.0 stands for 135 dB SPL, which the simulator states as ``full_scale_db_spl`` in ``array.yaml``
+(:data:`makeway.sense.recording.REFERENCE_FULL_SCALE_DB_SPL`).
 """
 
 from __future__ import annotations
@@ -60,13 +62,13 @@ from pathlib import Path
 
 import numpy as np
 
-from makeway.sense.recording import Trajectory
+from makeway.sense.recording import REFERENCE_FULL_SCALE_DB_SPL, Trajectory
 from makeway.sim.siren import AudioSource
 
 SPEED_OF_SOUND = 343.2
 """m/s in air at 20 °C (331.3·√(1 + 20/273.15))."""
 P_REF = 20e-6
-FULL_SCALE_DB_SPL = 135.0
+FULL_SCALE_DB_SPL = REFERENCE_FULL_SCALE_DB_SPL
 FULL_SCALE_PA = P_REF * 10 ** (FULL_SCALE_DB_SPL / 20)
 MIN_DISTANCE_M = 1.0
 DELAY_GRID = 32

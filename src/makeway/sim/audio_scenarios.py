@@ -58,6 +58,7 @@ from makeway.sense.recording import (
     write_recording,
 )
 from makeway.sim.acoustics import (
+    FULL_SCALE_DB_SPL,
     FULL_SCALE_PA,
     SPEED_OF_SOUND,
     PointSource,
@@ -446,7 +447,9 @@ def simulate_recording(
     meta["sirens"] = siren_meta
     ego_out = _clip_to_span(tracks.ego, duration_s)
     srcs_out = [_clip_to_span(ev, duration_s) for ev in tracks.evs]
-    return Recording(audio.astype(np.float32), sample_rate, mics, ego_out, srcs_out, None, meta)
+    return Recording(
+        audio.astype(np.float32), sample_rate, mics, ego_out, srcs_out, None, meta, FULL_SCALE_DB_SPL
+    )
 
 
 def _vary_siren(

@@ -51,7 +51,7 @@ from makeway.perceive.audio.evaluate import calibrate_threshold
 from makeway.perceive.audio.features import window_batch
 from makeway.perceive.audio.labels import label_recording
 from makeway.perceive.audio.siren_features import MIRROR_CHANNELS, SirenFeatureConfig, SirenFeatures
-from makeway.sense.recording import read_recording
+from makeway.sense.recording import REFERENCE_FULL_SCALE_DB_SPL, calibration_gain, read_recording
 
 __all__ = [
     "SirenDataset",
@@ -145,7 +145,8 @@ def _recording_dataset(folder: Path, feats: SirenFeatures, mirror: bool) -> Sire
     rec = read_recording(folder)
     labels = label_recording(rec, window_s=feats.config.window_s)
     kept = labels.kept  # windows whose sirens are all beyond 100 m are dropped (SPEC §3)
-    windows = window_batch(rec, labels)[kept]
+    # every network is trained at the reference calibration (makeway.sense.recording, Calibration)
+    windows = window_batch(rec, labels)[kept] * calibration_gain(rec.full_scale_db_spl)
     theta, dist = labels.nearest()
     theta, dist = theta[kept], dist[kept]
     siren = labels.siren[kept].astype(np.float32)
@@ -557,6 +558,7 @@ def export_onnx(
         "streams": json.dumps(list(net.streams)),
         "features": json.dumps(feature_config.to_dict()),
         "threshold": repr(float(threshold)),
+        "full_scale_db_spl": repr(REFERENCE_FULL_SCALE_DB_SPL),
     }
     for k, v in (extra or {}).items():
         meta[k] = v if isinstance(v, str) else json.dumps(v)

@@ -21,7 +21,9 @@ of ``makeway audio eval``:
 
 Plus ``method``, ``recordings``, ``windows``, ``positives``, ``negatives``, ``dropped_windows``
 (skipped: sirens only beyond 100 m), ``ms_per_window`` (the
-method's wall time per window: detector + bearing), ``smooth``.
+method's wall time per window: detector + bearing), ``smooth``, ``recordings_without_calibration``
+(recordings whose array does not state ``full_scale_db_spl`` and that were taken at the model's
+calibration; :mod:`makeway.sense.recording`, **Calibration**).
 
 **Decision smoothing** (``smooth`` = K > 1): the decision for a window uses the mean probability of
 that window and the K − 1 windows before it in the same recording (:func:`smoothed_probability`),
@@ -36,7 +38,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable, Iterable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -169,13 +171,15 @@ def baseline_estimator(method: str, detector: SirenEnergyDetector | None = None)
 
 def model_estimator(model: Any, source: str | Path | None = None) -> WindowEstimator:
     """The trained network (:class:`~makeway.perceive.audio.siren_model.SirenModel`); every
-    recording's array and sample rate are checked against the model's first."""
+    recording's array and sample rate are checked against the model's first, and its windows are
+    brought to the model's calibration (``Recording.full_scale_db_spl``)."""
 
     def estimate(rec: Recording, windows: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         model.check_array(rec.mics, rec.sample_rate, rec.path or source or "recording")
         if not len(windows):
             return np.zeros(0), np.zeros(0), np.zeros(0)
-        preds = [model.predict(windows[i : i + 64]) for i in range(0, len(windows), 64)]
+        fs = rec.full_scale_db_spl
+        preds = [model.predict(windows[i : i + 64], fs) for i in range(0, len(windows), 64)]
         return (
             np.concatenate([p.prob for p in preds]),
             np.concatenate([p.theta for p in preds]),
@@ -212,6 +216,7 @@ def evaluate(
     on_recording: Callable[[], None] | None = None,
     name: str | None = None,
     arrays: dict[str, np.ndarray] | None = None,
+    full_scale_db_spl: float | None = None,
 ) -> dict[str, Any]:
     """Run ``method`` over every window of every recording, and summarize (module docstring).
 
@@ -220,15 +225,22 @@ def evaluate(
     ``smooth`` > 1 decides on the causal mean probability of that many windows (module
     docstring). ``on_recording`` is called after each recording; ``arrays``, when given, receives
     the pooled per-window arrays (``siren``, ``theta``, ``distance``, ``prob``, ``theta_hat``,
-    ``distance_hat``)."""
+    ``distance_hat``). ``full_scale_db_spl`` is the calibration of the recordings whose
+    ``array.yaml`` states none (:mod:`makeway.sense.recording`, **Calibration**); the result's
+    ``recordings_without_calibration`` counts those left with none (taken at the model's scale)."""
     if smooth < 1:
         raise ValueError(f"smooth must be >= 1 window, got {smooth}")
     estimate = baseline_estimator(method, detector) if isinstance(method, str) else method
     res = WindowResults()
-    n_recs = n_windows = n_dropped = 0
+    n_recs = n_windows = n_dropped = n_uncalibrated = 0
     busy = 0.0
     for item in recordings:
         rec = item if isinstance(item, Recording) else read_recording(item)
+        if rec.full_scale_db_spl is None:
+            if full_scale_db_spl is None:
+                n_uncalibrated += 1
+            else:
+                rec = replace(rec, full_scale_db_spl=float(full_scale_db_spl))
         labels = label_recording(rec)
         kept = labels.kept
         run = np.ones_like(kept) if smooth > 1 else kept  # smoothing needs every window's history
@@ -261,6 +273,7 @@ def evaluate(
     out["ms_per_window"] = round(1000.0 * busy / n_windows, 2) if n_windows else None
     out["threshold"] = threshold
     out["smooth"] = smooth
+    out["recordings_without_calibration"] = n_uncalibrated
     return out
 
 

@@ -44,6 +44,7 @@ import numpy as np
 
 from makeway.errors import InputError
 from makeway.perceive.audio.siren_features import SirenFeatureConfig, SirenFeatures
+from makeway.sense.recording import REFERENCE_FULL_SCALE_DB_SPL, calibration_gain
 
 __all__ = [
     "DEFAULT_SIREN_LOCALIZER",
@@ -128,6 +129,8 @@ class SirenModel:
             self.streams: tuple[str, ...] = tuple(json.loads(meta["streams"]))
             self.features = SirenFeatures(SirenFeatureConfig.from_dict(json.loads(meta["features"])))
             stored = float(meta.get("threshold", "0.5"))
+            # models written before the key existed were all trained at the reference scale
+            self.full_scale_db_spl = float(meta.get("full_scale_db_spl", REFERENCE_FULL_SCALE_DB_SPL))
         except (KeyError, ValueError, TypeError) as exc:
             raise InputError(self.path, f"malformed siren model metadata ({exc})") from None
         self.threshold = float(threshold) if threshold is not None else stored
@@ -156,11 +159,15 @@ class SirenModel:
         if path is None:
             return None
         other = SirenModel(path, threads=threads, localizer=False, ranger=False)
-        if other.features.config != self.features.config or not set(other.streams) <= set(self.streams):
+        if (
+            other.features.config != self.features.config
+            or not set(other.streams) <= set(self.streams)
+            or other.full_scale_db_spl != self.full_scale_db_spl
+        ):
             raise InputError(
                 path,
                 f"this {role} reads other features than the detector {self.path.name} "
-                "(both must be trained with the same feature settings and streams)",
+                "(both must be trained with the same feature settings, streams and calibration)",
             )
         return other
 
@@ -220,9 +227,16 @@ class SirenModel:
             bmap = e / e.sum(axis=1, keepdims=True)
         return SirenPrediction(prob, theta, np.maximum(np.asarray(distance, dtype=np.float64), 0.0), bmap)
 
-    def predict(self, windows: np.ndarray) -> SirenPrediction:
-        """Outputs for ``windows (n, channels, samples)`` or one ``(channels, samples)`` window."""
-        return self.run_features(self.features.transform(windows))
+    def predict(self, windows: np.ndarray, full_scale_db_spl: float | None = None) -> SirenPrediction:
+        """Outputs for ``windows (n, channels, samples)`` or one ``(channels, samples)`` window of
+        an array whose full scale stands for ``full_scale_db_spl`` dB SPL (``Recording
+        .full_scale_db_spl``; ``None``: taken to be the model's own scale,
+        :attr:`full_scale_db_spl`). The windows are brought to the model's scale first
+        (:func:`~makeway.sense.recording.calibration_gain`): the level stream, and with it the
+        distance, reads absolute levels."""
+        gain = calibration_gain(full_scale_db_spl, self.full_scale_db_spl)
+        w = np.asarray(windows)
+        return self.run_features(self.features.transform(w * np.float32(gain) if gain != 1.0 else w))
 
     def sources(
         self,

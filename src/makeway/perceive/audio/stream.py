@@ -87,7 +87,7 @@ def listen(
         t_end = (int(start) + win) / sr
         approaching, _ = est.update(window, sr, t_end)
         sources: list[dict[str, Any]] = []
-        pred = model.predict(window) if model is not None else None
+        pred = model.predict(window, recording.full_scale_db_spl) if model is not None else None
         if pred is not None:
             p = float(pred.prob[0])
         else:
