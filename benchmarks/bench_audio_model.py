@@ -125,14 +125,9 @@ def main() -> int:
         if args.data is not None:
             folders = sorted(p for p in args.data.iterdir() if (p / "array.yaml").exists())
         else:
-            from makeway.paths import data_dir
-            from makeway.sim.acoustics import load_street_noise_sources
-            from makeway.sim.audio_scenarios import generate_recordings
-            from makeway.sim.siren import load_siren_sources, split_sources
+            from makeway.sim.audio_scenarios import generate_recordings, source_pools
 
-            root = data_dir()
-            sirens = split_sources(load_siren_sources(root), "test") if root else []
-            noise = split_sources(load_street_noise_sources(root), "test") if root else []
+            sirens, noise = source_pools("test")
             out = args.keep if args.keep is not None else Path(tmp) / "test"
             t0 = time.perf_counter()
             seeds = [int(v) for v in args.seeds.split(",") if v.strip()]
@@ -224,7 +219,7 @@ def main() -> int:
             if not len(sel):
                 continue
             wins = window_batch(rec, lab)[sel]
-            pred = model.predict(wins)
+            pred = model.predict(wins, rec.full_scale_db_spl)
             for j, w in enumerate(sel):
                 got = [s["bearing_rad"] for s in model.sources(pred, j, wins[j])]
                 truth = lab.theta[w][lab.present[w]]

@@ -153,14 +153,9 @@ def main() -> int:
             if given is not None:
                 sets[kind] = given
                 continue
-            from makeway.paths import data_dir
-            from makeway.sim.acoustics import load_street_noise_sources
-            from makeway.sim.audio_scenarios import generate_recordings
-            from makeway.sim.siren import load_siren_sources, split_sources
+            from makeway.sim.audio_scenarios import generate_recordings, source_pools
 
-            root = data_dir()
-            sirens = split_sources(load_siren_sources(root), "test") if root else []
-            noise = split_sources(load_street_noise_sources(root), "test") if root else []
+            sirens, noise = source_pools("test")
             out = Path(tmp) / kind
             generate_recordings(
                 out,

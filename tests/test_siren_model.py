@@ -79,6 +79,23 @@ def test_feature_shapes_and_errors(windows: tuple[np.ndarray, ...]) -> None:
     assert cfg == feats.config and hash(cfg) == hash(feats.config)
 
 
+def test_shift_gain_matches_a_louder_recording(windows: tuple[np.ndarray, ...]) -> None:
+    """Features shifted by g dB (training's gain augmentation) are those of the window recorded
+    g dB louder: level and spectrum move, waveform and GCC map do not."""
+    feats = SirenFeatures()
+    w = windows[0][:6]
+    g = np.array([-12.0, -6.0, -1.5, 0.0, 4.0, 12.0], dtype=np.float32)
+    louder = feats.transform(w * (10.0 ** (g / 20.0))[:, None, None].astype(np.float32))
+    base = feats.transform(w)
+    shifted = feats.shift_gain(base, g)
+    for k in base:
+        np.testing.assert_allclose(shifted[k], louder[k], atol=2e-5, err_msg=k)
+    assert np.abs(shifted["level"] - base["level"]).max() == pytest.approx(0.12, abs=1e-5)
+    assert shifted["wave"] is base["wave"] and shifted["gcc"] is base["gcc"]
+    one = feats.shift_gain({"level": base["level"][:2]}, 10.0)  # one gain for every window
+    np.testing.assert_allclose(one["level"], base["level"][:2] + 0.1, atol=1e-6)
+
+
 def test_fft_bandpass_matches_forward_backward_filter(windows: tuple[np.ndarray, ...]) -> None:
     """The features' FFT band-pass is the zero-phase Butterworth of features.bandpass (away from
     the window edges, where the two treat the boundary differently)."""
@@ -151,6 +168,8 @@ def tiny_model(tmp_path_factory: pytest.TempPathFactory, data_root: Path) -> tup
         again.siren, data.siren
     )
     cfg = TrainConfig(epochs=1, width=8, batch_size=8, threads=1, val_fraction=0.5)
+    with pytest.raises(ValueError, match="gain augmentation needs the feature extractor"):
+        train_siren_net(data, feats.shapes(), TrainConfig(epochs=1, width=8, gain_augment_db=6.0))
     torch.manual_seed(0)
     net, history = train_siren_net(data, feats.shapes(), cfg, n_azimuth=feats.config.n_azimuth)
     assert len(history) == 1 and math.isfinite(history[0]["val_loss"])
@@ -240,9 +259,13 @@ def test_cli_train_and_errors(tiny_model: tuple[Path, Path, dict], tmp_path: Pat
     assert SirenModel(out).metadata["makeway_model"] == "siren_net"
     # log-distance head: trains, exports, and still answers in metres (positive)
     log_out = tmp_path / "log.onnx"
-    res = runner.invoke(audio_app, [*args[:4], str(log_out), *args[5:], "--distance-loss", "log"])
+    res = runner.invoke(
+        audio_app,
+        [*args[:4], str(log_out), *args[5:], "--distance-loss", "log", "--gain-augment", "6"],
+    )
     assert res.exit_code == 0, res.output
     summary = json.loads(res.stdout.strip().splitlines()[-1])
+    assert summary["config"]["gain_augment_db"] == 6.0
     assert summary["config"]["distance_loss"] == "log" and summary["config"]["loss_weights"] == [
         10.0,
         10.0,

@@ -110,10 +110,7 @@ def simulate(
     real siren clips/tones and street recordings from ../shared/data when present, the procedural
     siren synthesizer and generated noise otherwise.
     """
-    from makeway.paths import data_dir
-    from makeway.sim.acoustics import load_street_noise_sources
-    from makeway.sim.audio_scenarios import AUDIO_SCENARIOS, generate_recordings
-    from makeway.sim.siren import load_siren_sources, split_sources
+    from makeway.sim.audio_scenarios import AUDIO_SCENARIOS, generate_recordings, source_pools
 
     scenarios = tuple(scenario) if scenario else AUDIO_SCENARIOS
     if siren not in ("auto", "synth", "real"):
@@ -122,9 +119,7 @@ def simulate(
     pitch = None
     if siren_pitch:
         pitch = _parse_range(siren_pitch, "--siren-pitch", (0.25, 4.0), "factors like 0.7,1.25")
-    root = data_dir()
-    siren_pool = split_sources(load_siren_sources(root), split) if root is not None else []
-    noise_pool = split_sources(load_street_noise_sources(root), split) if root is not None else []
+    siren_pool, noise_pool = source_pools(split)
     t0 = time.perf_counter()
     paths = generate_recordings(
         out,
@@ -249,8 +244,8 @@ FullScaleOption = Annotated[
         max=200.0,
         help="The array's calibration for recordings whose array.yaml states no full_scale_db_spl: "
         "the dB SPL that a digital RMS of 1.0 stands for (97 minus the capsules' sensitivity in dBFS "
-        "at 94 dB SPL). Without it such recordings are taken at the networks' 135 dB SPL, and every "
-        "6 dB of error about doubles the distance error.",
+        "at 94 dB SPL). Without it such recordings are taken at the networks' 135 dB SPL; 6 dB of "
+        "error raises the median distance error by half, 12 dB too quiet costs 12 points of recall.",
     ),
 ]
 
@@ -261,7 +256,7 @@ def _calibration_note(n_without: int, baseline: str | None) -> None:
         err_console.print(
             f"note: {n_without} recording(s) state no full_scale_db_spl in array.yaml; taken at the "
             "networks' 135 dB SPL full scale (give --full-scale-db-spl if the array differs: "
-            "distances scale with a level error, ×2 per 6 dB)",
+            "6 dB off moves the distances by a third or more)",
             highlight=False,
         )
 
@@ -458,6 +453,15 @@ def train(
         int, typer.Option(min=1, help="torch threads; also feature-extraction processes.")
     ] = 2,
     seed: Annotated[int, typer.Option(help="Seed (weights, batches, validation split).")] = 0,
+    gain_augment: Annotated[
+        float,
+        typer.Option(
+            min=0.0,
+            max=40.0,
+            help="Shift every training window by a random gain of up to ± this many dB, as if another "
+            "array had recorded it, so the network cannot lean on the absolute level (0: off).",
+        ),
+    ] = 0.0,
 ) -> None:
     """Train the siren network (SPEC §3): detection, bearing and distance heads, exported to ONNX.
 
@@ -519,6 +523,7 @@ def train(
         plateau_patience=patience,
         seed=seed,
         threads=threads,
+        gain_augment_db=gain_augment,
     )
     feats = SirenFeatures()
     with progress_bar("features", len(folders), unit="rec") as advance:
@@ -573,6 +578,7 @@ def train(
             n_azimuth=feats.config.n_azimuth,
             on_epoch=on_epoch,
             on_best=on_best,
+            features=feats,
         )
     wall = time.perf_counter() - t0
     training.update(

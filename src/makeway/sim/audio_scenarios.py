@@ -79,6 +79,7 @@ from makeway.sim.siren import (
     load_siren_sources,
     pitch_shift,
     render_siren,
+    split_sources,
     synthesize_siren,
 )
 
@@ -510,6 +511,21 @@ def _distractor_field(
             }
         )
     return (total if info else None), info
+
+
+def source_pools(
+    split: str, data_root: str | Path | None = None
+) -> tuple[list[AudioSource], list[AudioSource]]:
+    """The siren and street-noise ingredients of one source split (``"all"``, ``"train"`` or
+    ``"test"``; :func:`makeway.sim.siren.group_split`) of the shared data at ``data_root`` (default:
+    :func:`makeway.paths.data_dir`). Both empty without the data: the simulator then synthesizes
+    sirens and noise."""
+    root = Path(data_root) if data_root is not None else data_dir()
+    if root is None:
+        return [], []
+    sirens = split_sources(load_siren_sources(root), split)
+    noise = split_sources(load_street_noise_sources(root), split)
+    return list(sirens), list(noise)
 
 
 def generate_recordings(

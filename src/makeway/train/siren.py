@@ -390,6 +390,10 @@ class TrainConfig:
     val_fraction: float = 0.15
     seed: int = 0
     threads: int = 2
+    gain_augment_db: float = 0.0
+    """Each training window is shifted by a gain drawn uniformly from ±this many dB
+    (:meth:`~makeway.perceive.audio.siren_features.SirenFeatures.shift_gain`), as if recorded by
+    an array of another sensitivity: the network cannot lean on the absolute level. 0: off."""
 
 
 def _targets(data: SirenDataset) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
@@ -431,8 +435,16 @@ def split_by_recording(data: SirenDataset, fraction: float, seed: int) -> tuple[
     return np.flatnonzero(~is_val), np.flatnonzero(is_val)
 
 
-def _batches(data: SirenDataset, idx: np.ndarray, streams: Sequence[str]) -> list[torch.Tensor]:
-    return [torch.from_numpy(np.ascontiguousarray(data.features[s][idx], dtype=np.float32)) for s in streams]
+def _batches(
+    data: SirenDataset,
+    idx: np.ndarray,
+    streams: Sequence[str],
+    shift: Callable[[dict[str, np.ndarray]], dict[str, np.ndarray]] | None = None,
+) -> list[torch.Tensor]:
+    feats = {s: data.features[s][idx] for s in streams}
+    if shift is not None:
+        feats = shift(feats)
+    return [torch.from_numpy(np.ascontiguousarray(feats[s], dtype=np.float32)) for s in streams]
 
 
 def evaluate_net(net: SirenNet, data: SirenDataset, batch_size: int = 256) -> dict[str, np.ndarray]:
@@ -457,11 +469,24 @@ def train_siren_net(
     n_azimuth: int = 120,
     on_epoch: Callable[[int, dict[str, float]], Any] | None = None,
     on_best: Callable[[SirenNet, dict[str, float]], Any] | None = None,
+    features: SirenFeatures | None = None,
 ) -> tuple[SirenNet, list[dict[str, float]]]:
     """Train a :class:`SirenNet` on ``data`` (module docstring); returns the best-validation
     network (by validation loss) and the per-epoch history. ``on_best(net, row)`` is called (in eval
-    mode) whenever the validation loss improves, e.g. to save a checkpoint of a long run."""
+    mode) whenever the validation loss improves, e.g. to save a checkpoint of a long run.
+    ``features`` (the extractor that made ``data``) is needed for ``config.gain_augment_db``; the
+    validation windows are never shifted."""
     cfg = config if config is not None else TrainConfig()
+    shift: Callable[[dict[str, np.ndarray]], dict[str, np.ndarray]] | None = None
+    if cfg.gain_augment_db > 0:
+        if features is None:
+            raise ValueError("gain augmentation needs the feature extractor (features=)")
+        extractor, span = features, float(cfg.gain_augment_db)
+
+        def shift(feats: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+            n = len(next(iter(feats.values())))
+            return extractor.shift_gain(feats, rng.uniform(-span, span, n).astype(np.float32))
+
     torch.manual_seed(cfg.seed)
     torch.set_num_threads(max(1, int(cfg.threads)))
     rng = np.random.default_rng(cfg.seed)
@@ -492,7 +517,7 @@ def train_siren_net(
             idx = order[i : i + cfg.batch_size]
             if len(idx) < 2:
                 continue
-            out = net(*_batches(data, idx, net.streams))
+            out = net(*_batches(data, idx, net.streams, shift))
             loss, parts = _loss(out, tuple(t[idx] for t in tgt_all), cfg.loss_weights, cfg.distance_loss)
             opt.zero_grad()
             loss.backward()

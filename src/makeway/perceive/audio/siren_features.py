@@ -21,6 +21,11 @@ One 0.5 s window ``(channels, samples)`` of the roof array at 48 kHz becomes
 * ``level`` ``(channels + 1,)`` — in-band level of each capsule and of their mean, in dB re full
   scale, shifted by :data:`LEVEL_OFFSET_DB` to lie near 0…1. Level is the main distance cue.
 
+**Gain.** ``wave`` (unit RMS) and ``gcc`` (PHAT) do not change when the window is scaled; ``level``
+and ``spec`` move by a known constant. :meth:`SirenFeatures.shift_gain` applies that change to
+computed features, as if the window had been recorded ``g`` dB louder (``makeway audio train
+--gain-augment``: training that cannot lean on the absolute level).
+
 Everything is numpy/scipy, so the runtime needs no torch. :class:`SirenFeatures` is configured by a
 plain dict (:meth:`SirenFeatures.config`) that the trained model stores in its ONNX metadata, so the
 features at inference are exactly those of training.
@@ -205,6 +210,27 @@ class SirenFeatures:
 
         out["spec"] = self._spectral(w).astype(np.float32)[:, None]
         out["gcc"] = self._gcc(spectrum, n_fft).astype(np.float32)
+        return out
+
+    def shift_gain(self, feats: dict[str, np.ndarray], gain_db: np.ndarray | float) -> dict[str, np.ndarray]:
+        """The features of the same windows recorded ``gain_db`` louder (one value, or one per
+        window), from already computed ``feats`` (module docstring, **Gain**): ``level`` moves by
+        ``g / 100``; the log-mel rows of ``spec`` by ``g·ln(10)/10`` natural-log units (scaled like
+        :meth:`transform`), and of the MFCCs only c0, by ``√n_mels`` times that (orthonormal DCT
+        of a constant). ``wave`` and ``gcc`` are returned as they are. Exact while every power stays
+        above the log floor (−100 dB re full scale)."""
+        c = self.config
+        out = dict(feats)
+        first = next(iter(feats.values()))
+        g = np.broadcast_to(np.asarray(gain_db, dtype=np.float32), (len(first),))
+        if "level" in feats:
+            out["level"] = (feats["level"] + g[:, None] / 100.0).astype(np.float32)
+        if "spec" in feats:
+            d_ln = g * np.float32(math.log(10.0) / 10.0)  # ln power per window
+            spec = feats["spec"].copy()
+            spec[:, :, : c.n_mels] += (d_ln / 10.0)[:, None, None, None]  # (n, 1, mels, frames)
+            spec[:, :, c.n_mels] += (d_ln * math.sqrt(c.n_mels) / 50.0)[:, None, None]  # c0: (n, 1, frames)
+            out["spec"] = spec.astype(np.float32)
         return out
 
     def _spectral(self, w: np.ndarray) -> np.ndarray:
