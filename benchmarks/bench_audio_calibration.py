@@ -2,13 +2,14 @@
 ``full_scale_db_spl`` in ``array.yaml``).
 
     .venv/bin/python benchmarks/bench_audio_calibration.py [--data DIR ...] [--n 30 --seeds 2026,2027]
-        [--gains -12,-6,-3,3,6,12] [--json FILE]
+        [--gains -12,-6,-3,3,6,12] [--model FILE] [--json FILE]
 
 A real array is more or less sensitive than the simulator's (a digital RMS of 1.0 = 135 dB SPL, the
 scale every shipped network was trained at). Each held-out recording (``--data`` folders, or ``--n``
 per seed simulated from the test-split groups, like ``bench_audio_model.py``) is re-recorded in
 memory by an array ``g`` dB more sensitive: samples × 10^(g/20), clipped at full scale as an ADC
-would. Then the shipped networks (detector, localizer, ranger) run twice on it:
+would. Then the shipped networks (detector — or ``--model`` — with the shipped localizer and ranger)
+run twice on it:
 
 * **stated** — ``full_scale_db_spl = 135 − g`` is known (``array.yaml`` states it, or
   ``--full-scale-db-spl``): the windows are brought back to the networks' scale;
@@ -33,7 +34,7 @@ from typing import Any
 import numpy as np
 
 from makeway.perceive.audio.evaluate import evaluate, model_estimator
-from makeway.perceive.audio.siren_model import SirenModel
+from makeway.perceive.audio.siren_model import DEFAULT_SIREN_LOCALIZER, DEFAULT_SIREN_RANGER, SirenModel
 from makeway.progress import progress_bar
 from makeway.sense.recording import REFERENCE_FULL_SCALE_DB_SPL, Recording, read_recording
 
@@ -69,6 +70,7 @@ def main() -> int:
     ap.add_argument("--n", type=int, default=30, help="recordings per seed to simulate without --data")
     ap.add_argument("--seeds", default="2026,2027", help="seeds of the simulated held-out sets, pooled")
     ap.add_argument("--gains", default="-12,-6,-3,3,6,12", help="array sensitivity offsets, dB")
+    ap.add_argument("--model", type=Path, default=None, help="detector (default: the shipped one)")
     ap.add_argument("--json", type=Path, default=None, help="also write every result to this JSON file")
     args = ap.parse_args()
     gains = [float(v) for v in args.gains.split(",") if v.strip()]
@@ -94,7 +96,12 @@ def main() -> int:
                 )
             print(f"simulated {len(folders)} held-out recordings in {time.perf_counter() - t0:.0f} s")
         recs = [read_recording(f) for f in folders]
-        model = SirenModel(threads=2)
+        if args.model is None:
+            model = SirenModel(threads=2)
+        else:
+            model = SirenModel(
+                args.model, threads=2, localizer=DEFAULT_SIREN_LOCALIZER, ranger=DEFAULT_SIREN_RANGER
+            )
         print(f"model: {model!r}, trained at {model.full_scale_db_spl:g} dB SPL full scale")
 
         def run(name: str, items: list[Recording]) -> tuple[dict[str, Any], dict[str, np.ndarray]]:

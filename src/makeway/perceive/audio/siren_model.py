@@ -31,6 +31,11 @@ part of the error. The shipped ranger is :data:`DEFAULT_SIREN_RANGER`, a network
 pitch variety on 120 more no-siren recordings. It was chosen on a validation set of
 training-split recordings (median distance error at 10–50 m 5.50 m with it, 5.79 m without;
 docs/benchmarks.md).
+
+**Calibration.** The networks read absolute levels at the scale they were trained at
+(:attr:`SirenModel.full_scale_db_spl`, from the ONNX metadata; 135 dB SPL for every shipped one and
+for files written before the key existed). :meth:`SirenModel.predict` rescales the windows of an
+array with another ``full_scale_db_spl`` (:mod:`makeway.sense.recording`, **Calibration**).
 """
 
 from __future__ import annotations
