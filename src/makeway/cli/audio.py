@@ -621,6 +621,49 @@ def train(
 
 @audio_app.command()
 @friendly_errors
+def calibrate(
+    tone: Annotated[
+        Path, typer.Argument(help="A recording of an acoustic calibrator on one capsule (any audio format).")
+    ],
+    level: Annotated[float, typer.Option(min=60.0, max=160.0, help="The calibrator's level, dB SPL.")] = 94.0,
+    frequency: Annotated[float, typer.Option(min=1.0, help="The calibrator's frequency, Hz.")] = 1000.0,
+    channel: Annotated[
+        int | None,
+        typer.Option(
+            min=0, help="The channel of the capsule it sat on (default: the loudest channel)."
+        ),
+    ] = None,
+    write: Annotated[
+        list[Path] | None,
+        typer.Option(
+            "--write",
+            help="Set full_scale_db_spl in this array.yaml, or in the array.yaml of this recording "
+            "folder (repeatable).",
+        ),
+    ] = None,
+) -> None:
+    """Measure the array's calibration (full_scale_db_spl) from a recorded calibrator tone.
+
+    Record a 94 dB SPL / 1 kHz calibrator (or give --level/--frequency) through the array's
+    recorder at its working gain; prints one JSON line with full_scale_db_spl, the channel, the
+    tone's level (dBFS) in every channel and its tone-to-noise ratio, and with --write stores the
+    value where `audio eval` and `audio listen` read it."""
+    from makeway.sense.calibration import measure_file, write_full_scale
+
+    found = measure_file(tone, level_db_spl=level, frequency_hz=frequency, channel=channel)
+    out = found.to_dict()
+    out["file"] = str(tone)
+    out["written"] = [str(p) for p in write_full_scale(write or [], found.full_scale_db_spl)]
+    err_console.print(
+        f"full_scale_db_spl {found.full_scale_db_spl:.2f} (channel {found.channel}: tone at "
+        f"{found.tone_dbfs:.2f} dBFS, {found.frequency_hz:.0f} Hz, {found.snr_db:.0f} dB above the rest)",
+        highlight=False,
+    )
+    print_json_line(out)
+
+
+@audio_app.command()
+@friendly_errors
 def listen(
     path: Annotated[Path, typer.Argument(help="A recording folder.")],
     model: ModelOption = None,

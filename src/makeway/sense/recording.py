@@ -197,7 +197,7 @@ def read_recording(folder: str | Path) -> Recording:
             )
 
     sample_rate, mics, full_scale = _read_array_yaml(root / ARRAY_FILE)
-    audio, audio_rate = _read_audio(root / AUDIO_FILE)
+    audio, audio_rate = read_audio(root / AUDIO_FILE)
     if audio.shape[1] != len(mics):
         raise InputError(
             root / AUDIO_FILE,
@@ -274,7 +274,9 @@ def _first_line(exc: BaseException) -> str:
     return str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
 
 
-def _read_audio(path: Path) -> tuple[np.ndarray, int]:
+def read_audio(path: Path) -> tuple[np.ndarray, int]:
+    """``(samples (n, channels) float32 in full-scale units, sample rate)`` of an audio file, or
+    one :class:`InputError` naming it."""
     import soundfile as sf
 
     try:
