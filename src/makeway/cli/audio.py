@@ -629,9 +629,7 @@ def calibrate(
     frequency: Annotated[float, typer.Option(min=1.0, help="The calibrator's frequency, Hz.")] = 1000.0,
     channel: Annotated[
         int | None,
-        typer.Option(
-            min=0, help="The channel of the capsule it sat on (default: the loudest channel)."
-        ),
+        typer.Option(min=0, help="The channel of the capsule it sat on (default: the loudest channel)."),
     ] = None,
     write: Annotated[
         list[Path] | None,
