@@ -561,6 +561,10 @@ def test_simulate_recording_without_data(tmp_path: Path, monkeypatch: pytest.Mon
     assert len(rec.sources) == 1 and rec.sources[0].span == (0.0, 2.0)
     back = read_recording(write_recording(tmp_path / "r", rec))
     assert back.meta["scenario"] == "opposite_direction"
+    # the same scene through an array 10 dB more sensitive: 10 dB louder samples, and it says so
+    keen = simulate_recording("opposite_direction", 2.0, seed=4, full_scale_db_spl=125.0)
+    assert keen.full_scale_db_spl == 125.0 and "limited" not in keen.meta
+    np.testing.assert_allclose(keen.audio, rec.audio * 10 ** (10 / 20), rtol=1e-4, atol=1e-7)
     assert rec.full_scale_db_spl == back.full_scale_db_spl == REFERENCE_FULL_SCALE_DB_SPL  # stated
     neg = simulate_recording("crossing", 1.0, seed=4, siren="none", noise="generated")
     assert neg.sources == [] and "sirens" in neg.meta and neg.meta["sirens"] == []
@@ -613,13 +617,18 @@ def test_cli_simulate_and_label(tmp_path: Path) -> None:
             "0.5",
             "--quiet",
             "--json",
+            "--full-scale-db-spl",
+            "128.5",
         ],
     )
     assert res.exit_code == 0, res.output
     assert sorted(p.name for p in out.iterdir()) == ["rec_00000", "rec_00001"]
+    assert json.loads(res.stdout.strip().splitlines()[-1])["full_scale_db_spl"] == 128.5
+    assert read_recording(out / "rec_00000").full_scale_db_spl == 128.5
     # --start: recording 1 alone, made by a second command, is the same recording
     part = tmp_path / "part"
     args = ["--duration", "1", "--siren", "synth", "--noise", "generated", "--no-siren-fraction", "0.5"]
+    args += ["--full-scale-db-spl", "128.5"]
     res = runner.invoke(audio_app, ["simulate", "--out", str(part), "--n", "1", "--start", "1", *args, "-q"])
     assert res.exit_code == 0, res.output
     assert [p.name for p in part.iterdir()] == ["rec_00001"]

@@ -101,6 +101,17 @@ def simulate(
             "new sweep shape). Empty: sirens as they are."
         ),
     ] = "",
+    full_scale_db_spl: Annotated[
+        float,
+        typer.Option(
+            "--full-scale-db-spl",
+            min=60.0,
+            max=200.0,
+            help="The simulated array's calibration: the dB SPL that a digital RMS of 1.0 stands for, "
+            "stated in each array.yaml (default: 135, the shipped networks' scale; lower = a more "
+            "sensitive array).",
+        ),
+    ] = 135.0,
     as_json: Annotated[bool, typer.Option("--json", help="Print the summary as one JSON line.")] = False,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")] = False,
 ) -> None:
@@ -138,6 +149,7 @@ def simulate(
         street_dba=street_dba,
         siren_pitch=pitch,
         start_index=start,
+        full_scale_db_spl=full_scale_db_spl,
     )
     wall = time.perf_counter() - t0
     summary = {
@@ -147,6 +159,7 @@ def simulate(
         "duration_s": duration,
         "seconds": round(wall, 2),
         "seconds_per_audio_second": round(wall / max(len(paths) * duration, 1e-9), 3),
+        "full_scale_db_spl": full_scale_db_spl,
     }
     if as_json:
         print_json_line(summary)

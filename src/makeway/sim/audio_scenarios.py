@@ -59,7 +59,6 @@ from makeway.sense.recording import (
 )
 from makeway.sim.acoustics import (
     FULL_SCALE_DB_SPL,
-    FULL_SCALE_PA,
     SPEED_OF_SOUND,
     PointSource,
     a_weighted_level_db,
@@ -283,6 +282,7 @@ def simulate_recording(
     distractors: bool = True,
     street_dba: tuple[float, float] = STREET_NOISE_DBA,
     siren_pitch: tuple[float, float] | None = None,
+    full_scale_db_spl: float = FULL_SCALE_DB_SPL,
 ) -> Recording:
     """Simulate one recording of the reference array (not written; see :func:`generate_recordings`).
 
@@ -308,6 +308,9 @@ def simulate_recording(
             re-rendered with the sweep scaled and, for wail and yelp, a rise fraction redrawn from
             :data:`SIREN_VARIETY_RISE`). Drawn from its own random stream, so every other draw
             of a seed is unchanged; ``None`` (default) leaves the sirens as they are.
+        full_scale_db_spl: the simulated array's calibration, the dB SPL that a digital RMS of
+            1.0 stands for (default 135, the networks' scale); stated in the recording. A lower
+            value is a more sensitive array: the same scene comes out louder.
     """
     rng = np.random.default_rng(seed)
     vary_rng = np.random.default_rng([int(seed) & 0xFFFFFFFF, 0x517E]) if siren_pitch else None
@@ -440,7 +443,7 @@ def simulate_recording(
             _band_power(noise_pa, sample_rate, SNR_BAND_HZ), 1e-30
         )
         meta["snr_band_db"] = round(10 * math.log10(max(snr, 1e-30)), 2)
-    audio = total / FULL_SCALE_PA
+    audio = total / db_spl_to_pa(full_scale_db_spl)
     peak = float(np.max(np.abs(audio)))
     if peak > 0.95:  # a real capsule would overload; limit softly rather than clip
         audio = 0.95 * np.tanh(audio / 0.95)
@@ -449,7 +452,7 @@ def simulate_recording(
     ego_out = _clip_to_span(tracks.ego, duration_s)
     srcs_out = [_clip_to_span(ev, duration_s) for ev in tracks.evs]
     return Recording(
-        audio.astype(np.float32), sample_rate, mics, ego_out, srcs_out, None, meta, FULL_SCALE_DB_SPL
+        audio.astype(np.float32), sample_rate, mics, ego_out, srcs_out, None, meta, float(full_scale_db_spl)
     )
 
 
@@ -547,14 +550,15 @@ def generate_recordings(
     distractors: bool = True,
     street_dba: tuple[float, float] = STREET_NOISE_DBA,
     siren_pitch: tuple[float, float] | None = None,
+    full_scale_db_spl: float = FULL_SCALE_DB_SPL,
 ) -> list[Path]:
     """Simulate ``n`` recordings into ``out_dir/rec_00000`` … (each written all-or-nothing).
 
     A share ``no_siren_fraction`` has no siren (negatives), ``two_siren_fraction`` of the rest two
     EVs. Recording ``i`` uses a seed derived from ``(seed, i)``, so any one can be re-made alone.
     ``distractors``: non-siren street sounds in a share of the recordings (module docstring);
-    ``street_dba``: the street noise's level range; ``siren_pitch``: pitch variety for training sets
-    (both: see :func:`simulate_recording`).
+    ``street_dba``: the street noise's level range; ``siren_pitch``: pitch variety for training sets;
+    ``full_scale_db_spl``: the array's calibration (all: see :func:`simulate_recording`).
     """
     from makeway.progress import progress_bar
 
@@ -589,6 +593,7 @@ def generate_recordings(
                 distractors=distractors,
                 street_dba=street_dba,
                 siren_pitch=siren_pitch,
+                full_scale_db_spl=full_scale_db_spl,
             )
             written.append(write_recording(out / f"rec_{i:05d}", rec))
             advance(1)
