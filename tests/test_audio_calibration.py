@@ -118,3 +118,21 @@ def test_cli_calibrate_writes_the_array_and_eval_uses_it(data_root: Path, tmp_pa
     assert res.exit_code == 2 and "none.flac" in res.stderr
     with pytest.raises(InputError, match="no such file"):
         write_full_scale([tmp_path / "missing"], 120.0)
+
+
+def test_training_reads_every_array_at_the_networks_scale(data_root: Path, tmp_path: Path) -> None:
+    """The same scene simulated through an array 10 dB more sensitive yields the same training
+    features once its array.yaml states it (makeway audio train rescales to 135 dB SPL)."""
+    from makeway.perceive.audio.siren_features import SirenFeatures
+    from makeway.train.siren import build_dataset
+
+    sirens, noise = source_pools("train", data_root)
+    kw = dict(siren="real", siren_pool=sirens, noise_pool=noise, data_root=data_root)
+    plain = simulate_recording("same_direction", 1.5, seed=8, **kw)
+    keen = simulate_recording("same_direction", 1.5, seed=8, full_scale_db_spl=125.0, **kw)
+    assert np.abs(keen.audio).max() > 2.5 * np.abs(plain.audio).max()  # 10 dB louder samples
+    folders = [write_recording(tmp_path / name, rec) for name, rec in (("plain", plain), ("keen", keen))]
+    feats = SirenFeatures()
+    a, b = (build_dataset([f], feats, mirror=False) for f in folders)
+    for k in ("level", "spec", "wave", "gcc"):
+        np.testing.assert_allclose(b.features[k], a.features[k], atol=2e-4, err_msg=k)
