@@ -7,7 +7,6 @@ exit code 2, and no half-written output.
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import time
 from pathlib import Path
@@ -18,6 +17,7 @@ import typer
 from makeway.cli.common import err_console, friendly_errors, new_app, print_json_line
 from makeway.errors import InputError
 from makeway.perceive.audio.labels import LISTEN_SMOOTH
+from makeway.sense.recording import FULL_SCALE_RANGE_DB, REFERENCE_FULL_SCALE_DB_SPL
 
 if TYPE_CHECKING:
     from makeway.perceive.audio.siren_model import SirenModel
@@ -105,13 +105,13 @@ def simulate(
         float,
         typer.Option(
             "--full-scale-db-spl",
-            min=60.0,
-            max=200.0,
+            min=FULL_SCALE_RANGE_DB[0],
+            max=FULL_SCALE_RANGE_DB[1],
             help="The simulated array's calibration: the dB SPL that a digital RMS of 1.0 stands for, "
             "stated in each array.yaml (default: 135, the shipped networks' scale; lower = a more "
             "sensitive array).",
         ),
-    ] = 135.0,
+    ] = REFERENCE_FULL_SCALE_DB_SPL,
     as_json: Annotated[bool, typer.Option("--json", help="Print the summary as one JSON line.")] = False,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")] = False,
 ) -> None:
@@ -253,8 +253,8 @@ FullScaleOption = Annotated[
     float | None,
     typer.Option(
         "--full-scale-db-spl",
-        min=60.0,
-        max=200.0,
+        min=FULL_SCALE_RANGE_DB[0],
+        max=FULL_SCALE_RANGE_DB[1],
         help="The array's calibration for recordings whose array.yaml states no full_scale_db_spl: "
         "the dB SPL that a digital RMS of 1.0 stands for (97 minus the capsules' sensitivity in dBFS "
         "at 94 dB SPL). Without it such recordings are taken at the networks' 135 dB SPL; 6 dB of "
@@ -268,8 +268,8 @@ def _calibration_note(n_without: int, baseline: str | None) -> None:
     if n_without and baseline is None:
         err_console.print(
             f"note: {n_without} recording(s) state no full_scale_db_spl in array.yaml; taken at the "
-            "networks' 135 dB SPL full scale (give --full-scale-db-spl if the array differs: "
-            "6 dB off moves the distances by a third or more)",
+            f"networks' {REFERENCE_FULL_SCALE_DB_SPL:g} dB SPL full scale (give --full-scale-db-spl "
+            "if the array differs: 6 dB off moves the distances by a third or more)",
             highlight=False,
         )
 
@@ -710,18 +710,14 @@ def listen(
     false alarms on brief tonal street sounds, about 0.34 s later)."""
     from makeway.perceive.audio.stream import listen as listen_stream
     from makeway.perceive.audio.stream import plot_listen
-    from makeway.sense.recording import read_recording
+    from makeway.sense.recording import assume_calibration, read_recording
 
     _check_baseline(baseline, model, localizer, ranger)
     if not path.exists():
         raise InputError(path, "no such folder")
     net = _siren_networks(model, localizer, ranger, 1) if baseline is None else None
-    rec = read_recording(path)
-    if rec.full_scale_db_spl is None:
-        if full_scale_db_spl is not None:
-            rec = dataclasses.replace(rec, full_scale_db_spl=full_scale_db_spl)
-        else:
-            _calibration_note(1, baseline)
+    rec = assume_calibration(read_recording(path), full_scale_db_spl)
+    _calibration_note(int(rec.full_scale_db_spl is None), baseline)
     t0 = time.perf_counter()
     messages = []
     method = baseline or "gccphat"

@@ -42,7 +42,7 @@ from __future__ import annotations
 
 import math
 import re
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -234,6 +234,14 @@ def read_recording(folder: str | Path) -> Recording:
         if isinstance(loaded, dict):
             meta = loaded
     return Recording(audio, sample_rate, mics, ego, sources, root, meta, full_scale)
+
+
+def assume_calibration(rec: Recording, full_scale_db_spl: float | None) -> Recording:
+    """``rec`` with ``full_scale_db_spl`` as its calibration when its ``array.yaml`` states none
+    (a copy; ``rec`` itself when it states one or ``full_scale_db_spl`` is ``None``)."""
+    if rec.full_scale_db_spl is not None or full_scale_db_spl is None:
+        return rec
+    return replace(rec, full_scale_db_spl=float(full_scale_db_spl))
 
 
 def calibration_gain(

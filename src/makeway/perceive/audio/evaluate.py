@@ -38,7 +38,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable, Iterable
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -48,7 +48,7 @@ from makeway.messages import EVObservation
 from makeway.perceive.audio.doa import SirenEnergyDetector, get_doa_method, wrap_angle
 from makeway.perceive.audio.features import window_batch
 from makeway.perceive.audio.labels import HOP_S, label_recording
-from makeway.sense.recording import Recording, read_recording
+from makeway.sense.recording import Recording, assume_calibration, read_recording
 from makeway.track.smoother import TrackSmoother
 
 METRIC_KEYS = (
@@ -235,12 +235,10 @@ def evaluate(
     n_recs = n_windows = n_dropped = n_uncalibrated = 0
     busy = 0.0
     for item in recordings:
-        rec = item if isinstance(item, Recording) else read_recording(item)
-        if rec.full_scale_db_spl is None:
-            if full_scale_db_spl is None:
-                n_uncalibrated += 1
-            else:
-                rec = replace(rec, full_scale_db_spl=float(full_scale_db_spl))
+        rec = assume_calibration(
+            item if isinstance(item, Recording) else read_recording(item), full_scale_db_spl
+        )
+        n_uncalibrated += int(rec.full_scale_db_spl is None)
         labels = label_recording(rec)
         kept = labels.kept
         run = np.ones_like(kept) if smooth > 1 else kept  # smoothing needs every window's history
