@@ -79,21 +79,11 @@ def main() -> int:
         if args.data:
             folders = sorted(p for d in args.data for p in d.iterdir() if (p / "array.yaml").exists())
         else:
-            from makeway.sim.audio_scenarios import generate_recordings, source_pools
+            from makeway.sim.audio_scenarios import generate_held_out
 
-            sirens, noise = source_pools("test")
             t0 = time.perf_counter()
             seeds = [int(v) for v in args.seeds.split(",") if v.strip()]
-            folders = []
-            for seed in seeds:
-                folders += generate_recordings(
-                    Path(tmp) / f"seed_{seed}",
-                    args.n,
-                    duration_s=8.0,
-                    seed=seed,
-                    siren_pool=sirens,
-                    noise_pool=noise,
-                )
+            folders = generate_held_out(tmp, args.n, seeds)
             print(f"simulated {len(folders)} held-out recordings in {time.perf_counter() - t0:.0f} s")
         recs = [read_recording(f) for f in folders]
         if args.model is None:

@@ -125,22 +125,12 @@ def main() -> int:
         if args.data is not None:
             folders = sorted(p for p in args.data.iterdir() if (p / "array.yaml").exists())
         else:
-            from makeway.sim.audio_scenarios import generate_recordings, source_pools
+            from makeway.sim.audio_scenarios import generate_held_out
 
-            sirens, noise = source_pools("test")
             out = args.keep if args.keep is not None else Path(tmp) / "test"
             t0 = time.perf_counter()
             seeds = [int(v) for v in args.seeds.split(",") if v.strip()]
-            folders = []
-            for seed in seeds:
-                folders += generate_recordings(
-                    out / f"seed_{seed}",
-                    args.n,
-                    duration_s=args.duration,
-                    seed=seed,
-                    siren_pool=sirens,
-                    noise_pool=noise,
-                )
+            folders = generate_held_out(out, args.n, seeds, args.duration)
             print(
                 f"simulated {len(folders)} held-out recordings of {args.duration:g} s "
                 f"(seeds {', '.join(map(str, seeds))}) in {time.perf_counter() - t0:.0f} s"

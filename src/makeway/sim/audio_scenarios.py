@@ -531,6 +531,26 @@ def source_pools(
     return list(sirens), list(noise)
 
 
+def generate_held_out(
+    out_dir: str | Path, n: int, seeds: Sequence[int], duration_s: float = 8.0
+) -> list[Path]:
+    """The held-out sets of the audio benchmarks: ``n`` recordings per seed, into
+    ``out_dir/seed_<seed>``, made of the test-split ingredients only (:func:`source_pools`), as
+    ``makeway audio simulate --n N --duration D --seed S --split test`` makes them."""
+    sirens, noise = source_pools("test")
+    folders: list[Path] = []
+    for seed in seeds:
+        folders += generate_recordings(
+            Path(out_dir) / f"seed_{seed}",
+            n,
+            duration_s=duration_s,
+            seed=seed,
+            siren_pool=sirens,
+            noise_pool=noise,
+        )
+    return folders
+
+
 def generate_recordings(
     out_dir: str | Path,
     n: int,
