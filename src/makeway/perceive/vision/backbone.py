@@ -65,7 +65,7 @@ Cost on 2 CPU cores: YOLOX at 160 px about 3 ms per crop, NanoDet at 224 px abou
 from __future__ import annotations
 
 import os
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -74,6 +74,7 @@ import cv2
 import numpy as np
 
 from makeway.errors import InputError
+from makeway.perceive.vision import efficientnet_lite
 from makeway.perceive.vision.detectors import NanoDetM, YoloxNano, resolve_model_path
 
 __all__ = [
@@ -101,6 +102,10 @@ class BackboneSpec:
         mean, inv_std: per-channel BGR normalisation (``None``: raw 0–255 pixels).
         graph_size: the square input size the export fixed its shape constants for (``None``: the
             graph takes any size as it is).
+        build: for weights that are not an ONNX file, ``build(weights_path, input_size)`` returns
+            the ONNX model (``None``: the file is ONNX and is loaded as it is).
+        locate: where the weights are when no path is given (``None``: searched like the
+            detectors' files, :func:`~makeway.perceive.vision.detectors.resolve_model_path`).
     """
 
     name: str
@@ -110,6 +115,8 @@ class BackboneSpec:
     mean: tuple[float, float, float] | None = None
     inv_std: tuple[float, float, float] | None = None
     graph_size: int | None = None
+    build: Callable[[Path, int], Any] | None = None
+    locate: Callable[[], Path] | None = None
 
 
 #: Short names of the useful YOLOX-nano tensors (see the module docstring).
@@ -136,6 +143,16 @@ BACKBONES: dict[str, BackboneSpec] = {
         mean=tuple(float(v) for v in NanoDetM._MEAN),  # type: ignore[arg-type]
         inv_std=tuple(float(v) for v in NanoDetM._INV_STD),  # type: ignore[arg-type]
         graph_size=416,
+    ),
+    "efficientnet_lite0": BackboneSpec(
+        "efficientnet_lite0",
+        efficientnet_lite.WEIGHTS_FILE,
+        {name: name for name in efficientnet_lite.LAYERS},
+        ("head",),
+        mean=(efficientnet_lite.PIXEL_MEAN,) * 3,
+        inv_std=(efficientnet_lite.PIXEL_SCALE,) * 3,
+        build=efficientnet_lite.efficientnet_lite0_graph,
+        locate=efficientnet_lite.efficientnet_lite0_weights,
     ),
 }
 
@@ -300,10 +317,13 @@ def load_pruned_backbone(spec: BackboneSpec, model_path: Path, layers: Sequence[
     """
     import onnx
 
-    try:
-        model = onnx.load(str(model_path))
-    except Exception as exc:  # protobuf decode errors come in several types
-        raise InputError(model_path, f"not a valid ONNX model ({type(exc).__name__}: {exc})") from exc
+    if spec.build is not None:
+        model = spec.build(model_path, input_size)
+    else:
+        try:
+            model = onnx.load(str(model_path))
+        except Exception as exc:  # protobuf decode errors come in several types
+            raise InputError(model_path, f"not a valid ONNX model ({type(exc).__name__}: {exc})") from exc
     try:
         if spec.graph_size is not None:
             _rescale_fixed_shapes(model, spec.graph_size, input_size)
@@ -361,9 +381,12 @@ class BackboneFeatures:
         self.input_size = int(input_size)
         self.grid = int(grid)
         self.num_threads = int(num_threads) if num_threads is not None else (os.cpu_count() or 1)
-        self.model_path = resolve_model_path(self.spec.filename, model_path)
+        if model_path is None and self.spec.locate is not None:
+            self.model_path = self.spec.locate()
+        else:
+            self.model_path = resolve_model_path(self.spec.filename, model_path)
         self._tensors = [self.spec.layers.get(name, name) for name in self.layers]
-        self._session, self._channels = self._build_session()
+        self._session, self._widths = self._build_session()
 
     def __repr__(self) -> str:
         return (
@@ -375,8 +398,7 @@ class BackboneFeatures:
     @property
     def dim(self) -> int:
         """Length of one feature vector."""
-        per_channel = 2 + (4 if self.grid == 2 else 0)
-        return per_channel * sum(self._channels)
+        return sum(self._widths)
 
     # --------------------------------------------------------------------------------- session
 
@@ -403,7 +425,7 @@ class BackboneFeatures:
             raise InputError(
                 self.model_path, f"ONNX Runtime could not run the feature graph ({detail})"
             ) from exc
-        return session, [int(o.shape[1]) for o in outs]
+        return session, [int(self._pool(o).shape[1]) for o in outs]
 
     # ------------------------------------------------------------------------------- transform
 
@@ -422,6 +444,9 @@ class BackboneFeatures:
         return out
 
     def _pool(self, fmap: np.ndarray) -> np.ndarray:
+        if fmap.shape[2:] == (1, 1):  # already pooled (class scores): the vector itself
+            vector: np.ndarray = fmap[:, :, 0, 0]
+            return vector
         parts = [fmap.mean(axis=(2, 3)), fmap.max(axis=(2, 3))]
         if self.grid == 2:
             h, w = fmap.shape[2:]

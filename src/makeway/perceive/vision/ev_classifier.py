@@ -153,7 +153,9 @@ class EVCropClassifier:
         if self._extractors is None:
             self._extractors = [
                 BackboneFeatures(
-                    _model_path_for(self.model_path, BACKBONES[b.backbone].filename),
+                    None
+                    if BACKBONES[b.backbone].locate is not None  # weights from an installed package
+                    else _model_path_for(self.model_path, BACKBONES[b.backbone].filename),
                     backbone=b.backbone,
                     layers=b.layers,
                     input_size=b.input_size,
