@@ -120,7 +120,7 @@ def main() -> int:
     if not args.no_head:
         head = EVCropClassifier.load(DEFAULT_MODEL, num_threads=args.threads)
         m = _metrics(head.predict_proba(held.load_images(head.input_size)), held.labels, head.threshold)
-        # the head's cost is its feature extraction (both backbones, crop and mirror image): e2e only
+        # the head's cost is its feature extraction (crop and mirror image): e2e only
         small = held.load_images(head.input_size)[np.arange(args.batch) % len(held)]
         e2e_ms, _ = _times_ms(lambda: head.predict_proba(small), max(3, args.repeats // 10))
         print(

@@ -104,12 +104,13 @@ def test_one_block_without_flip_and_format_1(ev_split: tuple[CropSet, CropSet], 
 def test_shipped_head_on_the_holdout(shipped: EVCropClassifier, ev_split: tuple[CropSet, CropSet]) -> None:
     assert DEFAULT_MODEL.is_file() and DEFAULT_MODEL.stat().st_size < 200_000
     assert shipped.blocks == DEFAULT_BLOCKS and shipped.flip and shipped.input_size == 224
-    assert len(shipped.coef_ if shipped.coef_ is not None else []) == shipped.dim == 2 * (704 + 812)
+    # EfficientNet-Lite0 stage6 and head (average + max per channel) and the 1000 ImageNet scores
+    assert len(shipped.coef_ if shipped.coef_ is not None else []) == shipped.dim == 2 * (320 + 1280) + 1000
     assert "ev_crops" in shipped.training
     _, test = ev_split
     probs = shipped.predict_proba(test.load_images(shipped.input_size))
     accuracy = float(np.mean((probs >= shipped.threshold) == test.labels.astype(bool)))
-    assert accuracy >= 0.9  # measured 0.920 on the 250 held-out crops
+    assert accuracy >= 0.93  # measured 0.940 on the 250 held-out crops
 
 
 def test_cli_eval_on_ev_crops(ev_root: Path) -> None:
@@ -117,7 +118,7 @@ def test_cli_eval_on_ev_crops(ev_root: Path) -> None:
     assert r.exit_code == 0, r.output
     metrics = _last_json(r.output)
     assert set(metrics) == _KEYS
-    assert metrics["n"] == 250 and metrics["accuracy"] >= 0.9
+    assert metrics["n"] == 250 and metrics["accuracy"] >= 0.93
     assert "held-out" in r.output
 
 

@@ -530,7 +530,7 @@ def train(
     arch: Annotated[
         str,
         typer.Option(
-            help="logreg (pooled detector-backbone features, --block, + logistic head); CNNs: resnet18, "
+            help="logreg (pooled backbone features, --block, + logistic head); CNNs: resnet18, "
             "small_cnn, or yolox_ft / nanodet_ft "
             "(a detector's backbone fine-tuned after a linear probe; --input-size a multiple of 32)."
         ),
@@ -556,8 +556,10 @@ def train(
     block: Annotated[
         list[str] | None,
         typer.Option(
-            help="logreg: feature block backbone@size:layer,layer (repeat; backbones yolox_nano, nanodet_m). "
-            "Default: yolox_nano@160:dark3,dark4,dark5,pan5 and nanodet_m@224:stage2,stage3,stage4.",
+            help="logreg: feature block backbone@size:layer,layer (repeat; backbones efficientnet_lite0, "
+            "yolox_nano, nanodet_m). Default: efficientnet_lite0@224:stage6,head,logits (ImageNet "
+            "features); the previous head used yolox_nano@160:dark3,dark4,dark5,pan5 and "
+            "nanodet_m@224:stage2,stage3,stage4.",
         ),
     ] = None,
     flip: Annotated[

@@ -1,11 +1,13 @@
-"""The shipped per-track EV crop classifier (issue 3, SPEC §1): YOLOX-nano features + logistic head.
+"""The shipped per-track EV crop classifier (issue 3, SPEC §1): pretrained features + logistic head.
 
-:class:`EVCropClassifier` is a scikit-learn style estimator: pooled YOLOX-nano backbone features
-(:class:`~makeway.perceive.vision.backbone.BackboneFeatures`, ``d = 1280`` at 160 px) followed by a
-head of standardisation + logistic regression (``C`` picked by an inner 5-fold CV). The
-feature extractor is the detector's own ONNX file, so only the head is stored — as a plain ``.npz``
-(no pickle): ``mean``, ``scale``, ``coef``, ``intercept`` plus metadata (feature layers, input
-size, ``C``, decision threshold, a description of the training data, format version).
+:class:`EVCropClassifier` is a scikit-learn style estimator: pooled backbone features
+(:class:`~makeway.perceive.vision.backbone.BackboneFeatures`; shipped: EfficientNet-Lite0 with
+ImageNet weights, ``d = 4200`` at 224 px) followed by a head of standardisation + logistic
+regression (``C`` picked by an inner 5-fold CV). The feature extractors come from files that are
+not ours (the detectors' ONNX files, the ImageNet package's weights), so only the head is
+stored — as a plain ``.npz`` (no pickle): ``mean``, ``scale``, ``coef``, ``intercept`` plus
+metadata (feature layers, input size, ``C``, decision threshold, a description of the training
+data, format version).
 
 :data:`DEFAULT_MODEL` is the head shipped inside the package (``makeway/models``), trained with
 ``makeway classify train`` (see ``docs/model_card_ev_head.md``). The label it learnt is "this crop
@@ -76,11 +78,11 @@ def _model_path_for(model_path: str | Path | None, filename: str) -> Path | None
 
 
 class EVCropClassifier:
-    """Detector-backbone features + standardised logistic regression on square vehicle crops.
+    """Pretrained backbone features + standardised logistic regression on square vehicle crops.
 
     The features are the pooled feature maps of one or more :class:`FeatureBlock` s (a registered
-    detector graph, its layers, its input size; :data:`~makeway.perceive.vision.backbone.
-    DEFAULT_BLOCKS` = YOLOX-nano at 160 px + NanoDet-m at 224 px), concatenated. With ``flip`` the
+    backbone graph, its layers, its input size; :data:`~makeway.perceive.vision.backbone.
+    DEFAULT_BLOCKS` = EfficientNet-Lite0 at 224 px), concatenated. With ``flip`` the
     head is trained on every crop and its mirror image, and a crop's probability is the mean of
     its own and its mirror image's.
 
@@ -90,7 +92,8 @@ class EVCropClassifier:
         threshold: decision threshold of :meth:`predict` on the probability.
         Cs: inverse regularisation strengths tried by the inner 5-fold CV of :meth:`fit`.
         model_path: a folder holding the detector ONNX files, or one of them (the other is looked
-            for beside it); ``None`` searches as the detectors do.
+            for beside it); ``None`` searches as the detectors do. Blocks whose weights come from an
+            installed package (EfficientNet-Lite0) ignore it.
         num_threads: ONNX Runtime threads of each feature extractor (``None``: all cores).
         seed: seed of the inner CV folds.
 
