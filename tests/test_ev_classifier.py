@@ -104,13 +104,12 @@ def test_one_block_without_flip_and_format_1(ev_split: tuple[CropSet, CropSet], 
 def test_shipped_head_on_the_holdout(shipped: EVCropClassifier, ev_split: tuple[CropSet, CropSet]) -> None:
     assert DEFAULT_MODEL.is_file() and DEFAULT_MODEL.stat().st_size < 200_000
     assert shipped.blocks == DEFAULT_BLOCKS and shipped.flip and shipped.input_size == 224
-    # EfficientNet-Lite0 stage6 and head (average + max per channel) and the 1000 ImageNet scores
-    assert len(shipped.coef_ if shipped.coef_ is not None else []) == shipped.dim == 2 * (320 + 1280) + 1000
+    assert len(shipped.coef_ if shipped.coef_ is not None else []) == shipped.dim == 2 * (704 + 812)
     assert "ev_crops" in shipped.training
     _, test = ev_split
     probs = shipped.predict_proba(test.load_images(shipped.input_size))
     accuracy = float(np.mean((probs >= shipped.threshold) == test.labels.astype(bool)))
-    assert accuracy >= 0.93  # measured 0.940 on the 250 held-out crops
+    assert accuracy >= 0.9  # measured 0.920 on the 250 held-out crops
 
 
 def test_cli_eval_on_ev_crops(ev_root: Path) -> None:
@@ -118,7 +117,7 @@ def test_cli_eval_on_ev_crops(ev_root: Path) -> None:
     assert r.exit_code == 0, r.output
     metrics = _last_json(r.output)
     assert set(metrics) == _KEYS
-    assert metrics["n"] == 250 and metrics["accuracy"] >= 0.93
+    assert metrics["n"] == 250 and metrics["accuracy"] >= 0.9
     assert "held-out" in r.output
 
 
@@ -204,3 +203,19 @@ def test_cli_detect_single_view(video_dir: Path, tmp_path: Path) -> None:
     assert r.exit_code == 0, r.output
     summary = _last_json(r.output)
     assert summary["frames"] == 4 and summary["ms_per_frame"]["classify"] > 0
+
+
+def test_imagenet_head_on_the_holdout(ev_split: tuple[CropSet, CropSet]) -> None:
+    """The EfficientNet-Lite0 head (``--model imagenet``): the most accurate on still crops."""
+    from makeway.perceive.vision.backbone import IMAGENET_BLOCKS
+    from makeway.perceive.vision.ev_classifier import IMAGENET_MODEL, named_crop_classifier
+
+    head = named_crop_classifier("imagenet", num_threads=2)
+    assert isinstance(head, EVCropClassifier) and head.blocks == IMAGENET_BLOCKS and head.flip
+    assert IMAGENET_MODEL.stat().st_size < 200_000
+    # stage6 and head (average + max per channel) and the 1000 ImageNet class scores
+    assert head.dim == 2 * (320 + 1280) + 1000
+    _, test = ev_split
+    probs = head.predict_proba(test.load_images(head.input_size))
+    accuracy = float(np.mean((probs >= head.threshold) == test.labels.astype(bool)))
+    assert accuracy >= 0.93  # measured 0.940 on the 250 held-out crops

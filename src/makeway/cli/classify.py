@@ -557,9 +557,9 @@ def train(
         list[str] | None,
         typer.Option(
             help="logreg: feature block backbone@size:layer,layer (repeat; backbones efficientnet_lite0, "
-            "yolox_nano, nanodet_m). Default: efficientnet_lite0@224:stage6,head,logits (ImageNet "
-            "features); the previous head used yolox_nano@160:dark3,dark4,dark5,pan5 and "
-            "nanodet_m@224:stage2,stage3,stage4.",
+            "yolox_nano, nanodet_m). Default: yolox_nano@160:dark3,dark4,dark5,pan5 and "
+            "nanodet_m@224:stage2,stage3,stage4; the imagenet head uses "
+            "efficientnet_lite0@224:stage6,head,logits.",
         ),
     ] = None,
     flip: Annotated[
@@ -669,7 +669,9 @@ def eval_cmd(
     data: Annotated[Path, typer.Option("--data", help="Crop folder: images/ + labels.csv (any image size).")],
     model: Annotated[
         str,
-        typer.Option("--model", help="default|fast|fastest (shipped models) or a head .npz / CNN .onnx."),
+        typer.Option(
+            "--model", help="default|fast|fastest|imagenet (shipped models) or a head .npz / CNN .onnx."
+        ),
     ] = "default",
     plot: Annotated[
         Path | None,
@@ -715,7 +717,9 @@ def mine(
     pool: Annotated[Path, typer.Argument(help="Folder of unlabelled crops (searched recursively).")],
     model: Annotated[
         str,
-        typer.Option("--model", help="default|fast|fastest (shipped models) or a head .npz / CNN .onnx."),
+        typer.Option(
+            "--model", help="default|fast|fastest|imagenet (shipped models) or a head .npz / CNN .onnx."
+        ),
     ] = "default",
     out: Annotated[
         Path,

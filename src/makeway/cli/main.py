@@ -61,7 +61,8 @@ def detect(
         typer.Option(
             help="Per-track EV crop classifier: 'default' (the shipped head on YOLOX-nano + NanoDet-m "
             "features: the accurate one, ~13 ms per crop on 2 cores), 'fast' (the "
-            "shipped 64 px small CNN), 'fastest' (the 32 px small CNN: 100 crops in ~4 ms), a model "
+            "shipped 64 px small CNN), 'fastest' (the 32 px small CNN: 100 crops in ~4 ms), "
+            "'imagenet' (EfficientNet-Lite0 features: best on still crops, worse on road video), a model "
             "file (.npz head or .onnx CNN) or 'none'. With one, tracks get smoothed EV states (see "
             "docs/model_card_ev_head.md, docs/model_card_ev_cnn.md)."
         ),

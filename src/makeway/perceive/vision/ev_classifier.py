@@ -1,13 +1,13 @@
 """The shipped per-track EV crop classifier (issue 3, SPEC §1): pretrained features + logistic head.
 
 :class:`EVCropClassifier` is a scikit-learn style estimator: pooled backbone features
-(:class:`~makeway.perceive.vision.backbone.BackboneFeatures`; shipped: EfficientNet-Lite0 with
-ImageNet weights, ``d = 4200`` at 224 px) followed by a head of standardisation + logistic
-regression (``C`` picked by an inner 5-fold CV). The feature extractors come from files that are
-not ours (the detectors' ONNX files, the ImageNet package's weights), so only the head is
-stored — as a plain ``.npz`` (no pickle): ``mean``, ``scale``, ``coef``, ``intercept`` plus
-metadata (feature layers, input size, ``C``, decision threshold, a description of the training
-data, format version).
+(:class:`~makeway.perceive.vision.backbone.BackboneFeatures`; default: the two COCO detectors'
+backbones, ``d = 3032``; ``imagenet``: EfficientNet-Lite0, ``d = 4200``) followed by a head of
+standardisation + logistic regression (``C`` picked by an inner 5-fold CV). The feature
+extractors come from files that are not ours (the detectors' ONNX files, the ImageNet package's
+weights), so only the head is stored — as a plain ``.npz`` (no pickle): ``mean``, ``scale``,
+``coef``, ``intercept`` plus metadata (feature layers, input size, ``C``, decision threshold, a
+description of the training data, format version).
 
 :data:`DEFAULT_MODEL` is the head shipped inside the package (``makeway/models``), trained with
 ``makeway classify train`` (see ``docs/model_card_ev_head.md``). The label it learnt is "this crop
@@ -39,6 +39,7 @@ __all__ = [
     "FASTEST_MODEL",
     "FAST_MODEL",
     "FORMAT_VERSION",
+    "IMAGENET_MODEL",
     "SHIPPED_MODELS",
     "CropClassifier",
     "EVCropClassifier",
@@ -55,7 +56,15 @@ FAST_MODEL = Path(__file__).resolve().parents[2] / "models" / "ev_cnn_small64.on
 #: The same network at 32 px: the one that meets issue 3's latency target (100 crops in ≤ 10 ms on
 #: 2 cores), about three points less accurate than the 64 px one (``docs/model_card_ev_cnn.md``).
 FASTEST_MODEL = Path(__file__).resolve().parents[2] / "models" / "ev_cnn_small32.onnx"
-SHIPPED_MODELS = {"default": DEFAULT_MODEL, "fast": FAST_MODEL, "fastest": FASTEST_MODEL}
+#: The head on EfficientNet-Lite0 ImageNet features: the most accurate on still crops (0.940 held
+#: out), but far worse than the default on the real road videos (``docs/model_card_ev_head.md``).
+IMAGENET_MODEL = Path(__file__).resolve().parents[2] / "models" / "ev_head_imagenet.npz"
+SHIPPED_MODELS = {
+    "default": DEFAULT_MODEL,
+    "fast": FAST_MODEL,
+    "fastest": FASTEST_MODEL,
+    "imagenet": IMAGENET_MODEL,
+}
 
 #: Version of the ``.npz`` layout written by :meth:`EVCropClassifier.save` (1: one YOLOX-nano block,
 #: no mirroring — still read).
@@ -82,7 +91,7 @@ class EVCropClassifier:
 
     The features are the pooled feature maps of one or more :class:`FeatureBlock` s (a registered
     backbone graph, its layers, its input size; :data:`~makeway.perceive.vision.backbone.
-    DEFAULT_BLOCKS` = EfficientNet-Lite0 at 224 px), concatenated. With ``flip`` the
+    DEFAULT_BLOCKS` = YOLOX-nano at 160 px + NanoDet-m at 224 px), concatenated. With ``flip`` the
     head is trained on every crop and its mirror image, and a crop's probability is the mean of
     its own and its mirror image's.
 
@@ -414,7 +423,8 @@ def load_crop_classifier(path: str | Path = DEFAULT_MODEL, **kwargs: Any) -> Cro
 
 def named_crop_classifier(name: str | Path, *, single_view: bool = False, **kwargs: Any) -> CropClassifier:
     """A shipped classifier by name — ``default`` (the head), ``fast`` (64 px CNN), ``fastest``
-    (32 px CNN) — or a model file (:func:`load_crop_classifier`). ``single_view`` makes a head judge
+    (32 px CNN), ``imagenet`` (the EfficientNet-Lite0 head) — or a model file
+    (:func:`load_crop_classifier`). ``single_view`` makes a head judge
     each crop without its mirror image (:attr:`EVCropClassifier.mirror_at_test`; CNNs have none).
     ``kwargs`` (e.g. ``num_threads``) go to the loader.
 
