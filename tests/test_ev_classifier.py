@@ -219,3 +219,37 @@ def test_imagenet_head_on_the_holdout(ev_split: tuple[CropSet, CropSet]) -> None
     probs = head.predict_proba(test.load_images(head.input_size))
     accuracy = float(np.mean((probs >= head.threshold) == test.labels.astype(bool)))
     assert accuracy >= 0.93  # measured 0.940 on the 250 held-out crops
+
+
+def test_shrink_augmentation(ev_split: tuple[CropSet, CropSet], tmp_path: Path) -> None:
+    """``shrink``: training copies of each crop as a distant vehicle looks in video."""
+    from makeway.perceive.vision.ev_classifier import shrink_copies
+
+    train, test = ev_split
+    small = train.subset(range(0, 240, 6))
+    images = small.load_images(160)
+    far = shrink_copies(images, 24)
+    assert far.shape == images.shape and far.dtype == np.uint8
+
+    def sharpness(a: np.ndarray) -> float:
+        grey = [cv2.cvtColor(im, cv2.COLOR_BGR2GRAY) for im in a]
+        return float(np.mean([cv2.Laplacian(im, cv2.CV_64F).var() for im in grey]))
+
+    assert sharpness(far) < 0.2 * sharpness(images)  # the fine detail is gone
+    with pytest.raises(ValueError, match="at least 4"):
+        shrink_copies(images, 2)
+    with pytest.raises(ValueError, match="at least 4"):
+        EVCropClassifier(shrink=(32, 1))
+    clf = EVCropClassifier(blocks=["yolox_nano@160:dark5"], shrink=(24, 48), Cs=(0.01,), num_threads=2)
+    x, xm, y, g = clf.training_features(images, small.labels, np.arange(len(small)) // 2)
+    n = len(small)
+    assert x.shape == (3 * n, clf.dim) and xm is not None and xm.shape == x.shape
+    assert np.array_equal(y, np.tile(small.labels, 3)) and np.array_equal(g, np.tile(np.arange(n) // 2, 3))
+    assert not np.allclose(x[:n], x[n : 2 * n])  # the shrunk copies give other features
+    clf.fit(images, small.labels, groups=np.arange(n) // 2)
+    probs = clf.predict_proba(test.subset(range(4)).load_images(160))
+    assert probs.shape == (4,) and np.all((probs >= 0) & (probs <= 1))
+    r = runner.invoke(
+        app, ["classify", "train", "--data", str(tmp_path), "--shrink", "2", "--out", str(tmp_path / "h.npz")]
+    )
+    assert r.exit_code == 2 and "--shrink" in r.output and not (tmp_path / "h.npz").exists()

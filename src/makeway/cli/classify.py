@@ -565,6 +565,13 @@ def train(
     flip: Annotated[
         bool, typer.Option(help="logreg: train on mirror images too; judge a crop by it and its mirror.")
     ] = True,
+    shrink: Annotated[
+        list[int] | None,
+        typer.Option(
+            help="logreg: also train on every crop shrunk to this width in px and enlarged back, as "
+            "distant vehicles look in video (repeat, e.g. --shrink 32 --shrink 64).",
+        ),
+    ] = None,
     unlabelled: Annotated[
         list[Path] | None,
         typer.Option(
@@ -621,7 +628,10 @@ def train(
         blocks = [FeatureBlock.parse(b) for b in block] if block else list(DEFAULT_BLOCKS)
     except ValueError as exc:
         raise typer.BadParameter(str(exc), param_hint="--block") from None
-    clf = EVCropClassifier(blocks=blocks, flip=flip, threshold=threshold, seed=seed)
+    try:
+        clf = EVCropClassifier(blocks=blocks, flip=flip, threshold=threshold, seed=seed, shrink=shrink or ())
+    except ValueError as exc:
+        raise typer.BadParameter(str(exc), param_hint="--shrink") from None
     sets = [(folder, read_crop_folder(folder)) for folder in data]  # all read before any work
     xs: list[np.ndarray] = []
     xms: list[np.ndarray] = []
@@ -641,13 +651,16 @@ def train(
         err_console.print(f"{folder.name}: {what}, {len(crops)} crops ({crops.n_positive} positive)")
         parts.append(f"{folder.name}: {what}, {len(crops)} crops, {crops.n_positive} positive")
         images = crops.load_images(clf.input_size, cache=False)
-        x, x_mirrored = clf.transform_pair(images)
+        # near-duplicates stay in one inner-CV fold (as the holdout keeps them on one side)
+        groups = np.char.add(f"{len(gs)}:", near_duplicate_groups(images).astype(str))
+        x, x_mirrored, y, g = clf.training_features(images, crops.labels, groups)
         xs.append(x)
         if x_mirrored is not None:
             xms.append(x_mirrored)
-        ys.append(crops.labels)
-        # near-duplicates stay in one inner-CV fold (as the holdout keeps them on one side)
-        gs.append(np.char.add(f"{len(gs)}:", near_duplicate_groups(images).astype(str)))
+        ys.append(y)
+        gs.append(g)
+    if clf.shrink:
+        parts.append(f"each crop also shrunk to {', '.join(f'{w} px' for w in clf.shrink)} and enlarged back")
     clf.fit_features(
         np.concatenate(xs),
         np.concatenate(ys),

@@ -26,6 +26,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any, Protocol
 
+import cv2
 import numpy as np
 
 from makeway.atomic import atomic_path
@@ -46,6 +47,7 @@ __all__ = [
     "EVTrackClassifier",
     "load_crop_classifier",
     "named_crop_classifier",
+    "shrink_copies",
 ]
 
 #: The head shipped with the package (trained on the ev_crops training part; see the model card).
@@ -86,6 +88,23 @@ def _model_path_for(model_path: str | Path | None, filename: str) -> Path | None
     return path
 
 
+def shrink_copies(images: np.ndarray, width: int) -> np.ndarray:
+    """``uint8`` BGR crops ``(n, S, S, 3)`` as seen from afar: shrunk to ``width`` × ``width`` (area
+    averaging) and enlarged back to ``S`` (bilinear), as a small video crop is enlarged to the
+    network's input. The resolution augmentation of :class:`EVCropClassifier` (``shrink``)."""
+    arr = np.asarray(images)
+    if arr.ndim != 4 or arr.shape[3] != 3 or arr.dtype != np.uint8:
+        raise ValueError(f"expected uint8 BGR images (n, H, W, 3), got {arr.dtype} {arr.shape}")
+    if width < 4:
+        raise ValueError(f"width must be at least 4 px, got {width}")
+    h, w = arr.shape[1:3]
+    out = np.empty_like(arr)
+    for i, image in enumerate(arr):
+        small = cv2.resize(image, (width, width), interpolation=cv2.INTER_AREA)
+        out[i] = cv2.resize(small, (w, h), interpolation=cv2.INTER_LINEAR)
+    return out
+
+
 class EVCropClassifier:
     """Pretrained backbone features + standardised logistic regression on square vehicle crops.
 
@@ -105,6 +124,9 @@ class EVCropClassifier:
             installed package (EfficientNet-Lite0) ignore it.
         num_threads: ONNX Runtime threads of each feature extractor (``None``: all cores).
         seed: seed of the inner CV folds.
+        shrink: widths in pixels; :meth:`fit` adds, for each, a copy of every training crop shrunk
+            to that width and enlarged back (:func:`shrink_copies`), so that the head also learns
+            from crops as small as those of distant vehicles in video. Training only; empty: none.
 
     The feature extractors are built on first use. Images are ``uint8`` BGR ``(n, H, W, 3)`` of
     any square-ish size (each block stretches them to its input size); :attr:`input_size`, the
@@ -125,6 +147,7 @@ class EVCropClassifier:
         model_path: str | Path | None = None,
         num_threads: int | None = None,
         seed: int = 0,
+        shrink: Sequence[int] = (),
     ) -> None:
         if not 0.0 < threshold < 1.0:
             raise ValueError(f"threshold must be in (0, 1), got {threshold}")
@@ -138,6 +161,9 @@ class EVCropClassifier:
         self.model_path = model_path
         self.num_threads = num_threads
         self.seed = int(seed)
+        self.shrink = tuple(int(w) for w in shrink)
+        if any(w < 4 for w in self.shrink):
+            raise ValueError(f"shrink widths must be at least 4 px, got {self.shrink}")
         self.training = ""
         self.C: float | None = None
         self.mean_: np.ndarray | None = None
@@ -210,9 +236,23 @@ class EVCropClassifier:
         training: str = "",
     ) -> EVCropClassifier:
         """Fit the head on crops and 0/1 labels; ``groups`` (e.g. near-duplicate clusters) keep
-        related crops in one inner-CV fold; ``training`` describes the data (stored on save)."""
-        x, x_mirrored = self.transform_pair(images)
-        return self.fit_features(x, labels, x_mirrored=x_mirrored, groups=groups, training=training)
+        related crops in one inner-CV fold; ``training`` describes the data (stored on save).
+        With :attr:`shrink`, the shrunk copies join the training rows in their crop's fold."""
+        x, x_mirrored, y, g = self.training_features(images, labels, groups)
+        return self.fit_features(x, y, x_mirrored=x_mirrored, groups=g, training=training)
+
+    def training_features(
+        self, images: np.ndarray, labels: np.ndarray, groups: np.ndarray | None = None
+    ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray, np.ndarray]:
+        """``(features, mirror-image features or None, labels, groups)`` of crops and of their
+        :attr:`shrink` copies (each copy keeps its crop's label and group), for :meth:`fit_features`."""
+        y = np.asarray(labels).ravel()
+        g = np.arange(len(y)) if groups is None else np.asarray(groups).ravel()
+        views = [np.asarray(images)] + [shrink_copies(images, w) for w in self.shrink]
+        pairs = [self.transform_pair(v) for v in views]
+        xs = np.concatenate([p[0] for p in pairs])
+        mirrored = None if pairs[0][1] is None else np.concatenate([p[1] for p in pairs if p[1] is not None])
+        return xs, mirrored, np.tile(y, len(views)), np.tile(g, len(views))
 
     def fit_features(
         self,
