@@ -47,6 +47,7 @@ bench-audio: venv
 	$(BIN)/python benchmarks/bench_audio_real.py --sweep 65,75,80,85
 	$(BIN)/python benchmarks/bench_audio_multisource.py
 	$(BIN)/python benchmarks/bench_audio_calibration.py
+	$(BIN)/python benchmarks/bench_audio_range_bound.py
 
 bench: bench-sort bench-video bench-pull-over bench-audio
 

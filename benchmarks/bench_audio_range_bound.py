@@ -1,6 +1,7 @@
 """How far loudness alone can take siren ranging, beside the shipped networks (issue 4, SPEC §3).
 
-    .venv/bin/python benchmarks/bench_audio_range_bound.py --data DIR [--data DIR ...] [--json FILE]
+    .venv/bin/python benchmarks/bench_audio_range_bound.py [--data DIR ...] [--n 30 --seeds 2026,2027]
+        [--json FILE]
 
 The simulator draws each siren's emitted level uniformly from ``SIREN_LEVEL_DB_1M`` (110–120 dB SPL
 at 1 m, independent of the siren's kind, the scene and the noise). A ranger that reads only the
@@ -22,13 +23,16 @@ Prints the median and mean absolute distance error of each, beside the issue's t
 and seed 002 (9.30 m / 10.58 m). Where the networks' median lies below the oracle's, they already draw
 on cues beyond loudness (the Doppler and level trend of the pass-by, the ground reflection); the
 oracle's figure is what loudness alone leaves. Needs recordings written by ``makeway audio simulate``
-(which stores each siren's level); others are refused.
+(which stores each siren's level); others are refused. Without ``--data`` it simulates the held-out
+sets of the other audio benchmarks (``--n`` recordings per seed, test-split ingredients only).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import tempfile
+import time
 from pathlib import Path
 from typing import Any
 
@@ -40,7 +44,7 @@ from makeway.perceive.audio.labels import label_recording
 from makeway.perceive.audio.siren_model import SirenModel
 from makeway.progress import progress_bar
 from makeway.sense.recording import Recording, read_recording
-from makeway.sim.audio_scenarios import SIREN_LEVEL_DB_1M
+from makeway.sim.audio_scenarios import SIREN_LEVEL_DB_1M, generate_held_out
 
 SEED_002 = {"distance_median_m": 9.30, "distance_mean_m": 10.58}
 TARGET_MEDIAN_M = 6.0
@@ -94,14 +98,31 @@ def summary(err: np.ndarray) -> dict[str, float]:
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument(
-        "--data", type=Path, action="append", required=True, help="a folder of simulated recordings"
+        "--data", type=Path, action="append", default=None, help="simulated recordings (repeatable)"
     )
+    ap.add_argument("--n", type=int, default=30, help="recordings per seed to simulate without --data")
+    ap.add_argument("--seeds", default="2026,2027", help="seeds of the simulated held-out sets, pooled")
     ap.add_argument("--json", type=Path, default=None, help="also write the results to this JSON file")
     args = ap.parse_args()
 
-    folders = sorted(p for root in args.data for p in root.iterdir() if (p / "array.yaml").exists())
-    if not folders:
-        raise SystemExit(f"no recordings under {', '.join(map(str, args.data))}")
+    with tempfile.TemporaryDirectory() as tmp:
+        if args.data:
+            folders = sorted(p for root in args.data for p in root.iterdir() if (p / "array.yaml").exists())
+        else:
+            seeds = [int(v) for v in args.seeds.split(",") if v.strip()]
+            t0 = time.perf_counter()
+            folders = generate_held_out(tmp, args.n, seeds)
+            print(f"simulated {len(folders)} held-out recordings in {time.perf_counter() - t0:.0f} s")
+        if not folders:
+            raise SystemExit(f"no recordings under {', '.join(map(str, args.data or []))}")
+        try:
+            return report(folders, args.json)
+        except InputError as exc:  # e.g. recordings without the simulator's meta.yaml
+            raise SystemExit(str(exc)) from None
+
+
+def report(folders: list[Path], json_path: Path | None) -> int:
+    """Score the networks and the level-only oracle on ``folders``; print the table and JSON."""
     model = SirenModel(threads=2)
     parts: list[dict[str, np.ndarray]] = []
     with progress_bar("recordings", len(folders), unit="rec") as advance:
@@ -149,8 +170,8 @@ def main() -> int:
         print(f"{name:40s}{med:>9.2f}m{mean:>9.2f}m{med / TARGET_MEDIAN_M:>17.3f}×")
     print(f"{'target':40s}{'≤ 6.00m':>10s}")
     result = {"windows": int(len(d)), "recordings": len(folders), "rows": rows, "best_assumed_level_db": best}
-    if args.json is not None:
-        args.json.write_text(json.dumps(result, indent=2), encoding="utf-8")
+    if json_path is not None:
+        json_path.write_text(json.dumps(result, indent=2), encoding="utf-8")
     print(json.dumps(result, ensure_ascii=False))
     return 0
 
