@@ -37,6 +37,7 @@ from makeway.perceive.audio.evaluate import evaluate, model_estimator
 from makeway.perceive.audio.siren_model import DEFAULT_SIREN_LOCALIZER, DEFAULT_SIREN_RANGER, SirenModel
 from makeway.progress import progress_bar
 from makeway.sense.recording import REFERENCE_FULL_SCALE_DB_SPL, Recording, read_recording
+from makeway.sim.audio_scenarios import held_out_folders
 
 COLUMNS = (
     ("recall", "recall", True),
@@ -76,14 +77,10 @@ def main() -> int:
     gains = [float(v) for v in args.gains.split(",") if v.strip()]
 
     with tempfile.TemporaryDirectory() as tmp:
-        if args.data:
-            folders = sorted(p for d in args.data for p in d.iterdir() if (p / "array.yaml").exists())
-        else:
-            from makeway.sim.audio_scenarios import generate_held_out
-
-            t0 = time.perf_counter()
-            seeds = [int(v) for v in args.seeds.split(",") if v.strip()]
-            folders = generate_held_out(tmp, args.n, seeds)
+        t0 = time.perf_counter()
+        seeds = [int(v) for v in args.seeds.split(",") if v.strip()]
+        folders = held_out_folders(args.data, tmp, args.n, seeds)
+        if not args.data:
             print(f"simulated {len(folders)} held-out recordings in {time.perf_counter() - t0:.0f} s")
         recs = [read_recording(f) for f in folders]
         if args.model is None:

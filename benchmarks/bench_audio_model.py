@@ -38,6 +38,7 @@ from makeway.perceive.audio.labels import label_recording
 from makeway.perceive.audio.siren_model import DEFAULT_SIREN_MODEL, SirenModel
 from makeway.progress import progress_bar
 from makeway.sense.recording import read_recording
+from makeway.sim.audio_scenarios import held_out_folders
 
 SEED_002 = {
     "recall": 0.9916,
@@ -122,15 +123,11 @@ def main() -> int:
     args = ap.parse_args()
 
     with tempfile.TemporaryDirectory() as tmp:
-        if args.data is not None:
-            folders = sorted(p for p in args.data.iterdir() if (p / "array.yaml").exists())
-        else:
-            from makeway.sim.audio_scenarios import generate_held_out
-
-            out = args.keep if args.keep is not None else Path(tmp) / "test"
-            t0 = time.perf_counter()
-            seeds = [int(v) for v in args.seeds.split(",") if v.strip()]
-            folders = generate_held_out(out, args.n, seeds, args.duration)
+        seeds = [int(v) for v in args.seeds.split(",") if v.strip()]
+        out = args.keep if args.keep is not None else Path(tmp) / "test"
+        t0 = time.perf_counter()
+        folders = held_out_folders([args.data] if args.data else None, out, args.n, seeds, args.duration)
+        if args.data is None:
             print(
                 f"simulated {len(folders)} held-out recordings of {args.duration:g} s "
                 f"(seeds {', '.join(map(str, seeds))}) in {time.perf_counter() - t0:.0f} s"

@@ -37,7 +37,7 @@ from makeway.perceive.audio.labels import label_recording
 from makeway.perceive.audio.multisource import SourceSeparator
 from makeway.perceive.audio.siren_model import MAX_SOURCES, NEAR_ALONE_M, SirenModel
 from makeway.progress import progress_bar
-from makeway.sense.recording import read_recording
+from makeway.sense.recording import read_recording, recording_folders
 
 TOLERANCE_DEG = 15.0
 MAP_PEAK_FRACTION = 0.5
@@ -168,10 +168,7 @@ def main() -> int:
                 two_siren_fraction=two_frac,
             )
             sets[kind] = out
-        windows = {
-            k: collect(sorted(p for p in d.iterdir() if (p / "array.yaml").exists()), k, args.per_recording)
-            for k, d in sets.items()
-        }
+        windows = {k: collect(recording_folders(d), k, args.per_recording) for k, d in sets.items()}
 
     sr, mics = model.config.sample_rate, model.mics
     if args.grid:

@@ -44,7 +44,7 @@ from makeway.perceive.audio.labels import label_recording
 from makeway.perceive.audio.siren_model import SirenModel
 from makeway.progress import progress_bar
 from makeway.sense.recording import Recording, read_recording
-from makeway.sim.audio_scenarios import SIREN_LEVEL_DB_1M, generate_held_out
+from makeway.sim.audio_scenarios import SIREN_LEVEL_DB_1M, held_out_folders
 
 SEED_002 = {"distance_median_m": 9.30, "distance_mean_m": 10.58}
 TARGET_MEDIAN_M = 6.0
@@ -106,18 +106,14 @@ def main() -> int:
     args = ap.parse_args()
 
     with tempfile.TemporaryDirectory() as tmp:
-        if args.data:
-            folders = sorted(p for root in args.data for p in root.iterdir() if (p / "array.yaml").exists())
-        else:
-            seeds = [int(v) for v in args.seeds.split(",") if v.strip()]
-            t0 = time.perf_counter()
-            folders = generate_held_out(tmp, args.n, seeds)
-            print(f"simulated {len(folders)} held-out recordings in {time.perf_counter() - t0:.0f} s")
-        if not folders:
-            raise SystemExit(f"no recordings under {', '.join(map(str, args.data or []))}")
+        seeds = [int(v) for v in args.seeds.split(",") if v.strip()]
+        t0 = time.perf_counter()
         try:
+            folders = held_out_folders(args.data, tmp, args.n, seeds)
+            if not args.data:
+                print(f"simulated {len(folders)} held-out recordings in {time.perf_counter() - t0:.0f} s")
             return report(folders, args.json)
-        except InputError as exc:  # e.g. recordings without the simulator's meta.yaml
+        except InputError as exc:  # no recordings there, or ones without the simulator's meta.yaml
             raise SystemExit(str(exc)) from None
 
 

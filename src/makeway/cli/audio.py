@@ -17,7 +17,7 @@ import typer
 from makeway.cli.common import err_console, friendly_errors, new_app, print_json_line
 from makeway.errors import InputError
 from makeway.perceive.audio.labels import LISTEN_SMOOTH
-from makeway.sense.recording import FULL_SCALE_RANGE_DB, REFERENCE_FULL_SCALE_DB_SPL
+from makeway.sense.recording import FULL_SCALE_RANGE_DB, REFERENCE_FULL_SCALE_DB_SPL, recording_folders
 
 if TYPE_CHECKING:
     from makeway.perceive.audio.siren_model import SirenModel
@@ -170,17 +170,6 @@ def simulate(
         )
 
 
-def _recording_folders(folder: Path) -> list[Path]:
-    if not folder.exists():
-        raise InputError(folder, "no such folder")
-    if (folder / "audio.flac").exists() or (folder / "array.yaml").exists():
-        return [folder]
-    subs = sorted(p for p in folder.iterdir() if p.is_dir() and (p / "array.yaml").exists())
-    if not subs:
-        raise InputError(folder, "holds no recording (a folder with audio.flac, array.yaml, ego.csv)")
-    return subs
-
-
 @audio_app.command()
 @friendly_errors
 def label(
@@ -202,7 +191,7 @@ def label(
     from makeway.perceive.audio.labels import label_recording
     from makeway.sense.recording import read_recording
 
-    recs = _recording_folders(folder)
+    recs = recording_folders(folder)
     lines: list[str] = []
     n_windows = n_pos = n_dropped = 0
     for path in recs:  # read everything first: a bad recording leaves no output behind
@@ -353,14 +342,14 @@ def eval_cmd(
     from makeway.progress import progress_bar
     from makeway.sense.recording import read_recording
 
-    recs = _recording_folders(data)
+    recs = recording_folders(data)
     detector = None
     if fit is not None:
         import numpy as np
 
         detector = SirenEnergyDetector()
         scores, ys = [], []
-        for path in _recording_folders(fit):
+        for path in recording_folders(fit):
             rec = read_recording(path)
             labels = label_recording(rec)
             detector.sample_rate = rec.sample_rate
@@ -504,8 +493,8 @@ def train(
             f"training needs torch ({exc}); install it with: pip install -e '.[train]'"
         ) from None
 
-    folders = [f for d in data for f in _recording_folders(d)]
-    test_folders = _recording_folders(test) if test is not None else []
+    folders = [f for d in data for f in recording_folders(d)]
+    test_folders = recording_folders(test) if test is not None else []
     target = out if out is not None else DEFAULT_SIREN_MODEL
     names = tuple(x.strip() for x in streams.split(",") if x.strip())
     unknown = sorted(set(names) - set(STREAMS))

@@ -183,6 +183,24 @@ class Recording:
 # ------------------------------------------------------------------------------------------- reading
 
 
+def recording_folders(folder: str | Path) -> list[Path]:
+    """``folder`` itself when it is a recording, else its sub-folders that are recordings (holding
+    ``array.yaml``), sorted.
+
+    Raises:
+        InputError: the folder does not exist or holds no recording.
+    """
+    root = Path(folder)
+    if not root.exists():
+        raise InputError(root, "no such folder")
+    if (root / AUDIO_FILE).exists() or (root / ARRAY_FILE).exists():
+        return [root]
+    subs = sorted(p for p in root.iterdir() if p.is_dir() and (p / ARRAY_FILE).exists())
+    if not subs:
+        raise InputError(root, f"holds no recording (a folder with {AUDIO_FILE}, {ARRAY_FILE}, {EGO_FILE})")
+    return subs
+
+
 def read_recording(folder: str | Path) -> Recording:
     """Read and check a recording folder; every problem is one :class:`InputError` naming the file."""
     root = Path(folder)

@@ -54,6 +54,7 @@ from makeway.sense.recording import (
     REFERENCE_SAMPLE_RATE,
     Recording,
     Trajectory,
+    recording_folders,
     reference_mics,
     write_recording,
 )
@@ -549,6 +550,21 @@ def generate_held_out(
             noise_pool=noise,
         )
     return folders
+
+
+def held_out_folders(
+    data: Sequence[str | Path] | None,
+    out_dir: str | Path,
+    n: int,
+    seeds: Sequence[int],
+    duration_s: float = 8.0,
+) -> list[Path]:
+    """The recordings an audio benchmark runs on: those in the ``data`` folders
+    (:func:`~makeway.sense.recording.recording_folders`), or, when none are given, the held-out
+    sets simulated into ``out_dir`` (:func:`generate_held_out`)."""
+    if data:
+        return [f for d in data for f in recording_folders(d)]
+    return generate_held_out(out_dir, n, seeds, duration_s)
 
 
 def generate_recordings(
