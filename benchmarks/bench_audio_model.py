@@ -2,7 +2,8 @@
 
     .venv/bin/python benchmarks/bench_audio_model.py [--data DIR | --n 30 --seeds 2026,2027 --duration 8]
         [--model FILE] [--localizer FILE|none|auto] [--ranger FILE|none|auto]
-        [--baselines gccphat,srp,normmusic] [--latency-reps 60] [--smooth 1,3] [--keep DIR] [--json FILE]
+        [--baselines gccphat,srp,normmusic] [--latency-reps 60] [--smooth 1,8] [--smooth-probability 3]
+        [--keep DIR] [--json FILE]
 
 1. Held-out recordings: ``--data`` (a folder of recordings), or ``--n`` recordings per seed
    simulated with seeds 2026 and 2027 (``--seeds``; pooled: one 30-recording set moves recall by
@@ -13,8 +14,10 @@
    prints, in 10–50 m and overall, recall / false alarms / angle and distance errors beside seed 002
    (recall 99.16 %, 9.64° / 19.18°, 9.30 m / 10.58 m) and the issue's targets; then recall and angle
    error per 10 m bin like seed 002's Table II. ``--smooth`` adds rows for the model with its
-   decision on the causal mean probability of K windows (``makeway audio listen --smooth K``;
-   K = 1 is seed 002's per-window decision).
+   decision on the causal mean logit of K windows (``makeway audio listen --smooth K``, default 8;
+   K = 1 is seed 002's per-window decision), ``--smooth-probability`` rows with the mean
+   probability of K windows (``--average probability``; 3 was ``listen``'s rule until the twelfth
+   session, the anchor of the logit mean).
 3. Latency: one 0.5 s, 8-channel, 48 kHz window through features + all heads, ONNX Runtime on
    2 threads, median of ``--latency-reps`` runs, beside the 25 ms target and seed 002's ~50 ms.
 """
@@ -114,8 +117,14 @@ def main() -> int:
     ap.add_argument("--baselines", default="gccphat,srp,normmusic")
     ap.add_argument(
         "--smooth",
-        default="1,3",
-        help="decision smoothing to report for the model, in windows (1 = per window, seed 002's)",
+        default="1,8",
+        help="decision smoothing (mean logit of K windows) to report for the model, in windows "
+        "(1 = per window, seed 002's)",
+    )
+    ap.add_argument(
+        "--smooth-probability",
+        default="3",
+        help="decision smoothing by the mean probability of K windows to report beside it",
     )
     ap.add_argument("--latency-reps", type=int, default=60)
     ap.add_argument("--keep", type=Path, default=None, help="simulate into this folder and keep it")
@@ -143,12 +152,16 @@ def main() -> int:
         print(f"model: {model!r} ({args.model.stat().st_size / 1e6:.2f} MB)")
         results: dict[str, dict[str, Any]] = {}
         smooths = sorted({1, *(int(v) for v in args.smooth.split(",") if v.strip())})  # 1: the table's anchor
-        methods: list[tuple[str, Any, int]] = [
-            ("model" if k == 1 else f"model, smooth {k}", model_estimator(model), k) for k in smooths
+        methods: list[tuple[str, Any, int, str]] = [
+            ("model" if k == 1 else f"model, smooth {k}", model_estimator(model), k, "logit") for k in smooths
         ]
-        methods += [(b, b, 1) for b in args.baselines.split(",") if b]
+        methods += [
+            (f"model, p-mean {k}", model_estimator(model), k, "probability")
+            for k in sorted({int(v) for v in args.smooth_probability.split(",") if v.strip()} - {1})
+        ]
+        methods += [(b, b, 1, "logit") for b in args.baselines.split(",") if b]
         pooled: dict[str, np.ndarray] = {}
-        for name, method, smooth in methods:
+        for name, method, smooth, average in methods:
             with progress_bar(f"eval {name}", len(recs), unit="rec") as advance:
                 results[name] = evaluate(
                     recs,
@@ -158,6 +171,7 @@ def main() -> int:
                     arrays=pooled if name == "model" else None,
                     threshold=model.threshold if name.startswith("model") else 0.5,
                     smooth=smooth,
+                    average=average,
                 )
 
         first = results["model"]

@@ -1,7 +1,7 @@
 """Real-data check of the siren network (issue 4, item 5): siren vs no siren on the real mono files.
 
     .venv/bin/python benchmarks/bench_audio_real.py [--model FILE] [--level 70] [--include-train-clips]
-        [--sweep 65,70,75,80] [--json FILE]
+        [--sweep 65,70,75,80] [--smooth 8 [--average logit|probability]] [--json FILE]
 
 Every real mono file (street recordings with and without siren, ambulance + traffic mixtures, the
 test-split siren clips) is rendered as a static source 25 m from the roof array at 70 dB(A) and
@@ -12,6 +12,10 @@ training, beside the simulated held-out figures' targets (recall ≥ 99.5 %, fal
 ``--sweep`` repeats the check at several levels and prints one line per level: a detector that
 keys on loudness rather than on the siren's pattern shows it at once (its false alarms on street
 noise climb with the level).
+
+``--smooth K`` scores the live listener's rule instead of the single window: windows every 0.17 s,
+each decided on the mean of it and the K − 1 before it (``makeway audio listen --smooth K``; the
+listener's default is the logit mean of 8 windows, ``--average`` picks the mean).
 """
 
 from __future__ import annotations
@@ -22,6 +26,7 @@ from pathlib import Path
 
 from makeway.eval.siren_mono import LEVEL_DBA, mono_check, mono_files
 from makeway.paths import data_dir
+from makeway.perceive.audio.labels import SMOOTH_AVERAGE
 from makeway.perceive.audio.siren_model import DEFAULT_SIREN_MODEL, SirenModel
 from makeway.progress import progress_bar
 
@@ -36,6 +41,14 @@ def main() -> int:
     ap.add_argument("--level", type=float, default=LEVEL_DBA, help="A-weighted level at the array, dB")
     ap.add_argument("--include-train-clips", action="store_true")
     ap.add_argument("--sweep", default="", help="comma-separated levels (dB(A)) for a level sweep")
+    ap.add_argument(
+        "--smooth",
+        type=int,
+        default=1,
+        help="decide on the mean of K windows cut every 0.17 s, as 'audio listen --smooth K' does "
+        "(default 1: each 0.5 s window alone, every 0.5 s)",
+    )
+    ap.add_argument("--average", default=SMOOTH_AVERAGE, help="with --smooth: logit or probability")
     ap.add_argument("--json", type=Path, default=None)
     args = ap.parse_args()
     root = data_dir()
@@ -45,10 +58,21 @@ def main() -> int:
     n = len(mono_files(root, include_train_clips=args.include_train_clips))
     with progress_bar("real mono files", n, unit="file") as advance:
         res = mono_check(
-            model, root, level_dba=args.level, include_train_clips=args.include_train_clips, advance=advance
+            model,
+            root,
+            level_dba=args.level,
+            include_train_clips=args.include_train_clips,
+            advance=advance,
+            smooth=args.smooth,
+            average=args.average,
         )
     s = res["summary"]
-    print(f"\n{model!r}; static source 25 m away at {args.level:g} dB(A); 0.5 s windows every 0.5 s")
+    rule = (
+        "0.5 s windows every 0.5 s, each alone"
+        if args.smooth == 1
+        else f"0.5 s windows every 0.17 s, {args.average} mean of {args.smooth}"
+    )
+    print(f"\n{model!r}; static source 25 m away at {args.level:g} dB(A); {rule}")
     print(f"{'':22s}{'files':>7s}{'siren win':>11s}{'recall':>10s}{'other win':>11s}{'false al.':>11s}")
     rows = [(f"kind: {k}", b) for k, b in s["by_kind"].items()]
     rows += [("all files", s["all"]), ("unseen groups only", s["unseen"])]
@@ -75,6 +99,8 @@ def main() -> int:
                     level_dba=level,
                     include_train_clips=args.include_train_clips,
                     advance=advance,
+                    smooth=args.smooth,
+                    average=args.average,
                 )
                 res["sweep"].append({"level_dba": level, **out["summary"]["all"]})
         print(f"\nlevel sweep (all files): {'level':>8s}{'recall':>10s}{'false al.':>11s}")

@@ -193,16 +193,27 @@ def test_evaluate_smoothed_decision(tiny_recordings: Path) -> None:
     res1 = evaluate(paths, "gccphat", arrays=single)
     assert res1["smooth"] == 1 and res1["dropped_windows"] == 0
     smoothed: dict = {}
-    res3 = evaluate(paths, "gccphat", smooth=3, arrays=smoothed)
+    res3 = evaluate(paths, "gccphat", smooth=3, average="probability", arrays=smoothed)
     assert res3["smooth"] == 3 and res3["windows"] == res1["windows"]
+    assert res1["smooth_average"] is None and res3["smooth_average"] == "probability"
     # per recording (5 windows each), the causal mean of the window and the two before it
-    expected = np.concatenate([smoothed_probability(single["prob"][k : k + 5], 3) for k in (0, 5)])
+    expected = np.concatenate(
+        [smoothed_probability(single["prob"][k : k + 5], 3, "probability") for k in (0, 5)]
+    )
     np.testing.assert_allclose(smoothed["prob"], expected, atol=1e-12)
     np.testing.assert_allclose(expected[:3], np.cumsum(single["prob"][:3]) / np.arange(1, 4), atol=1e-12)
+    # the default average is the mean of the logits
+    by_logit: dict = {}
+    evaluate(paths, "gccphat", smooth=3, arrays=by_logit)
+    p = np.clip(single["prob"][:3], 1e-12, 1 - 1e-12)
+    z = np.cumsum(np.log(p / (1 - p))) / np.arange(1, 4)
+    np.testing.assert_allclose(by_logit["prob"][:3], 1 / (1 + np.exp(-z)), atol=1e-9)
     assert res3["recall"] == pytest.approx(np.mean(expected[smoothed["siren"]] >= 0.5), abs=1e-5)
     np.testing.assert_array_equal(smoothed["theta_hat"], single["theta_hat"])  # bearings untouched
-    with pytest.raises(ValueError, match="smooth must be >= 1"):
+    with pytest.raises(ValueError, match="must be >= 1"):
         evaluate(paths, "gccphat", smooth=0)
+    with pytest.raises(ValueError, match="unknown average"):
+        evaluate(paths, "gccphat", smooth=3, average="mode")
 
 
 def test_cli_eval(tiny_recordings: Path) -> None:

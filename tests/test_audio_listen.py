@@ -13,7 +13,7 @@ from typer.testing import CliRunner
 from makeway.cli.audio import audio_app
 from makeway.perceive.audio.doa import wrap_angle
 from makeway.perceive.audio.features import window_batch
-from makeway.perceive.audio.labels import label_recording
+from makeway.perceive.audio.labels import LISTEN_SMOOTH, label_recording
 from makeway.perceive.audio.motion import ApproachEstimator
 from makeway.perceive.audio.stream import listen, plot_listen
 from makeway.sense.recording import Recording, write_recording
@@ -38,11 +38,14 @@ def test_one_message_per_window_with_keys(pass_rec: Recording, messages: list[di
     labels = label_recording(pass_rec)
     assert len(messages) == len(labels) > 0
     np.testing.assert_allclose([m["t_end"] for m in messages], labels.t_end, atol=1e-6)
-    probs = np.array([m["probability"] for m in messages])
+    probs = np.clip([m["probability"] for m in messages], 1e-6, 1 - 1e-6)  # as rounded to 6 places
+    logits = np.log(probs / (1 - probs))
+    k = LISTEN_SMOOTH
     for i, m in enumerate(messages):
         assert set(m) == MESSAGE_KEYS
-        # the decision is on the mean of this window's and the two before it (LISTEN_SMOOTH = 3)
-        assert m["smoothed_probability"] == pytest.approx(probs[max(0, i - 2) : i + 1].mean(), abs=2e-6)
+        # the decision is on the mean logit of this window's and the k - 1 before it
+        z = logits[max(0, i - k + 1) : i + 1].mean()
+        assert m["smoothed_probability"] == pytest.approx(1 / (1 + np.exp(-z)), abs=1e-4)
         assert 0.0 <= m["probability"] <= 1.0 and m["is_siren"] == (m["smoothed_probability"] >= 0.5)
         assert len(m["sources"]) == (1 if m["is_siren"] else 0)
         for s in m["sources"]:
@@ -62,8 +65,15 @@ def test_smoothing_one_window_is_each_window_alone(pass_rec: Recording, messages
         i for i, (a, b) in enumerate(zip(single, messages, strict=True)) if a["is_siren"] != b["is_siren"]
     ]
     assert len(changed) < 0.2 * len(single)
-    with pytest.raises(ValueError, match="smooth must be >= 1"):
+    # the mean probability of 3 windows, the rule before the logit mean
+    plain = list(listen(pass_rec, smooth=3, average="probability"))
+    probs = np.array([m["probability"] for m in single])
+    for i, m in enumerate(plain):
+        assert m["smoothed_probability"] == pytest.approx(probs[max(0, i - 2) : i + 1].mean(), abs=2e-6)
+    with pytest.raises(ValueError, match="must be >= 1"):
         next(listen(pass_rec, smooth=0))
+    with pytest.raises(ValueError, match="unknown average 'median'"):
+        next(listen(pass_rec, average="median"))
 
 
 def test_bearings_follow_the_labels(pass_rec: Recording, messages: list[dict]) -> None:
@@ -125,6 +135,8 @@ def test_cli_listen(tmp_path: Path) -> None:
     assert all(m["smoothed_probability"] == m["probability"] for m in single)
     res = runner.invoke(audio_app, ["listen", str(folder), "--smooth", "0"])
     assert res.exit_code == 2 and "--smooth" in res.output
+    res = runner.invoke(audio_app, ["listen", str(folder), "--average", "median"])
+    assert res.exit_code != 0 and "unknown average 'median'" in res.output
 
     out, png = tmp_path / "o" / "msgs.jsonl", tmp_path / "o" / "plot.png"
     res = runner.invoke(audio_app, ["listen", str(folder), "--jsonl", str(out), "--plot", str(png)])

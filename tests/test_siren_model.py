@@ -232,6 +232,10 @@ def test_mono_check_files_and_rows(tiny_model: tuple[Path, Path, dict], data_roo
     assert summary["all"]["siren_windows"] == 4 and summary["all"]["no_siren_windows"] == 4
     assert summary["all"]["recall"] == rows[1]["detected"] / 4
     assert summary["all"]["false_alarm_rate"] == rows[0]["detected"] / 4
+    # the listener's rule: windows every 0.17 s over the same 2 s, each decided on a smoothed probability
+    smoothed = check_file(picked[1], model, np.random.default_rng(0), max_windows=4, smooth=3)
+    assert smoothed["windows"] == 9  # (2.0 - 0.5) / 0.17 + 1
+    assert 0 <= smoothed["detected"] <= 9 and 0.0 <= smoothed["mean_probability"] <= 1.0
 
 
 def test_cli_train_and_errors(tiny_model: tuple[Path, Path, dict], tmp_path: Path) -> None:

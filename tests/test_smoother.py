@@ -1,11 +1,13 @@
-"""Per-track output smoother (SPEC §1)."""
+"""Per-track output smoother (SPEC §1) and the one-stream smoother of the siren decision (issue 4)."""
 
 from __future__ import annotations
+
+import math
 
 import pytest
 
 from makeway.messages import EVObservation, EVState
-from makeway.track.smoother import TrackSmoother
+from makeway.track.smoother import StreamSmoother, TrackSmoother
 
 
 def obs(track: int, frame: int, p: float | None) -> EVObservation:
@@ -66,3 +68,33 @@ def test_bad_parameters() -> None:
         TrackSmoother(window=5, min_frames=6)
     with pytest.raises(ValueError, match="threshold"):
         TrackSmoother(threshold=1.0)
+
+
+def test_stream_smoother_logit_mean() -> None:
+    s = StreamSmoother(3)  # the mean of the logits by default
+    assert s.update(0.9) == pytest.approx(0.9)
+    # 0.9 and 0.1 cancel in the logit domain
+    assert s.update(0.1) == pytest.approx(0.5)
+    # one near-certain "no" outweighs two clear "yes" windows: logits 2.2, 2.2, -9.2
+    s.reset()
+    s.update(0.9)
+    s.update(0.9)
+    z = (2 * math.log(9) + math.log(1e-4 / (1 - 1e-4))) / 3
+    assert s.update(1e-4) == pytest.approx(1 / (1 + math.exp(-z)))
+    # the buffer keeps the last 3: after three 0.8s the old windows are gone
+    for _ in range(3):
+        out = s.update(0.8)
+    assert out == pytest.approx(0.8)
+    # 0 and 1 stay finite
+    assert 0.0 < s.update(0.0) < 1.0 and 0.0 < s.update(1.0) < 1.0
+
+
+def test_stream_smoother_probability_mean_and_single_window() -> None:
+    s = StreamSmoother(2, average="probability")
+    assert [s.update(p) for p in (0.9, 0.1, 0.5)] == pytest.approx([0.9, 0.5, 0.3])
+    one = StreamSmoother(1)
+    assert [one.update(p) for p in (0.3, 1.0, 0.0)] == [0.3, 1.0, 0.0]  # exactly each window
+    with pytest.raises(ValueError, match="window must be >= 1"):
+        StreamSmoother(0)
+    with pytest.raises(ValueError, match="unknown average 'max'"):
+        StreamSmoother(3, average="max")

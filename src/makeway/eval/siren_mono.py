@@ -5,7 +5,11 @@ audio with and without sirens. Each file is rendered as one **static** point sou
 roof array at a random bearing (exact delays, 1/r spreading, ground reflection and air absorption of
 :func:`~makeway.sim.acoustics.place_fixed_sources`, plus capsule self-noise), scaled to a fixed
 A-weighted level at the array (70 dB(A) by default: a busy street, or a siren some 100 m away),
-cut into 0.5 s windows every 0.5 s, and scored by the model. Only the *content* is tested here —
+cut into 0.5 s windows every 0.5 s, and scored by the model. With ``smooth`` = K > 1 the windows
+come every 0.17 s instead, as ``makeway audio listen`` cuts them, and each is decided on the
+smoothed probability of it and the K − 1 before it
+(:func:`~makeway.perceive.audio.evaluate.smoothed_probability`): the check then scores the
+listener's decision rule, not the single window. Only the *content* is tested here —
 real traffic, real sirens heard in real traffic — not the bearing or distance heads.
 
 Material (``<data>/audio``) and its label:
@@ -35,6 +39,8 @@ from typing import Any
 
 import numpy as np
 
+from makeway.perceive.audio.evaluate import smoothed_probability
+from makeway.perceive.audio.labels import HOP_S, SMOOTH_AVERAGE
 from makeway.perceive.audio.siren_model import SirenModel
 from makeway.sim.acoustics import (
     FULL_SCALE_PA,
@@ -122,8 +128,12 @@ def check_file(
     *,
     level_dba: float = LEVEL_DBA,
     max_windows: int = MAX_WINDOWS,
+    smooth: int = 1,
+    average: str = SMOOTH_AVERAGE,
 ) -> dict[str, Any]:
-    """Per-window probabilities of one file; a row of the report."""
+    """Per-window probabilities of one file; a row of the report. ``max_windows`` 0.5 s windows of
+    the file are rendered; with ``smooth`` > 1 they are cut every 0.17 s and decided on the smoothed
+    probability (module docstring)."""
     cfg = model.config
     x = load_mono(item.path, cfg.sample_rate, unit_rms=True)
     if item.exclude:
@@ -141,8 +151,15 @@ def check_file(
         row.update(detected=0, rate=None)
         return row
     audio, _ = render_static(x[: n_win * win], model, rng, level_dba=level_dba)
-    windows = audio[: n_win * win].reshape(n_win, win, -1).transpose(0, 2, 1)
-    prob = model.predict(windows).prob
+    if smooth > 1:
+        starts = np.arange(0, n_win * win - win + 1, round(HOP_S * cfg.sample_rate))
+        windows = np.stack([audio[s : s + win].T for s in starts])
+        prob = smoothed_probability(model.predict(windows).prob, smooth, average)
+        n_win = len(windows)
+        row["windows"] = n_win
+    else:
+        windows = audio[: n_win * win].reshape(n_win, win, -1).transpose(0, 2, 1)
+        prob = model.predict(windows).prob
     det = int(np.sum(prob >= model.threshold))
     row.update(detected=det, rate=round(det / n_win, 4), mean_probability=round(float(prob.mean()), 4))
     return row
@@ -184,18 +201,33 @@ def mono_check(
     include_train_clips: bool = False,
     seed: int = 0,
     advance: Callable[[int], Any] | None = None,
+    smooth: int = 1,
+    average: str = SMOOTH_AVERAGE,
 ) -> dict[str, Any]:
-    """Run the check over every file of :func:`mono_files`; ``{"summary", "files"}``."""
+    """Run the check over every file of :func:`mono_files`; ``{"summary", "files"}``. ``smooth``
+    and ``average``: the decision rule (:func:`check_file`)."""
     rng = np.random.default_rng(seed)
     rows = []
     for item in mono_files(data_root, include_train_clips=include_train_clips):
-        rows.append(check_file(item, model, rng, level_dba=level_dba, max_windows=max_windows))
+        rows.append(
+            check_file(
+                item,
+                model,
+                rng,
+                level_dba=level_dba,
+                max_windows=max_windows,
+                smooth=smooth,
+                average=average,
+            )
+        )
         if advance is not None:
             advance(1)
     return {
         "level_dba": level_dba,
         "distance_m": DISTANCE_M,
         "threshold": model.threshold,
+        "smooth": smooth,
+        "smooth_average": average if smooth > 1 else None,
         "summary": summarize_rows(rows),
         "files": rows,
     }

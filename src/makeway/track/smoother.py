@@ -102,3 +102,48 @@ class TrackSmoother:
         else:
             state = EVState.INACTIVE
         return EVTrackState(track_id, state, fraction, n, sum(buf) / n)
+
+
+SMOOTH_AVERAGES = ("logit", "probability")
+"""How :class:`StreamSmoother` averages: the mean of the logits, or of the probabilities."""
+
+
+class StreamSmoother:
+    """Causal mean of the last ``window`` probabilities of one stream (no track ids).
+
+    ``update(p)`` adds one probability and returns the mean over the buffer (fewer values at the
+    start). With ``average="logit"`` the mean is taken in the logit domain,
+    ``sigmoid(mean(logit(p_i)))``: one confident window then counts as strongly *against* as *for*,
+    so a run of clear siren windows is not dragged under the threshold by one window at 0.4, and one
+    saturated window (0.999) does not lift a run of doubtful ones. Probabilities are clipped to
+    ``[eps, 1 - eps]`` first so that 0 and 1 stay finite. ``average="probability"`` is the plain
+    mean, as :class:`TrackSmoother` reports it (``mean_probability``). Used for the siren decision
+    over 0.5 s windows (:mod:`makeway.perceive.audio.stream`; docs/benchmarks.md, twelfth session).
+    """
+
+    def __init__(self, window: int, average: str = "logit", eps: float = 1e-12) -> None:
+        if window < 1:
+            raise ValueError(f"window must be >= 1, got {window}")
+        if average not in SMOOTH_AVERAGES:
+            raise ValueError(f"unknown average {average!r}; choose from {', '.join(SMOOTH_AVERAGES)}")
+        self.window = int(window)
+        self.average = average
+        self.eps = float(eps)
+        self._values: deque[float] = deque(maxlen=self.window)
+
+    def reset(self) -> None:
+        """Forget the history."""
+        self._values.clear()
+
+    def update(self, probability: float) -> float:
+        """Add one probability; return the smoothed probability (class docstring)."""
+        p = float(probability)
+        if self.window == 1:  # no history: the probability itself, exactly
+            return p
+        if self.average == "probability":
+            self._values.append(p)
+            return sum(self._values) / len(self._values)
+        p = min(max(p, self.eps), 1.0 - self.eps)
+        self._values.append(math.log(p / (1.0 - p)))
+        z = sum(self._values) / len(self._values)
+        return 1.0 / (1.0 + math.exp(-z))

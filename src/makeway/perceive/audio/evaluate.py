@@ -21,13 +21,15 @@ of ``makeway audio eval``:
 
 Plus ``method``, ``recordings``, ``windows``, ``positives``, ``negatives``, ``dropped_windows``
 (skipped: sirens only beyond 100 m), ``ms_per_window`` (the
-method's wall time per window: detector + bearing), ``smooth``, ``recordings_without_calibration``
+method's wall time per window: detector + bearing), ``smooth``, ``smooth_average`` (``null`` for a
+per-window decision), ``recordings_without_calibration``
 (recordings whose array does not state ``full_scale_db_spl`` and that were taken at the model's
 calibration; :mod:`makeway.sense.recording`, **Calibration**).
 
-**Decision smoothing** (``smooth`` = K > 1): the decision for a window uses the mean probability of
-that window and the K − 1 windows before it in the same recording (:func:`smoothed_probability`),
-as a live listener would (``makeway audio listen --smooth K``): causal, about (K − 1) × 0.17 s of
+**Decision smoothing** (``smooth`` = K > 1): the decision for a window uses the mean of that
+window and the K − 1 windows before it in the same recording (:func:`smoothed_probability`; the mean
+of their logits unless ``average="probability"``), as a live listener would (``makeway audio listen
+--smooth K``): causal, about (K − 1) × 0.17 s of
 added latency. Every window of a recording is then run, including those skipped for the metrics, so
 the history is the one a live listener has. ``smooth = 1`` (the default) is seed 002's per-window
 decision.
@@ -44,12 +46,11 @@ from typing import Any
 
 import numpy as np
 
-from makeway.messages import EVObservation
 from makeway.perceive.audio.doa import SirenEnergyDetector, get_doa_method, wrap_angle
 from makeway.perceive.audio.features import window_batch
-from makeway.perceive.audio.labels import HOP_S, label_recording
+from makeway.perceive.audio.labels import SMOOTH_AVERAGE, label_recording
 from makeway.sense.recording import Recording, assume_calibration, read_recording
-from makeway.track.smoother import TrackSmoother
+from makeway.track.smoother import StreamSmoother
 
 METRIC_KEYS = (
     "recall",
@@ -189,21 +190,15 @@ def model_estimator(model: Any, source: str | Path | None = None) -> WindowEstim
     return estimate
 
 
-def smoothed_probability(prob: np.ndarray, smooth: int) -> np.ndarray:
-    """The causal mean of each window's probability and the ``smooth - 1`` before it (fewer at the
-    start), over consecutive windows of one recording: the
-    :class:`~makeway.track.smoother.TrackSmoother` mean with a ``smooth``-window buffer."""
-    if smooth < 1:
-        raise ValueError(f"smooth must be >= 1 window, got {smooth}")
+def smoothed_probability(prob: np.ndarray, smooth: int, average: str = SMOOTH_AVERAGE) -> np.ndarray:
+    """The causal smoothed probability of each window over consecutive windows of one recording:
+    a :class:`~makeway.track.smoother.StreamSmoother` of ``smooth`` windows (``average``: the mean
+    of their logits, the default, or of their probabilities) run over ``prob``."""
+    smoother = StreamSmoother(smooth, average)
     p = np.asarray(prob, dtype=np.float64)
     if smooth == 1:
         return p.copy()
-    smoother = TrackSmoother(window=smooth, min_frames=1)
-    out = [
-        smoother.update([EVObservation(0, i, i * HOP_S, float(v), "audio")])[0].mean_probability
-        for i, v in enumerate(p)
-    ]
-    return np.array(out, dtype=np.float64)
+    return np.array([smoother.update(float(v)) for v in p], dtype=np.float64)
 
 
 def evaluate(
@@ -213,6 +208,7 @@ def evaluate(
     detector: SirenEnergyDetector | None = None,
     threshold: float = 0.5,
     smooth: int = 1,
+    average: str = SMOOTH_AVERAGE,
     on_recording: Callable[[], None] | None = None,
     name: str | None = None,
     arrays: dict[str, np.ndarray] | None = None,
@@ -222,14 +218,13 @@ def evaluate(
 
     ``method`` is a :data:`~makeway.perceive.audio.doa.DOA_METHODS` name (run with ``detector``,
     see :func:`baseline_estimator`) or any :data:`WindowEstimator` (e.g. :func:`model_estimator`).
-    ``smooth`` > 1 decides on the causal mean probability of that many windows (module
-    docstring). ``on_recording`` is called after each recording; ``arrays``, when given, receives
-    the pooled per-window arrays (``siren``, ``theta``, ``distance``, ``prob``, ``theta_hat``,
-    ``distance_hat``). ``full_scale_db_spl`` is the calibration of the recordings whose
+    ``smooth`` > 1 decides on the causal mean of that many windows, of their logits or (``average``)
+    probabilities (module docstring). ``on_recording`` is called after each recording; ``arrays``,
+    when given, receives the pooled per-window arrays (``siren``, ``theta``, ``distance``, ``prob``,
+    ``theta_hat``, ``distance_hat``). ``full_scale_db_spl`` is the calibration of the recordings whose
     ``array.yaml`` states none (:mod:`makeway.sense.recording`, **Calibration**); the result's
     ``recordings_without_calibration`` counts those left with none (taken at the model's scale)."""
-    if smooth < 1:
-        raise ValueError(f"smooth must be >= 1 window, got {smooth}")
+    StreamSmoother(smooth, average)  # checks both before any recording is read
     estimate = baseline_estimator(method, detector) if isinstance(method, str) else method
     res = WindowResults()
     n_recs = n_windows = n_dropped = n_uncalibrated = 0
@@ -249,7 +244,7 @@ def evaluate(
         prob, theta_hat, distance_hat = estimate(rec, windows)
         busy += time.perf_counter() - t0
         if smooth > 1:
-            prob = smoothed_probability(prob, smooth)[kept]
+            prob = smoothed_probability(prob, smooth, average)[kept]
             theta_hat, distance_hat = theta_hat[kept], distance_hat[kept]
         res.siren.append(labels.siren[kept])
         res.theta.append(theta[kept])
@@ -271,6 +266,7 @@ def evaluate(
     out["ms_per_window"] = round(1000.0 * busy / n_windows, 2) if n_windows else None
     out["threshold"] = threshold
     out["smooth"] = smooth
+    out["smooth_average"] = average if smooth > 1 else None
     out["recordings_without_calibration"] = n_uncalibrated
     return out
 
