@@ -45,6 +45,8 @@ bench-pull-over: venv
 bench-audio: venv
 	$(BIN)/python benchmarks/bench_audio_model.py
 	$(BIN)/python benchmarks/bench_audio_real.py --sweep 65,75,80,85
+	$(BIN)/python benchmarks/bench_audio_real.py --sweep 65,75,80,85 --smooth 8
+	$(BIN)/python benchmarks/bench_audio_smoothing.py
 	$(BIN)/python benchmarks/bench_audio_multisource.py
 	$(BIN)/python benchmarks/bench_audio_calibration.py
 	$(BIN)/python benchmarks/bench_audio_range_bound.py

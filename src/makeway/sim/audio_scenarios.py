@@ -533,12 +533,14 @@ def source_pools(
 
 
 def generate_held_out(
-    out_dir: str | Path, n: int, seeds: Sequence[int], duration_s: float = 8.0
+    out_dir: str | Path, n: int, seeds: Sequence[int], duration_s: float = 8.0, split: str = "test"
 ) -> list[Path]:
     """The held-out sets of the audio benchmarks: ``n`` recordings per seed, into
     ``out_dir/seed_<seed>``, made of the test-split ingredients only (:func:`source_pools`), as
-    ``makeway audio simulate --n N --duration D --seed S --split test`` makes them."""
-    sirens, noise = source_pools("test")
+    ``makeway audio simulate --n N --duration D --seed S --split test`` makes them
+    (``split="train"``: validation sets of training-split ingredients, for choices made before a
+    held-out set is looked at)."""
+    sirens, noise = source_pools(split)
     folders: list[Path] = []
     for seed in seeds:
         folders += generate_recordings(
@@ -558,13 +560,14 @@ def held_out_folders(
     n: int,
     seeds: Sequence[int],
     duration_s: float = 8.0,
+    split: str = "test",
 ) -> list[Path]:
     """The recordings an audio benchmark runs on: those in the ``data`` folders
     (:func:`~makeway.sense.recording.recording_folders`), or, when none are given, the held-out
-    sets simulated into ``out_dir`` (:func:`generate_held_out`)."""
+    sets simulated into ``out_dir`` (:func:`generate_held_out`, of ``split``'s ingredients)."""
     if data:
         return [f for d in data for f in recording_folders(d)]
-    return generate_held_out(out_dir, n, seeds, duration_s)
+    return generate_held_out(out_dir, n, seeds, duration_s, split)
 
 
 def generate_recordings(
