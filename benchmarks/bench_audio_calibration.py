@@ -34,7 +34,7 @@ from typing import Any
 import numpy as np
 
 from makeway.perceive.audio.evaluate import evaluate, model_estimator
-from makeway.perceive.audio.siren_model import DEFAULT_SIREN_LOCALIZER, DEFAULT_SIREN_RANGER, SirenModel
+from makeway.perceive.audio.siren_model import DEFAULT_SIREN_LOCALIZER, DEFAULT_SIREN_RANGERS, SirenModel
 from makeway.progress import progress_bar
 from makeway.sense.recording import REFERENCE_FULL_SCALE_DB_SPL, Recording, read_recording
 from makeway.sim.audio_scenarios import held_out_folders
@@ -87,7 +87,7 @@ def main() -> int:
             model = SirenModel(threads=2)
         else:
             model = SirenModel(
-                args.model, threads=2, localizer=DEFAULT_SIREN_LOCALIZER, ranger=DEFAULT_SIREN_RANGER
+                args.model, threads=2, localizer=DEFAULT_SIREN_LOCALIZER, ranger=DEFAULT_SIREN_RANGERS
             )
         print(f"model: {model!r}, trained at {model.full_scale_db_spl:g} dB SPL full scale")
 

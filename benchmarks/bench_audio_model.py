@@ -111,8 +111,8 @@ def main() -> int:
     ap.add_argument(
         "--ranger",
         default="auto",
-        help="further model whose distance is averaged in: a file, 'none', or 'auto' (the shipped "
-        "ranger with the shipped model)",
+        help="further models whose distances are averaged in: comma-separated files, 'none', or "
+        "'auto' (the shipped rangers with the shipped model)",
     )
     ap.add_argument("--baselines", default="gccphat,srp,normmusic")
     ap.add_argument(
@@ -146,9 +146,12 @@ def main() -> int:
         def companion(value: str) -> Path | bool:  # 'auto' (the shipped one), 'none' or a file
             return {"auto": True, "none": False}.get(value, Path(value))
 
-        model = SirenModel(
-            args.model, threads=2, localizer=companion(args.localizer), ranger=companion(args.ranger)
+        rangers: list[Path] | bool = (
+            args.ranger == "auto"
+            if args.ranger in ("auto", "none")
+            else [Path(v) for v in args.ranger.split(",") if v.strip()]
         )
+        model = SirenModel(args.model, threads=2, localizer=companion(args.localizer), ranger=rangers)
         print(f"model: {model!r} ({args.model.stat().st_size / 1e6:.2f} MB)")
         results: dict[str, dict[str, Any]] = {}
         smooths = sorted({1, *(int(v) for v in args.smooth.split(",") if v.strip())})  # 1: the table's anchor

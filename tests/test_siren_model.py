@@ -22,6 +22,7 @@ from makeway.perceive.audio.siren_model import (
     DEFAULT_SIREN_LOCALIZER,
     DEFAULT_SIREN_MODEL,
     DEFAULT_SIREN_RANGER,
+    DEFAULT_SIREN_RANGERS,
     SirenModel,
 )
 from makeway.sense.recording import Recording, reference_mics, write_recording
@@ -318,7 +319,7 @@ def test_shipped_localizer_gives_bearing_and_distance(windows: tuple[np.ndarray,
     assert pair.localizer is not None and pair.localizer.path == DEFAULT_SIREN_LOCALIZER
     assert alone.localizer is None and "localizer" not in repr(alone)
     loc = SirenModel(DEFAULT_SIREN_LOCALIZER, threads=1)
-    assert loc.localizer is None and loc.ranger is None  # other models never pick the shipped ones
+    assert loc.localizer is None and loc.rangers == ()  # other models never pick the shipped ones
     w, siren, _, dist = windows
     p, a, b = pair.predict(w), alone.predict(w), loc.predict(w)
     np.testing.assert_allclose(p.prob, a.prob, rtol=1e-6)  # detection: the detector's
@@ -330,21 +331,25 @@ def test_shipped_localizer_gives_bearing_and_distance(windows: tuple[np.ndarray,
     assert np.median(np.abs(p.distance[sel] - dist[sel])) <= 15.0
 
 
-def test_shipped_ranger_joins_the_distance(windows: tuple[np.ndarray, ...]) -> None:
-    """The shipped trio: the ranger's distance is averaged (geometric mean) with the localizer's;
-    detection and bearing are untouched."""
-    assert DEFAULT_SIREN_RANGER.is_file() and DEFAULT_SIREN_RANGER.stat().st_size <= 5_000_000
-    trio, pair = SirenModel(threads=1), SirenModel(threads=1, ranger=False)
-    assert trio.ranger is not None and trio.ranger.path == DEFAULT_SIREN_RANGER
-    assert "ranger=siren_ranger.onnx" in repr(trio) and pair.ranger is None
-    ranger = SirenModel(DEFAULT_SIREN_RANGER, threads=1)
+def test_shipped_rangers_join_the_distance(windows: tuple[np.ndarray, ...]) -> None:
+    """The shipped quartet: the two rangers' distances are averaged (geometric mean) with the
+    localizer's; detection and bearing are untouched."""
+    assert len(DEFAULT_SIREN_RANGERS) == 2
+    for path in DEFAULT_SIREN_RANGERS:
+        assert path.is_file() and path.stat().st_size <= 5_000_000
+    full, pair = SirenModel(threads=1), SirenModel(threads=1, ranger=False)
+    assert [r.path for r in full.rangers] == list(DEFAULT_SIREN_RANGERS)
+    assert "ranger=siren_ranger.onnx+siren_ranger2.onnx" in repr(full) and pair.rangers == ()
     w, siren, _, dist = windows
-    t, p, r = trio.predict(w), pair.predict(w), ranger.predict(w)
-    np.testing.assert_allclose(t.prob, p.prob, rtol=1e-6)
-    np.testing.assert_allclose(t.theta, p.theta, atol=1e-6)
-    np.testing.assert_allclose(t.distance, np.sqrt(p.distance * r.distance), rtol=1e-5)
+    f, p = full.predict(w), pair.predict(w)
+    r1, r2 = (SirenModel(path, threads=1).predict(w) for path in DEFAULT_SIREN_RANGERS)
+    np.testing.assert_allclose(f.prob, p.prob, rtol=1e-6)
+    np.testing.assert_allclose(f.theta, p.theta, atol=1e-6)
+    np.testing.assert_allclose(f.distance, np.cbrt(p.distance * r1.distance * r2.distance), rtol=1e-5)
+    one = SirenModel(threads=1, ranger=DEFAULT_SIREN_RANGER)  # one named ranger: the eighth session's pair
+    np.testing.assert_allclose(one.predict(w).distance, np.sqrt(p.distance * r1.distance), rtol=1e-5)
     sel = siren & (dist > 20) & (dist < 80)
-    assert np.median(np.abs(t.distance[sel] - dist[sel])) <= 15.0
+    assert np.median(np.abs(f.distance[sel] - dist[sel])) <= 15.0
 
 
 def test_localizer_must_read_the_same_features(tiny_model: tuple[Path, Path, dict], tmp_path: Path) -> None:
@@ -368,7 +373,12 @@ def test_localizer_must_read_the_same_features(tiny_model: tuple[Path, Path, dic
     with pytest.raises(InputError, match=r"other_features\.onnx.*ranger reads other features"):
         SirenModel(path, ranger=other)
     ranged = SirenModel(path, threads=1, ranger=path)  # same network twice: the same distance
-    assert ranged.ranger is not None and ranged.localizer is None
+    assert len(ranged.rangers) == 1 and ranged.localizer is None
+    np.testing.assert_allclose(
+        ranged.predict(np.zeros((1, 8, 24000), np.float32)).distance,
+        SirenModel(path, threads=1).predict(np.zeros((1, 8, 24000), np.float32)).distance,
+        rtol=1e-5,
+    )
 
 
 def test_cli_eval_and_listen_with_the_shipped_model(pass_rec: Recording, tmp_path: Path) -> None:
@@ -381,7 +391,14 @@ def test_cli_eval_and_listen_with_the_shipped_model(pass_rec: Recording, tmp_pat
     assert result["distance_median_m"] is not None and result["range_10_50"]["positives"] > 0
     assert result["threshold"] == SirenModel().threshold  # the model's stored decision threshold
     assert result["localizer"] == DEFAULT_SIREN_LOCALIZER.name
-    assert result["ranger"] == DEFAULT_SIREN_RANGER.name
+    assert result["ranger"] == [p.name for p in DEFAULT_SIREN_RANGERS]
+    # one named ranger (repeat --ranger for more)
+    res = runner.invoke(
+        audio_app,
+        ["eval", "--data", str(folder.parent), "--ranger", str(DEFAULT_SIREN_RANGER), "--json", "-q"],
+    )
+    assert res.exit_code == 0, res.output
+    assert json.loads(res.stdout.strip().splitlines()[-1])["ranger"] == [DEFAULT_SIREN_RANGER.name]
     res = runner.invoke(audio_app, ["listen", str(folder), "--jsonl", str(tmp_path / "m.jsonl")])
     assert res.exit_code == 0, res.output
     msgs = [json.loads(x) for x in (tmp_path / "m.jsonl").read_text().splitlines()]

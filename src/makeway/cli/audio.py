@@ -231,10 +231,10 @@ LocalizerOption = Annotated[
     ),
 ]
 RangerOption = Annotated[
-    Path | None,
+    list[Path] | None,
     typer.Option(
-        help="A further siren model whose distance is averaged in (geometric mean) "
-        "(default: the shipped ranger, with the shipped model only)."
+        help="A further siren model whose distance is averaged in (geometric mean); repeat the option "
+        "for several (default: the two shipped rangers, with the shipped model only)."
     ),
 ]
 
@@ -271,7 +271,7 @@ def _calibration_note(n_without: int, baseline: str | None) -> None:
         )
 
 
-def _check_baseline(baseline: str | None, *networks: Path | None) -> None:
+def _check_baseline(baseline: str | None, *networks: Path | list[Path] | None) -> None:
     """``--baseline`` names a classical method and excludes ``--model/--localizer/--ranger``."""
     from makeway.perceive.audio.doa import DOA_METHODS
 
@@ -279,21 +279,21 @@ def _check_baseline(baseline: str | None, *networks: Path | None) -> None:
         return
     if baseline not in DOA_METHODS:
         raise ValueError(f"--baseline must be one of {'|'.join(DOA_METHODS)}, not {baseline!r}")
-    if any(n is not None for n in networks):
+    if any(n for n in networks):
         raise ValueError("give either --model/--localizer/--ranger or --baseline, not both")
 
 
 def _siren_networks(
-    model: Path | None, localizer: Path | None, ranger: Path | None, threads: int | None
+    model: Path | None, localizer: Path | None, ranger: list[Path] | None, threads: int | None
 ) -> SirenModel:
-    """The siren network with its localizer and ranger (the shipped ones unless named)."""
+    """The siren network with its localizer and rangers (the shipped ones unless named)."""
     from makeway.perceive.audio.siren_model import SirenModel
 
     return SirenModel(
         model,
         threads=threads,
         localizer=localizer if localizer is not None else True,
-        ranger=ranger if ranger is not None else True,
+        ranger=ranger if ranger else True,
     )
 
 
@@ -390,7 +390,7 @@ def eval_cmd(
     result["data"] = str(data)
     if net is not None:
         result["localizer"] = net.localizer.path.name if net.localizer is not None else None
-        result["ranger"] = net.ranger.path.name if net.ranger is not None else None
+        result["ranger"] = [r.path.name for r in net.rangers]
     result["seconds"] = round(time.perf_counter() - t0, 2)
     if detector is not None:
         result["detector"] = {"slope": round(detector.slope, 6), "offset": round(detector.offset, 6)}

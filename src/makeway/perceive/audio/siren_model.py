@@ -24,12 +24,13 @@ computed once. The shipped pair is :data:`DEFAULT_SIREN_MODEL` as detector and
 localizer: the variety sharpens bearing and distance but costs false alarms on real traffic, so it
 does not decide whether a siren is there (model card).
 
-**Ranger.** A third network of the same kind can join the distance (``ranger=``): the reported
+**Rangers.** Further networks of the same kind can join the distance (``ranger=``): the reported
 distance is then the geometric mean of the localizer's (or, without one, this network's) and the
-ranger's. Two networks trained on different recordings err differently, and their mean halves
-part of the error. The shipped ranger is :data:`DEFAULT_SIREN_RANGER`, a network trained without
-pitch variety on 120 more no-siren recordings. It was chosen on a validation set of
-training-split recordings (median distance error at 10–50 m 5.50 m with it, 5.79 m without;
+rangers'. Networks trained on different recordings err differently, and their mean removes part of
+the error. The shipped rangers are :data:`DEFAULT_SIREN_RANGERS`: a network trained without pitch
+variety on 120 more no-siren recordings (eighth session; median distance error at 10–50 m on a
+validation set of training-split recordings 5.50 m with it, 5.79 m without) and one trained on
+500 other recordings (twelfth session; 5.21 m with both, on validation seeds 77 + 78;
 docs/benchmarks.md).
 
 **Calibration.** The networks read absolute levels at the scale they were trained at
@@ -41,6 +42,7 @@ array with another ``full_scale_db_spl`` (:mod:`makeway.sense.recording`, **Cali
 from __future__ import annotations
 
 import json
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -55,6 +57,7 @@ __all__ = [
     "DEFAULT_SIREN_LOCALIZER",
     "DEFAULT_SIREN_MODEL",
     "DEFAULT_SIREN_RANGER",
+    "DEFAULT_SIREN_RANGERS",
     "SirenModel",
     "SirenPrediction",
 ]
@@ -62,6 +65,11 @@ __all__ = [
 DEFAULT_SIREN_MODEL = Path(__file__).resolve().parents[2] / "models" / "siren_net.onnx"
 DEFAULT_SIREN_LOCALIZER = Path(__file__).resolve().parents[2] / "models" / "siren_localizer.onnx"
 DEFAULT_SIREN_RANGER = Path(__file__).resolve().parents[2] / "models" / "siren_ranger.onnx"
+DEFAULT_SIREN_RANGERS = (
+    DEFAULT_SIREN_RANGER,
+    Path(__file__).resolve().parents[2] / "models" / "siren_ranger2.onnx",
+)
+"""The shipped rangers (model card): the eighth session's and the twelfth session's."""
 
 MAX_SOURCES = 3
 """At most this many sirens are reported per window (the nearest plus two)."""
@@ -94,9 +102,9 @@ class SirenModel:
         localizer: a second siren network whose bearing and distance replace this one's (module
             docstring): a path, ``True`` (:data:`DEFAULT_SIREN_LOCALIZER` when ``path`` is the
             default model, none otherwise) or ``False`` (none).
-        ranger: a further siren network whose distance is averaged in (geometric mean; module
-            docstring): a path, ``True`` (:data:`DEFAULT_SIREN_RANGER` when ``path`` is the
-            default model, none otherwise) or ``False`` (none).
+        ranger: further siren networks whose distances are averaged in (geometric mean; module
+            docstring): a path or a sequence of paths, ``True`` (:data:`DEFAULT_SIREN_RANGERS`
+            when ``path`` is the default model, none otherwise) or ``False`` (none).
     """
 
     def __init__(
@@ -106,7 +114,7 @@ class SirenModel:
         threads: int | None = None,
         threshold: float | None = None,
         localizer: str | Path | bool = True,
-        ranger: str | Path | bool = True,
+        ranger: str | Path | bool | Sequence[str | Path] = True,
     ) -> None:
         import onnxruntime as ort
 
@@ -144,7 +152,15 @@ class SirenModel:
         if names != list(self.streams):
             raise InputError(self.path, f"model inputs {names} do not match its streams {list(self.streams)}")
         self.localizer = self._companion(localizer, DEFAULT_SIREN_LOCALIZER, "localizer", threads)
-        self.ranger = self._companion(ranger, DEFAULT_SIREN_RANGER, "ranger", threads)
+        if ranger is True:
+            is_default = self.path.resolve() == DEFAULT_SIREN_MODEL.resolve()
+            named = [p for p in DEFAULT_SIREN_RANGERS if p.is_file()] if is_default else []
+        elif ranger is False:
+            named = []
+        else:
+            named = [Path(ranger)] if isinstance(ranger, str | Path) else [Path(r) for r in ranger]
+        found = [self._companion(r, DEFAULT_SIREN_RANGER, "ranger", threads) for r in named]
+        self.rangers: tuple[SirenModel, ...] = tuple(r for r in found if r is not None)
         self.near_alone_m = NEAR_ALONE_M
         self.separator: Any = None
         """The :class:`~makeway.perceive.audio.multisource.SourceSeparator` that :meth:`sources`
@@ -178,7 +194,8 @@ class SirenModel:
 
     def __repr__(self) -> str:
         loc = f", localizer={self.localizer.path.name}" if self.localizer is not None else ""
-        loc += f", ranger={self.ranger.path.name}" if self.ranger is not None else ""
+        if self.rangers:
+            loc += f", ranger={'+'.join(r.path.name for r in self.rangers)}"
         streams = list(self.streams)
         return f"SirenModel({self.path.name}, streams={streams}, threshold={self.threshold:g}{loc})"
 
@@ -208,14 +225,15 @@ class SirenModel:
 
     def run_features(self, feats: dict[str, np.ndarray]) -> SirenPrediction:
         """Run the network on precomputed features (``SirenFeatures.transform`` output); with a
-        localizer, its bearing, distance and bearing map replace this network's; with a ranger,
-        the distance is the geometric mean of that one and the ranger's."""
+        localizer, its bearing, distance and bearing map replace this network's; with rangers,
+        the distance is the geometric mean of that one and the rangers'."""
         own = self._run_own(feats)
         out = own if self.localizer is None else self.localizer._run_own(feats)
         distance = out.distance
-        if self.ranger is not None:
-            other = self.ranger._run_own(feats).distance
-            distance = np.sqrt(np.maximum(distance, 0.0) * np.maximum(other, 0.0))
+        if self.rangers:
+            members = [distance] + [r._run_own(feats).distance for r in self.rangers]
+            with np.errstate(divide="ignore"):
+                distance = np.exp(np.mean(np.log(np.maximum(members, 0.0)), axis=0))
         return SirenPrediction(own.prob, out.theta, distance, out.bearing_map)
 
     def _run_own(self, feats: dict[str, np.ndarray]) -> SirenPrediction:
