@@ -8,7 +8,7 @@ at 1 m, independent of the siren's kind, the scene and the noise). A ranger that
 received level therefore cannot know whether a siren is loud and far or quiet and near. This script
 scores, on the same windows as ``makeway audio eval`` (nearest siren at 10–50 m), two rangers:
 
-* **the shipped networks** (detector + localizer + ranger, ``SirenModel()``): their distance;
+* **the shipped networks** (detector + localizer + rangers, ``SirenModel()``): their distance;
 * **a level-only oracle**: it knows the true received level exactly — spreading, air absorption,
   ground reflection, rear attenuation, noise all removed — but not the emitted level, so it reports
   ``d · 10^((L̂ − L)/20)`` for the true distance ``d``, true emitted level ``L`` (from the
