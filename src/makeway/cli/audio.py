@@ -241,8 +241,8 @@ RangerOption = Annotated[
 AverageOption = Annotated[
     str,
     typer.Option(
-        help="How --smooth averages the windows: logit (the mean of their logits; one confident "
-        "window weighs as much against as for) or probability (the plain mean).",
+        help="How --smooth averages the windows: logit (the mean of their logits, each window "
+        "weighed by its log-odds) or probability (the plain mean).",
     ),
 ]
 

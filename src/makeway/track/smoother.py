@@ -113,9 +113,9 @@ class StreamSmoother:
 
     ``update(p)`` adds one probability and returns the mean over the buffer (fewer values at the
     start). With ``average="logit"`` the mean is taken in the logit domain,
-    ``sigmoid(mean(logit(p_i)))``: one confident window then counts as strongly *against* as *for*,
-    so a run of clear siren windows is not dragged under the threshold by one window at 0.4, and one
-    saturated window (0.999) does not lift a run of doubtful ones. Probabilities are clipped to
+    ``sigmoid(mean(logit(p_i)))``: each window weighs by its evidence (log-odds), as if the windows
+    were independent judgements, whereas a probability mean treats 0.3 and 0.001 as nearly the same
+    "no" and 0.9 and 0.9999 as nearly the same "yes". Probabilities are clipped to
     ``[eps, 1 - eps]`` first so that 0 and 1 stay finite. ``average="probability"`` is the plain
     mean, as :class:`TrackSmoother` reports it (``mean_probability``). Used for the siren decision
     over 0.5 s windows (:mod:`makeway.perceive.audio.stream`; docs/benchmarks.md, twelfth session).
