@@ -29,8 +29,8 @@ distance is then the geometric mean of the localizer's (or, without one, this ne
 rangers'. Networks trained on different recordings err differently, and their mean removes part of
 the error. The shipped rangers are :data:`DEFAULT_SIREN_RANGERS`: a network trained without pitch
 variety on 120 more no-siren recordings (eighth session; median distance error at 10–50 m on a
-validation set of training-split recordings 5.50 m with it, 5.79 m without) and one trained on
-500 other recordings (twelfth session; 5.21 m with both, on validation seeds 77 + 78;
+validation set of training-split recordings 5.50 m with it, 5.79 m without) and two trained on
+500 other recordings each (twelfth session; 5.17 m with all three, on validation seeds 77 + 78;
 docs/benchmarks.md).
 
 **Calibration.** The networks read absolute levels at the scale they were trained at
@@ -68,8 +68,9 @@ DEFAULT_SIREN_RANGER = Path(__file__).resolve().parents[2] / "models" / "siren_r
 DEFAULT_SIREN_RANGERS = (
     DEFAULT_SIREN_RANGER,
     Path(__file__).resolve().parents[2] / "models" / "siren_ranger2.onnx",
+    Path(__file__).resolve().parents[2] / "models" / "siren_ranger3.onnx",
 )
-"""The shipped rangers (model card): the eighth session's and the twelfth session's."""
+"""The shipped rangers (model card): the eighth session's and the twelfth session's two."""
 
 MAX_SOURCES = 3
 """At most this many sirens are reported per window (the nearest plus two)."""
