@@ -36,7 +36,12 @@ from typing import Any
 
 import numpy as np
 
-from makeway.perceive.audio.evaluate import RANGE_10_50, calibrate_threshold, smoothed_probability
+from makeway.perceive.audio.evaluate import (
+    RANGE_10_50,
+    calibrate_threshold,
+    model_estimator,
+    smoothed_probability,
+)
 from makeway.perceive.audio.features import window_batch
 from makeway.perceive.audio.labels import LISTEN_SMOOTH, SMOOTH_AVERAGE, label_recording
 from makeway.perceive.audio.siren_model import DEFAULT_SIREN_MODEL, SirenModel
@@ -56,17 +61,12 @@ def window_probabilities(
 ) -> list[dict[str, Any]]:
     """Per recording: the detector's probability of every window, and the labels of the kept ones."""
     out = []
+    estimate = model_estimator(model)
     with progress_bar("windows", len(folders), unit="rec", enabled=progress) as advance:
         for f in folders:
             rec = read_recording(f)
             labels = label_recording(rec)
-            windows = window_batch(rec, labels)
-            prob = np.concatenate(
-                [
-                    model.predict(windows[i : i + 64], rec.full_scale_db_spl).prob
-                    for i in range(0, len(windows), 64)
-                ]
-            )
+            prob, _, _ = estimate(rec, window_batch(rec, labels))
             _, dist = labels.nearest()
             out.append({"prob": prob, "kept": labels.kept, "siren": labels.siren, "distance": dist})
             advance()

@@ -234,7 +234,7 @@ RangerOption = Annotated[
     list[Path] | None,
     typer.Option(
         help="A further siren model whose distance is averaged in (geometric mean); repeat the option "
-        "for several (default: the two shipped rangers, with the shipped model only)."
+        "for several (default: the shipped rangers, with the shipped model only)."
     ),
 ]
 

@@ -40,7 +40,7 @@ from typing import Any
 import numpy as np
 
 from makeway.perceive.audio.evaluate import smoothed_probability
-from makeway.perceive.audio.labels import HOP_S, SMOOTH_AVERAGE
+from makeway.perceive.audio.labels import HOP_S, SMOOTH_AVERAGE, window_starts
 from makeway.perceive.audio.siren_model import SirenModel
 from makeway.sim.acoustics import (
     FULL_SCALE_PA,
@@ -152,7 +152,7 @@ def check_file(
         return row
     audio, _ = render_static(x[: n_win * win], model, rng, level_dba=level_dba)
     if smooth > 1:
-        starts = np.arange(0, n_win * win - win + 1, round(HOP_S * cfg.sample_rate))
+        starts = window_starts(n_win * win, cfg.sample_rate, cfg.window_s, HOP_S)
         windows = np.stack([audio[s : s + win].T for s in starts])
         prob = smoothed_probability(model.predict(windows).prob, smooth, average)
         n_win = len(windows)
