@@ -152,34 +152,29 @@ class SirenModel:
         names = [i.name for i in self.session.get_inputs()]
         if names != list(self.streams):
             raise InputError(self.path, f"model inputs {names} do not match its streams {list(self.streams)}")
-        self.localizer = self._companion(localizer, DEFAULT_SIREN_LOCALIZER, "localizer", threads)
-        if ranger is True:
-            is_default = self.path.resolve() == DEFAULT_SIREN_MODEL.resolve()
-            named = [p for p in DEFAULT_SIREN_RANGERS if p.is_file()] if is_default else []
-        elif ranger is False:
-            named = []
-        else:
-            named = [Path(ranger)] if isinstance(ranger, str | Path) else [Path(r) for r in ranger]
-        found = [self._companion(r, DEFAULT_SIREN_RANGER, "ranger", threads) for r in named]
-        self.rangers: tuple[SirenModel, ...] = tuple(r for r in found if r is not None)
+        located = self._named(localizer, (DEFAULT_SIREN_LOCALIZER,))
+        self.localizer = self._companion(located[0], "localizer", threads) if located else None
+        self.rangers: tuple[SirenModel, ...] = tuple(
+            self._companion(p, "ranger", threads) for p in self._named(ranger, DEFAULT_SIREN_RANGERS)
+        )
         self.near_alone_m = NEAR_ALONE_M
         self.separator: Any = None
         """The :class:`~makeway.perceive.audio.multisource.SourceSeparator` that :meth:`sources`
         uses for further sirens (created on first use with its default constants; may be replaced)."""
 
-    def _companion(
-        self, which: str | Path | bool, default: Path, role: str, threads: int | None
-    ) -> SirenModel | None:
-        """The localizer or ranger network named by ``which`` (see the class docstring), checked
-        to read the same features as this one."""
-        path: Path | None = None
+    def _named(self, which: str | Path | bool | Sequence[str | Path], defaults: Sequence[Path]) -> list[Path]:
+        """The companion files named by ``which`` (class docstring): ``True`` gives the shipped
+        ``defaults`` that exist when this is the default model (none otherwise), ``False`` none."""
         if which is True:
-            if self.path.resolve() == DEFAULT_SIREN_MODEL.resolve() and default.is_file():
-                path = default
-        elif which is not False:
-            path = Path(which)
-        if path is None:
-            return None
+            is_default = self.path.resolve() == DEFAULT_SIREN_MODEL.resolve()
+            return [p for p in defaults if p.is_file()] if is_default else []
+        if which is False:
+            return []
+        return [Path(which)] if isinstance(which, str | Path) else [Path(w) for w in which]
+
+    def _companion(self, path: Path, role: str, threads: int | None) -> SirenModel:
+        """The localizer or ranger network at ``path``, checked to read the same features as this
+        one."""
         other = SirenModel(path, threads=threads, localizer=False, ranger=False)
         if (
             other.features.config != self.features.config
