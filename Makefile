@@ -48,6 +48,7 @@ bench-audio: venv
 	$(BIN)/python benchmarks/bench_audio_real.py --sweep 65,75,80,85 --smooth 8
 	$(BIN)/python benchmarks/bench_audio_smoothing.py
 	$(BIN)/python benchmarks/bench_audio_multisource.py
+	$(BIN)/python benchmarks/bench_audio_approach.py
 	$(BIN)/python benchmarks/bench_audio_calibration.py
 	$(BIN)/python benchmarks/bench_audio_range_bound.py
 

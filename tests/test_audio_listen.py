@@ -20,7 +20,7 @@ from makeway.sense.recording import Recording, write_recording
 from makeway.sim.audio_scenarios import simulate_recording
 
 MESSAGE_KEYS = {"t_end", "is_siren", "probability", "smoothed_probability", "sources"}
-SOURCE_KEYS = {"bearing_rad", "bearing_deg", "distance_m", "approaching"}
+SOURCE_KEYS = {"bearing_rad", "bearing_deg", "distance_m", "approaching", "approach_probability"}
 
 
 @pytest.fixture(scope="module")

@@ -297,6 +297,20 @@ def _siren_networks(
     )
 
 
+def _approach_estimator(name: str | None, net: SirenModel | None) -> Any:
+    """The approach estimator named by ``--approach`` (None: :func:`~makeway.perceive.audio.stream
+    .default_approach`); ``trend`` needs the network's distances."""
+    from makeway.perceive.audio.motion import get_approach_method
+    from makeway.perceive.audio.stream import default_approach
+
+    if name is None:
+        return default_approach(net)
+    cls = get_approach_method(name)
+    if name == "trend" and net is None:
+        raise ValueError("--approach trend reads the network's distances; it cannot run with --baseline")
+    return cls()
+
+
 @audio_app.command("eval")
 @friendly_errors
 def eval_cmd(
@@ -672,6 +686,69 @@ def calibrate(
     print_json_line(out)
 
 
+@audio_app.command("train-approach")
+@friendly_errors
+def train_approach(
+    data: Annotated[
+        list[Path],
+        typer.Option("--data", help="Training recordings: a folder of recording folders (repeatable)."),
+    ],
+    val: Annotated[
+        list[Path] | None,
+        typer.Option("--val", help="Validation recordings, scored after training (repeatable)."),
+    ] = None,
+    out: Annotated[
+        Path | None,
+        typer.Option("--out", "-o", help="ONNX classifier to write (default: the shipped one)."),
+    ] = None,
+    model: ModelOption = None,
+    localizer: LocalizerOption = None,
+    ranger: RangerOption = None,
+    seed: Annotated[int, typer.Option(help="Seed of the trees' row subsampling.")] = 0,
+) -> None:
+    """Train the approaching/receding classifier of `audio listen` on labelled recordings.
+
+    Every recording runs as `audio listen` runs it (the siren networks, the listener's decision, the
+    distance trend and the level/Doppler cues); the windows where a siren is reported and moves by
+    at least 1 m/s relative to the car are the training rows, with the sign of the labelled range
+    rate as the target. Gradient-boosted trees, written as ONNX. With --val, prints the validation
+    scores of the new classifier and of the level/Doppler rule (JSON line last)."""
+    from makeway.eval.siren_approach import approach_report
+    from makeway.perceive.audio.motion import DEFAULT_APPROACH_MODEL, TrendApproach
+    from makeway.progress import progress_bar
+    from makeway.train.approach import XGB_PARAMS, approach_dataset, export_approach_onnx, fit_approach
+
+    target = out if out is not None else DEFAULT_APPROACH_MODEL
+    folders = [f for d in data for f in recording_folders(d)]
+    val_folders = [f for d in (val or []) for f in recording_folders(d)]
+    net = _siren_networks(model, localizer, ranger, None)
+    with progress_bar("training windows", len(folders), unit="rec") as advance:
+        train_set = approach_dataset(folders, net, advance=advance)
+    rows = train_set["scored"]
+    clf = fit_approach(train_set["features"][rows], train_set["approaching"][rows], seed=seed)
+    features = TrendApproach(model=None)
+    training = {
+        "recordings": len(folders),
+        "windows": int(rows.sum()),
+        "approaching_share": round(float(train_set["approaching"][rows].mean()), 4),
+        "params": XGB_PARAMS,
+        "seed": seed,
+        "siren_model": repr(net),
+    }
+    export_approach_onnx(clf, target, features.feature_names, extra={"training": training})
+    result: dict[str, Any] = {"model": str(target), "training": training}
+    if val_folders:
+        trained = TrendApproach(target)
+        with progress_bar("validation", len(val_folders), unit="rec") as advance:
+            val_set = approach_dataset(val_folders, net, advance=advance)
+        result["validation"] = {
+            "trend": approach_report(val_set, trained.decide(val_set["features"])[0]),
+            "level": approach_report(val_set, val_set["level_state"]),
+        }
+    err_console.print(f"approach classifier on {int(rows.sum())} windows → {target}", highlight=False)
+    print_json_line(result)
+
+
 @audio_app.command()
 @friendly_errors
 def listen(
@@ -701,10 +778,18 @@ def listen(
     ] = LISTEN_SMOOTH,
     average: AverageOption = SMOOTH_AVERAGE,
     full_scale_db_spl: FullScaleOption = None,
+    approach: Annotated[
+        str | None,
+        typer.Option(
+            help="How approaching/receding is told: trend (the trend of the network's distance with the "
+            "level and Doppler cues, through the shipped classifier; the default with the network) or "
+            "level (level slope and Doppler only; the default, and the only choice, with --baseline).",
+        ),
+    ] = None,
 ) -> None:
     """Slide over a recording: one JSON line per hop (is_siren, probability, smoothed_probability,
     one entry per detected siren with bearing, distance — null for the baselines and for further
-    sirens — and approaching/receding).
+    sirens — and approaching/receding with its probability).
 
     is_siren is decided on the mean logit of the last --smooth windows (default 8, 1.36 s of audio:
     more recall at fewer false alarms than one window alone; --average probability averages the
@@ -717,13 +802,21 @@ def listen(
     if not path.exists():
         raise InputError(path, "no such folder")
     net = _siren_networks(model, localizer, ranger, 1) if baseline is None else None
+    estimator = _approach_estimator(approach, net)
     rec = assume_calibration(read_recording(path), full_scale_db_spl)
     _calibration_note(int(rec.full_scale_db_spl is None), baseline)
     t0 = time.perf_counter()
     messages = []
     method = baseline or "gccphat"
     for msg in listen_stream(
-        rec, window_s=window, hop_s=hop, method=method, model=net, smooth=smooth, average=average
+        rec,
+        window_s=window,
+        hop_s=hop,
+        method=method,
+        model=net,
+        smooth=smooth,
+        average=average,
+        approach=estimator,
     ):
         messages.append(msg)
         if jsonl is None:

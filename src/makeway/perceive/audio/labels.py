@@ -92,18 +92,31 @@ class Labels:
         """``(W,)`` bool: at least one siren within range at the window end."""
         return np.asarray(self.present.any(axis=1), dtype=bool)
 
-    def nearest(self) -> tuple[np.ndarray, np.ndarray]:
-        """``(theta, distance)`` ``(W,)`` of the nearest present source per window (NaN when none)."""
-        theta = np.full(len(self), np.nan)
-        dist = np.full(len(self), np.nan)
+    def nearest_source(self) -> np.ndarray:
+        """``(W,)`` int: the index of the nearest present source per window (−1 when none)."""
+        k = np.full(len(self), -1, dtype=np.int64)
         if self.n_sources and len(self):
             d = np.where(self.present, self.distance, np.inf)
-            k = np.argmin(d, axis=1)
-            rows = np.arange(len(self))
-            ok = np.isfinite(d[rows, k])
-            theta[ok] = self.theta[rows, k][ok]
-            dist[ok] = self.distance[rows, k][ok]
-        return theta, dist
+            best = np.argmin(d, axis=1)
+            ok = np.isfinite(d[np.arange(len(self)), best])
+            k[ok] = best[ok]
+        return k
+
+    def _of_nearest(self, values: np.ndarray) -> np.ndarray:
+        k = self.nearest_source()
+        out = np.full(len(self), np.nan)
+        ok = k >= 0
+        out[ok] = values[np.flatnonzero(ok), k[ok]]
+        return out
+
+    def nearest(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(theta, distance)`` ``(W,)`` of the nearest present source per window (NaN when none)."""
+        return self._of_nearest(self.theta), self._of_nearest(self.distance)
+
+    def nearest_range_rate(self) -> np.ndarray:
+        """``(W,)`` range rate (m/s, negative: approaching) of the nearest present source (NaN
+        when none)."""
+        return self._of_nearest(self.range_rate)
 
     def records(self, recording: str | None = None) -> list[dict[str, Any]]:
         """One JSON-ready dict per window (what ``makeway audio label`` writes as JSONL)."""

@@ -43,11 +43,15 @@ slope (``−s / 8.69``, negative when approaching). Without a distance estimate 
 
 from __future__ import annotations
 
+import json
 import math
 from collections import deque
+from pathlib import Path
+from typing import Any
 
 import numpy as np
 
+from makeway.errors import InputError
 from makeway.perceive.audio.features import BAND_HZ, frame_params, power_spectrogram
 
 DB_PER_NEPER_RANGE = 20.0 / math.log(10.0)
@@ -98,6 +102,7 @@ class ApproachEstimator:
         self.state_: bool | None = None
         self.slope_db_s_: float | None = None
         self.doppler_: float | None = None
+        self.probability_: float | None = None  # a rule, not a classifier: never set
         return self
 
     # ------------------------------------------------------------------------------------- cues
@@ -166,10 +171,19 @@ class ApproachEstimator:
 
     # ---------------------------------------------------------------------------------- update
 
-    def update(self, window: np.ndarray, sample_rate: int, time_s: float) -> tuple[bool | None, float | None]:
+    def update(
+        self,
+        window: np.ndarray,
+        sample_rate: int,
+        time_s: float,
+        *,
+        distance_m: float | None = None,
+        is_siren: bool = True,
+    ) -> tuple[bool | None, float | None]:
         """Feed the window ``(channels, samples)`` that ends at ``time_s``; return
         ``(approaching, range_rate_hint)`` — ``approaching`` None while undecided, the hint ``ṙ/r``
-        (1/s, from the level slope) None until there is enough history."""
+        (1/s, from the level slope) None until there is enough history. ``distance_m`` and
+        ``is_siren`` are not used here; they keep the call the same as :meth:`TrendApproach.update`."""
         self._add_frames(window, int(sample_rate), float(time_s))
         if len(self.frames_) < 3:
             return self.state_, None
@@ -194,3 +208,201 @@ class ApproachEstimator:
                 state = vote
         self.state_ = state
         return state, -slope / DB_PER_NEPER_RANGE
+
+
+DEFAULT_APPROACH_MODEL = Path(__file__).resolve().parents[2] / "models" / "siren_approach.onnx"
+"""The shipped classifier of :class:`TrendApproach` (``makeway audio train-approach``; model card
+``docs/model_card_siren_net.md``, "The approach classifier")."""
+TREND_HORIZONS_S = (1.0, 1.5, 2.5, 4.0)
+"""Spans (s) over which :class:`TrendApproach` fits the slope of the network's log distance."""
+MIN_TREND_WINDOWS = 3
+"""A slope needs at least this many siren windows within its span."""
+HINT_HORIZON_S = 1.5
+"""The span whose slope :meth:`TrendApproach.update` returns as the ``ṙ/r`` hint."""
+
+
+class TrendApproach:
+    """Approaching or receding from the *trend of the network's distance*, with the level and
+    Doppler cues of :class:`ApproachEstimator` beside it, combined by a trained classifier.
+
+    The siren network (with its localizer and rangers) estimates the nearest siren's distance in
+    every window (median error about 5.5 m at 10–50 m). One window's distance is too noisy to tell
+    direction, but its trend over a few seconds is not: for a point source ``d ln r / dt = ṙ / r``,
+    negative while the siren comes closer. Each update:
+
+    1. feeds the window to an :class:`ApproachEstimator` (level slope and Doppler trend);
+    2. keeps ``(time, ln distance)`` of the windows the listener decided are a siren;
+    3. forms the feature row (:attr:`feature_names`): for each span of :data:`TREND_HORIZONS_S`, the
+       least-squares slope of ln distance over the siren windows within it and whether there were
+       at least ``min_windows`` of them; the level slope and whether there is one; the Doppler
+       trend; this window's ln distance;
+    4. the classifier (gradient-boosted trees in ONNX, :data:`DEFAULT_APPROACH_MODEL`) turns the
+       row into ``probability_`` = P(approaching); ``approaching = probability_ ≥ 0.5``, or None
+       while no cue exists yet (no slope and no level slope).
+
+    The classifier is trained by ``makeway audio train-approach`` on simulated training-split
+    recordings (:mod:`makeway.train.approach`): the truth is the sign of the labelled range rate of
+    the nearest siren (SPEC §3 labels), over the windows the listener reports with a siren that is
+    moving relative to the car (``|ṙ| ≥ 1 m/s``). ``model=None`` builds the feature rows only
+    (what training uses); :meth:`decide` gives the decisions for a batch of rows.
+    """
+
+    def __init__(
+        self,
+        model: str | Path | None = DEFAULT_APPROACH_MODEL,
+        *,
+        horizons: tuple[float, ...] = TREND_HORIZONS_S,
+        min_windows: int = MIN_TREND_WINDOWS,
+        level: ApproachEstimator | None = None,
+        threads: int | None = 1,
+    ) -> None:
+        if not horizons or min(horizons) <= 0:
+            raise ValueError(f"horizons must be positive spans in seconds, got {horizons}")
+        if min_windows < 2:
+            raise ValueError(f"min_windows must be >= 2 (a slope needs two points), got {min_windows}")
+        self.model = Path(model) if model is not None else None
+        self.horizons = tuple(float(h) for h in horizons)
+        self.min_windows = int(min_windows)
+        self.level = level if level is not None else ApproachEstimator()
+        self.threads = threads
+        self.session_: Any = None
+        if self.model is not None:
+            self.session_ = self._load(self.model)
+        self.reset()
+
+    def __repr__(self) -> str:
+        name = self.model.name if self.model is not None else None
+        return f"TrendApproach(model={name!r}, horizons={self.horizons}, min_windows={self.min_windows})"
+
+    @property
+    def feature_names(self) -> list[str]:
+        """The columns of a feature row, in order (class docstring)."""
+        names: list[str] = []
+        for h in self.horizons:
+            names += [f"log_distance_slope_{h:g}s", f"has_slope_{h:g}s"]
+        return [*names, "level_slope_db_s", "has_level_slope", "doppler", "log_distance"]
+
+    def _load(self, path: Path) -> Any:
+        import onnxruntime as ort
+
+        if not path.is_file():
+            raise InputError(path, "approach model not found (train one with `makeway audio train-approach`)")
+        opts = ort.SessionOptions()
+        if self.threads is not None:
+            opts.intra_op_num_threads = int(self.threads)
+            opts.inter_op_num_threads = 1
+        opts.log_severity_level = 3
+        try:
+            session = ort.InferenceSession(str(path), opts, providers=["CPUExecutionProvider"])
+        except Exception as exc:  # onnxruntime raises its own exception types
+            raise InputError(path, f"not a readable ONNX model ({str(exc).splitlines()[0][:200]})") from None
+        meta = session.get_modelmeta().custom_metadata_map
+        if meta.get("makeway_model") != "siren_approach":
+            raise InputError(
+                path, "an ONNX model, but not a makeway approach classifier (no siren_approach metadata)"
+            )
+        try:
+            names = json.loads(meta["feature_names"])
+        except (KeyError, ValueError) as exc:
+            raise InputError(path, f"malformed approach model metadata ({exc})") from None
+        if names != self.feature_names:
+            raise InputError(
+                path, f"the classifier reads the features {names}, this estimator makes {self.feature_names}"
+            )
+        return session
+
+    def reset(self) -> TrendApproach:
+        """Forget the history and the decision."""
+        self.level.reset()
+        self.history_: deque[tuple[float, float]] = deque()  # (time, ln distance) of siren windows
+        self.state_: bool | None = None
+        self.probability_: float | None = None
+        self.features_: np.ndarray | None = None
+        return self
+
+    def observe(
+        self,
+        window: np.ndarray,
+        sample_rate: int,
+        time_s: float,
+        *,
+        distance_m: float | None = None,
+        is_siren: bool = True,
+    ) -> np.ndarray:
+        """Feed one window (as :meth:`update`) and return its feature row, without deciding."""
+        t = float(time_s)
+        self.level.update(window, sample_rate, t)
+        log_d = (
+            math.log(max(float(distance_m), 1.0))
+            if distance_m is not None and math.isfinite(distance_m)
+            else 0.0
+        )
+        if is_siren and distance_m is not None and math.isfinite(distance_m):
+            self.history_.append((t, log_d))
+        while self.history_ and self.history_[0][0] <= t - max(self.horizons):
+            self.history_.popleft()
+        row: list[float] = []
+        hist = np.array(self.history_, dtype=np.float64).reshape(-1, 2)
+        for h in self.horizons:
+            sel = hist[hist[:, 0] > t - h]
+            if len(sel) >= self.min_windows and np.ptp(sel[:, 0]) > 0:
+                row += [float(np.polyfit(sel[:, 0], sel[:, 1], 1)[0]), 1.0]
+            else:
+                row += [0.0, 0.0]
+        slope, doppler = self.level.slope_db_s_, self.level.doppler_
+        row += [slope if slope is not None else 0.0, float(slope is not None)]
+        row += [doppler if doppler is not None else 0.0, log_d]
+        self.features_ = np.array(row, dtype=np.float32)
+        return self.features_
+
+    def predict_proba(self, rows: np.ndarray) -> np.ndarray:
+        """P(approaching) for feature rows ``(n, n_features)``."""
+        if self.session_ is None:
+            raise ValueError("this TrendApproach has no classifier (model=None): it only makes features")
+        x = np.ascontiguousarray(np.asarray(rows, dtype=np.float32).reshape(-1, len(self.feature_names)))
+        probabilities = self.session_.run(None, {self.session_.get_inputs()[0].name: x})[1]
+        return np.asarray(probabilities, dtype=np.float64)[:, 1]
+
+    def decide(self, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(approaching, probability)`` for feature rows: ``approaching`` is 1.0 / 0.0, NaN where a
+        row has no cue (no distance slope and no level slope)."""
+        x = np.asarray(rows, dtype=np.float32).reshape(-1, len(self.feature_names))
+        p = self.predict_proba(x)
+        has_cue = x[:, 1 : 2 * len(self.horizons) : 2].any(axis=1) | (x[:, 2 * len(self.horizons) + 1] > 0)
+        return np.where(has_cue, (p >= 0.5).astype(np.float64), np.nan), p
+
+    def update(
+        self,
+        window: np.ndarray,
+        sample_rate: int,
+        time_s: float,
+        *,
+        distance_m: float | None = None,
+        is_siren: bool = True,
+    ) -> tuple[bool | None, float | None]:
+        """Feed the window ``(channels, samples)`` that ends at ``time_s``, with the network's
+        distance for it and the listener's decision; return ``(approaching, range_rate_hint)`` —
+        ``approaching`` None while no cue exists, the hint ``ṙ/r`` (1/s) the slope of ln distance
+        over :data:`HINT_HORIZON_S` (None without one). ``probability_`` holds P(approaching)."""
+        row = self.observe(window, sample_rate, time_s, distance_m=distance_m, is_siren=is_siren)
+        state, p = self.decide(row[None])
+        self.state_ = None if math.isnan(state[0]) else bool(state[0])
+        self.probability_ = None if self.state_ is None else float(p[0])
+        k = self.horizons.index(HINT_HORIZON_S) if HINT_HORIZON_S in self.horizons else 0
+        hint = float(row[2 * k]) if row[2 * k + 1] > 0 else None
+        return self.state_, hint
+
+
+APPROACH_METHODS = {"level": ApproachEstimator, "trend": TrendApproach}
+"""Approaching/receding estimators by name: ``level`` (level slope and Doppler; needs no network)
+and ``trend`` (the network's distance trend and those cues, through a trained classifier)."""
+
+
+def get_approach_method(name: str) -> type[ApproachEstimator] | type[TrendApproach]:
+    """The estimator class registered as ``name`` (:data:`APPROACH_METHODS`)."""
+    try:
+        return APPROACH_METHODS[name]
+    except KeyError:
+        raise ValueError(
+            f"unknown approach method {name!r}; choose from {', '.join(APPROACH_METHODS)}"
+        ) from None

@@ -5,7 +5,8 @@
 and yields one message per hop::
 
     {"t_end": 1.17, "is_siren": true, "probability": 0.93, "smoothed_probability": 0.88,
-     "sources": [{"bearing_rad": 2.9, "bearing_deg": 166.2, "distance_m": 31.4, "approaching": true}]}
+     "sources": [{"bearing_rad": 2.9, "bearing_deg": 166.2, "distance_m": 31.4, "approaching": true,
+                  "approach_probability": 0.91}]}
 
 With the trained siren network (``model``, :class:`~makeway.perceive.audio.siren_model.SirenModel`;
 the CLI's default) ``probability`` is the network's, the first source is the nearest siren with
@@ -13,10 +14,13 @@ the network's bearing (vehicle frame, 0 ahead, positive left) and distance, and 
 from the window's time–frequency bins (:mod:`~makeway.perceive.audio.multisource`; distance
 ``null``). Without a model, the band-energy
 :class:`~makeway.perceive.audio.doa.SirenEnergyDetector` and a classical bearing (``method``) give at
-most one source and no distance. ``approaching`` comes from
-:class:`~makeway.perceive.audio.motion.ApproachEstimator`, which sees every window (so its
-history is continuous) but is reported only in siren windows, for the nearest siren. ``sources`` is
-empty when there is no siren.
+most one source and no distance. ``approaching`` comes from an approach estimator
+(:data:`~makeway.perceive.audio.motion.APPROACH_METHODS`) that sees every window (so its history is
+continuous) but is reported only in siren windows, for the nearest siren: with the network, by
+default :class:`~makeway.perceive.audio.motion.TrendApproach` (the trend of the network's distance
+and the level and Doppler cues, through a trained classifier; ``approach_probability`` is its
+P(approaching)); without one, :class:`~makeway.perceive.audio.motion.ApproachEstimator` (level and
+Doppler; ``approach_probability`` null). ``sources`` is empty when there is no siren.
 
 ``is_siren`` is decided on ``smoothed_probability``, the mean of this window and the ``smooth`` − 1
 before it, taken over their logits unless ``average="probability"``
@@ -41,7 +45,7 @@ import numpy as np
 
 from makeway.perceive.audio.doa import SirenEnergyDetector, detector_score, get_doa_method
 from makeway.perceive.audio.labels import HOP_S, LISTEN_SMOOTH, SMOOTH_AVERAGE, WINDOW_S, window_starts
-from makeway.perceive.audio.motion import ApproachEstimator
+from makeway.perceive.audio.motion import DEFAULT_APPROACH_MODEL, ApproachEstimator, TrendApproach
 from makeway.perceive.audio.siren_model import SirenModel
 from makeway.sense.recording import Recording
 from makeway.track.smoother import StreamSmoother
@@ -56,7 +60,7 @@ def listen(
     hop_s: float = HOP_S,
     method: str = "gccphat",
     detector: SirenEnergyDetector | None = None,
-    approach: ApproachEstimator | None = None,
+    approach: ApproachEstimator | TrendApproach | None = None,
     model: SirenModel | None = None,
     smooth: int = LISTEN_SMOOTH,
     average: str = SMOOTH_AVERAGE,
@@ -80,14 +84,13 @@ def listen(
                 f"the siren model works on {model.config.window_s:g} s windows, not {window_s:g} s"
             )
     det = detector if detector is not None else SirenEnergyDetector(sr)
-    est = approach if approach is not None else ApproachEstimator()
+    est = approach if approach is not None else default_approach(model)
     est.reset()
     audio = np.asarray(recording.audio)
     win = round(window_s * sr)
     for start in window_starts(recording.n_samples, sr, window_s, hop_s):
         window = np.asarray(audio[start : start + win].T, dtype=np.float64)
         t_end = (int(start) + win) / sr
-        approaching, _ = est.update(window, sr, t_end)
         sources: list[dict[str, Any]] = []
         pred = model.predict(window, recording.full_scale_db_spl) if model is not None else None
         if pred is not None:
@@ -96,6 +99,9 @@ def listen(
             p = float(det.proba_from_scores(np.array([detector_score(window, sr)]))[0])
         p_smooth = smoother.update(p)
         is_siren = p_smooth >= (model.threshold if model is not None else 0.5)
+        distance = float(pred.distance[0]) if pred is not None else None
+        approaching, _ = est.update(window, sr, t_end, distance_m=distance, is_siren=is_siren)
+        p_approach = est.probability_
         if model is not None and pred is not None:
             found = model.sources(pred, 0, window, is_siren=is_siren)
         else:
@@ -113,6 +119,7 @@ def listen(
                     "bearing_deg": round(math.degrees(bearing), 3),
                     "distance_m": None if dist is None else round(float(dist), 2),
                     "approaching": approaching if k == 0 else None,
+                    "approach_probability": None if k or p_approach is None else round(p_approach, 4),
                 }
             )
         yield {
@@ -124,6 +131,15 @@ def listen(
         }
 
 
+def default_approach(model: SirenModel | None) -> ApproachEstimator | TrendApproach:
+    """The approach estimator :func:`listen` uses when none is given: :class:`TrendApproach` with
+    the shipped classifier when there is a network (it reads the network's distance) and the
+    classifier is installed, :class:`ApproachEstimator` otherwise."""
+    if model is not None and DEFAULT_APPROACH_MODEL.is_file():
+        return TrendApproach()
+    return ApproachEstimator()
+
+
 def plot_listen(
     messages: Iterable[dict[str, Any]],
     recording: Recording,
@@ -131,7 +147,8 @@ def plot_listen(
     *,
     window_s: float = WINDOW_S,
 ) -> Path:
-    """Spectrogram with the siren windows shaded, and the polar bearing track; written atomically."""
+    """Spectrogram with the siren windows shaded (the strip on top coloured by approaching/receding),
+    and the polar bearing track; written atomically."""
     from matplotlib.figure import Figure
 
     from makeway.atomic import atomic_path
@@ -155,15 +172,17 @@ def plot_listen(
         f_edges = np.concatenate([f_k - (f_k[1] - f_k[0]) / 2, [f_k[-1] + (f_k[1] - f_k[0]) / 2]])
         vmax = float(np.max(db))
         ax.pcolormesh(t_edges, f_edges, db, shading="flat", cmap="magma", vmin=vmax - 80.0, vmax=vmax)
+    strip = {True: "tab:red", False: "tab:blue", None: "cyan"}  # approaching, receding, undecided
     for m in msgs:
         if m["is_siren"]:
+            approaching = m["sources"][0]["approaching"] if m["sources"] else None
             ax.axvspan(m["t_end"] - window_s, m["t_end"], color="cyan", alpha=0.08, lw=0)
-            ax.axvspan(m["t_end"] - window_s, m["t_end"], ymin=0.97, color="cyan", lw=0)  # detection strip
+            ax.axvspan(m["t_end"] - window_s, m["t_end"], ymin=0.97, color=strip[approaching], lw=0)
     ax.set_xlim(0.0, recording.duration_s)
     ax.set_ylim(0.0, PLOT_MAX_HZ)
     ax.set_xlabel("time (s)")
     ax.set_ylabel("frequency (Hz), channel 0")
-    ax.set_title("spectrogram; shaded / top strip: siren detected")
+    ax.set_title("spectrogram; shaded: siren detected; top strip: approaching (red), receding (blue)")
 
     pax: Any = fig.add_subplot(gs[0, 2], projection="polar")  # a PolarAxes
     pax.set_theta_zero_location("N")  # 0 = straight ahead, up; positive = left, counter-clockwise

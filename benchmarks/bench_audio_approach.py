@@ -1,0 +1,93 @@
+"""Approaching or receding (issue 4, item 3): the distance-trend classifier against the level/Doppler rule.
+
+    .venv/bin/python benchmarks/bench_audio_approach.py [--data DIR ... | --n 30 --seeds 2026,2027]
+        [--approach-model FILE] [--json FILE]
+
+1. Held-out recordings: ``--data`` (folders of recordings, repeatable), or ``--n`` recordings per
+   seed simulated with ``--seeds`` from the **test** groups only (``makeway audio simulate --split
+   test``), as the other siren benchmarks make them.
+2. Every recording runs as ``makeway audio listen`` runs it (the shipped siren networks, the
+   listener's decision rule), and on every window the listener reports a siren moving by at least
+   1 m/s relative to the car (:func:`~makeway.eval.siren_approach.approach_windows`) two answers
+   are scored against the sign of the labelled range rate:
+
+   * ``level`` — :class:`~makeway.perceive.audio.motion.ApproachEstimator`, the level slope and
+     Doppler rule (``audio listen`` until the thirteenth session; the anchor);
+   * ``trend`` — :class:`~makeway.perceive.audio.motion.TrendApproach` with the shipped classifier
+     (the default of ``audio listen`` with the network).
+
+   Printed side by side: ``correct`` (the share decided and right; undecided counts as wrong),
+   ``decided``, the accuracy of the decided windows, and ``correct`` per scenario; plus the share of
+   approaching windows (what always answering "approaching" would score).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import tempfile
+from pathlib import Path
+from typing import Any
+
+from makeway.eval.siren_approach import approach_report, approach_windows, pool
+from makeway.perceive.audio.motion import DEFAULT_APPROACH_MODEL, TrendApproach
+from makeway.perceive.audio.siren_model import SirenModel
+from makeway.progress import progress_bar
+from makeway.sim.audio_scenarios import held_out_folders
+
+
+def _pct(v: float | None) -> str:
+    return "—" if v is None else f"{100 * v:.2f} %"
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--data", type=Path, action="append", default=None, help="recordings (default: simulate)")
+    ap.add_argument("--n", type=int, default=30, help="recordings per seed to simulate without --data")
+    ap.add_argument("--seeds", default="2026,2027", help="seeds of the simulated held-out sets")
+    ap.add_argument("--duration", type=float, default=8.0, help="seconds per simulated recording")
+    ap.add_argument("--approach-model", type=Path, default=DEFAULT_APPROACH_MODEL)
+    ap.add_argument("--json", type=Path, default=None, help="also write the results to this JSON file")
+    args = ap.parse_args()
+
+    networks = SirenModel(threads=2)
+    trend = TrendApproach(args.approach_model)
+    seeds = [int(s) for s in args.seeds.split(",")]
+    with tempfile.TemporaryDirectory() as tmp:
+        folders = held_out_folders(args.data, tmp, args.n, seeds, args.duration)
+        parts = []
+        with progress_bar("recordings", len(folders), unit="rec") as advance:
+            for folder in folders:
+                parts.append(approach_windows(folder, networks, trend))
+                advance(1)
+    arrays = pool(parts)
+    results: dict[str, Any] = {
+        "recordings": len(folders),
+        "level (anchor)": approach_report(arrays, arrays["level_state"]),
+        "trend": approach_report(arrays, trend.decide(arrays["features"])[0]),
+    }
+    anchor = results["level (anchor)"]
+    print(
+        f"\napproaching/receding on {len(folders)} recordings, {anchor['windows']} scored windows "
+        f"(siren reported, |range rate| >= 1 m/s); approaching share {_pct(anchor['approaching_share'])}"
+    )
+    scenarios = sorted(anchor["by_scenario"])
+    print(
+        f"{'':16s}{'correct':>10s}{'decided':>10s}{'acc|decided':>13s}"
+        + "".join(f"{s[:13]:>15s}" for s in scenarios)
+    )
+    for name in ("level (anchor)", "trend"):
+        r = results[name]
+        per = "".join(f"{_pct(r['by_scenario'][s]['correct']):>15s}" for s in scenarios)
+        print(
+            f"{name:16s}{_pct(r['correct']):>10s}{_pct(r['decided']):>10s}{_pct(r['accuracy_decided']):>13s}{per}"
+        )
+    gain = results["trend"]["correct"] / anchor["correct"] if anchor["correct"] else float("nan")
+    print(f"\ntrend / level, share correct: {gain:.2f}×")
+    if args.json is not None:
+        args.json.write_text(json.dumps(results, indent=2))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,119 @@
+"""How well approaching/receding is told, window by window, on labelled recordings (issue 4, item 3).
+
+:func:`approach_windows` runs one recording the way ``makeway audio listen`` does — the siren
+network on every 0.5 s window (hop 0.17 s), the listener's decision rule
+(:data:`~makeway.perceive.audio.labels.LISTEN_SMOOTH` windows, stored threshold) and a
+:class:`~makeway.perceive.audio.motion.TrendApproach` fed each window with the network's distance
+and that decision — and returns per window:
+
+* ``features`` — the trend estimator's feature rows (what its classifier reads, and is trained on);
+* ``level_state`` — the decision of the level/Doppler estimator inside it
+  (:class:`~makeway.perceive.audio.motion.ApproachEstimator`: 1 approaching, 0 receding, NaN
+  undecided), the anchor;
+* ``range_rate`` — the labelled range rate of the nearest siren (m/s), and ``approaching`` its sign;
+* ``scored`` — the windows that count: kept by the labeller, a siren within 100 m, the listener
+  reports a siren (only then does it say approaching or receding), and the siren moves relative to
+  the car by at least :data:`MIN_RANGE_RATE_MPS` (near the closest point of approach the truth
+  itself flips).
+
+:func:`approach_report` scores decisions on the scored windows: ``correct`` (the share decided and
+right; undecided counts as wrong), ``decided``, ``accuracy_decided``, and the same per scenario.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+from makeway.perceive.audio.evaluate import model_estimator, smoothed_probability
+from makeway.perceive.audio.features import window_batch
+from makeway.perceive.audio.labels import LISTEN_SMOOTH, SMOOTH_AVERAGE, label_recording
+from makeway.perceive.audio.motion import TrendApproach
+from makeway.perceive.audio.siren_model import SirenModel
+from makeway.sense.recording import Recording, read_recording
+
+MIN_RANGE_RATE_MPS = 1.0
+"""Windows whose siren moves slower than this relative to the car are not scored."""
+
+
+def _scenario(rec: Recording) -> str:
+    """The simulator's scenario of the recording's first siren (``meta.yaml``), or "unknown"."""
+    meta_path = Path(rec.path) / "meta.yaml" if rec.path else None
+    if meta_path is None or not meta_path.is_file():
+        return "unknown"
+    meta = yaml.safe_load(meta_path.read_text()) or {}
+    sirens = meta.get("sirens") or []
+    return str(sirens[0].get("scenario", "unknown")) if sirens else "none"
+
+
+def approach_windows(
+    rec: Recording | str | Path, model: SirenModel, estimator: TrendApproach
+) -> dict[str, np.ndarray]:
+    """Per-window arrays of one recording (module docstring); ``estimator`` is reset first."""
+    rec = rec if isinstance(rec, Recording) else read_recording(rec)
+    labels = label_recording(rec)
+    windows = window_batch(rec, labels)
+    prob, _, distance = model_estimator(model)(rec, windows)
+    is_siren = smoothed_probability(prob, LISTEN_SMOOTH, SMOOTH_AVERAGE) >= model.threshold
+    estimator.reset()
+    rows, level = [], []
+    for i in range(len(windows)):
+        rows.append(
+            estimator.observe(
+                windows[i],
+                rec.sample_rate,
+                float(labels.t_end[i]),
+                distance_m=float(distance[i]),
+                is_siren=bool(is_siren[i]),
+            )
+        )
+        state = estimator.level.state_
+        level.append(np.nan if state is None else float(state))
+    rate = labels.nearest_range_rate()
+    moving = np.abs(np.nan_to_num(rate)) >= MIN_RANGE_RATE_MPS
+    n_feat = len(estimator.feature_names)
+    return {
+        "features": np.array(rows, dtype=np.float32).reshape(-1, n_feat),
+        "level_state": np.array(level, dtype=np.float64),
+        "range_rate": rate,
+        "approaching": rate < 0,
+        "scored": labels.kept & labels.siren & is_siren & moving,
+        "scenario": np.full(len(windows), _scenario(rec)),
+        "distance": labels.nearest()[1],
+    }
+
+
+def pool(parts: Iterable[dict[str, np.ndarray]]) -> dict[str, np.ndarray]:
+    """Concatenate the arrays of several recordings, key by key."""
+    parts = list(parts)
+    return {k: np.concatenate([p[k] for p in parts]) for k in parts[0]} if parts else {}
+
+
+def approach_report(arrays: dict[str, np.ndarray], state: np.ndarray) -> dict[str, Any]:
+    """Score ``state`` (1 approaching, 0 receding, NaN undecided; per window of ``arrays``) on the
+    scored windows (module docstring)."""
+    sel = arrays["scored"]
+    st = np.asarray(state, dtype=np.float64)[sel]
+    truth = arrays["approaching"][sel]
+    decided = ~np.isnan(st)
+    right = decided & ((st > 0.5) == truth)
+
+    def block(mask: np.ndarray) -> dict[str, Any]:
+        n = int(mask.sum())
+        n_dec = int((decided & mask).sum())
+        return {
+            "windows": n,
+            "correct": round(float(right[mask].mean()), 4) if n else None,
+            "decided": round(n_dec / n, 4) if n else None,
+            "accuracy_decided": round(float(right[mask & decided].sum() / n_dec), 4) if n_dec else None,
+        }
+
+    scen = arrays["scenario"][sel]
+    out = block(np.ones(len(st), dtype=bool))
+    out["approaching_share"] = round(float(truth.mean()), 4) if len(truth) else None
+    out["by_scenario"] = {s: block(scen == s) for s in sorted(set(scen.tolist()))}
+    return out

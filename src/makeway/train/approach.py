@@ -1,0 +1,102 @@
+"""Training of the approaching/receding classifier of :class:`~makeway.perceive.audio.motion.TrendApproach`
+(issue 4, item 3) — XGBoost and onnxmltools live here only (``pip install makeway[train]``).
+
+**Data.** :func:`approach_dataset` runs folders of labelled recordings through
+:func:`~makeway.eval.siren_approach.approach_windows` — the shipped siren networks, the listener's
+decision rule and the trend estimator's feature rows, exactly as ``makeway audio listen`` makes
+them — and keeps the scored windows (a siren the listener reports, moving by ≥ 1 m/s relative to
+the car). Target: approaching (the labelled range rate of the nearest siren is negative).
+
+**Model.** Gradient-boosted trees (:data:`XGB_PARAMS`: 300 trees of depth 4, learning rate 0.05,
+row subsampling 0.8). Trees take the has-slope flags and the saturation of the slopes as they
+come; a logistic regression on the same rows was 6–7 points less accurate on validation recordings
+(docs/benchmarks.md, thirteenth session). :func:`export_approach_onnx` converts the booster to an
+ONNX ``TreeEnsembleClassifier`` (onnxmltools) with the feature names in the metadata, so the
+runtime needs only ONNX Runtime.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from makeway.eval.siren_approach import approach_windows, pool
+from makeway.perceive.audio.motion import TrendApproach
+from makeway.perceive.audio.siren_model import SirenModel
+from makeway.sense.recording import recording_folders
+
+XGB_PARAMS: dict[str, Any] = {
+    "n_estimators": 300,
+    "max_depth": 4,
+    "learning_rate": 0.05,
+    "subsample": 0.8,
+}
+"""The booster's settings (module docstring)."""
+ONNX_OPSET = 15
+"""The highest default-domain opset onnxmltools converts XGBoost to."""
+
+
+def approach_dataset(
+    folders: Sequence[str | Path],
+    model: SirenModel,
+    *,
+    advance: Callable[[int], Any] | None = None,
+) -> dict[str, np.ndarray]:
+    """Per-window arrays (:func:`~makeway.eval.siren_approach.approach_windows`) of every recording
+    under ``folders``, pooled, with ``recording`` (index) added."""
+    features = TrendApproach(model=None)
+    parts = []
+    recordings = [r for f in folders for r in recording_folders(Path(f))]
+    for i, rec in enumerate(recordings):
+        part = approach_windows(rec, model, features)
+        part["recording"] = np.full(len(part["scored"]), i)
+        parts.append(part)
+        if advance is not None:
+            advance(1)
+    return pool(parts)
+
+
+def fit_approach(features: np.ndarray, approaching: np.ndarray, *, seed: int = 0, threads: int = 2) -> Any:
+    """An :class:`xgboost.XGBClassifier` (:data:`XGB_PARAMS`) fitted to predict ``approaching``."""
+    import xgboost as xgb
+
+    y = np.asarray(approaching, dtype=bool)
+    if len(np.unique(y)) < 2:
+        raise ValueError("the training windows hold only one class (need approaching and receding sirens)")
+    clf = xgb.XGBClassifier(**XGB_PARAMS, random_state=seed, n_jobs=threads, eval_metric="logloss")
+    return clf.fit(np.asarray(features, dtype=np.float32), y)
+
+
+def export_approach_onnx(
+    clf: Any, path: str | Path, feature_names: Sequence[str], extra: dict[str, Any] | None = None
+) -> Path:
+    """Write the fitted booster as ONNX with ``feature_names`` and ``extra`` (training description,
+    metrics) in the metadata read by :class:`~makeway.perceive.audio.motion.TrendApproach`."""
+    import onnx
+    from onnxmltools import convert_xgboost
+    from onnxmltools.convert.common.data_types import FloatTensorType
+
+    from makeway.atomic import atomic_path
+
+    onx = convert_xgboost(
+        clf,
+        initial_types=[("features", FloatTensorType([None, len(feature_names)]))],
+        target_opset=ONNX_OPSET,
+    )
+    meta = {
+        "makeway_model": "siren_approach",
+        "format_version": "1",
+        "feature_names": json.dumps(list(feature_names)),
+    }
+    for k, v in (extra or {}).items():
+        meta[k] = v if isinstance(v, str) else json.dumps(v)
+    for k, v in meta.items():
+        entry = onx.metadata_props.add()
+        entry.key, entry.value = k, v
+    with atomic_path(path) as tmp:
+        onnx.save(onx, str(tmp))
+    return Path(path)
