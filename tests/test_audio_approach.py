@@ -115,15 +115,24 @@ def test_trend_approach_settings_and_model_errors(tmp_path: Path) -> None:
 
 def test_approach_report_counts_undecided_as_wrong() -> None:
     arrays = {
-        "scored": np.array([True, True, True, True, False]),
-        "approaching": np.array([True, False, True, False, True]),
-        "scenario": np.array(["a", "a", "b", "b", "b"]),
+        "scored": np.array([True, True, True, True, True, False]),
+        "approaching": np.array([True, False, True, False, True, True]),
+        "range_rate": np.array([-2.0, 4.0, -12.0, 5.0, -7.0, -0.5]),
+        "scenario": np.array(["a", "a", "b", "b", "b", "b"]),
     }
-    state = np.array([1.0, 1.0, np.nan, 0.0, 0.0])
+    state = np.array([1.0, 1.0, np.nan, 0.0, 0.0, 0.0])
     rep = approach_report(arrays, state)
-    assert rep["windows"] == 4 and rep["correct"] == 0.5 and rep["decided"] == 0.75
-    assert rep["accuracy_decided"] == pytest.approx(2 / 3, abs=1e-4) and rep["approaching_share"] == 0.5
-    assert rep["by_scenario"]["a"]["correct"] == 0.5 and rep["by_scenario"]["b"]["decided"] == 0.5
+    assert rep["windows"] == 5 and rep["correct"] == 0.4 and rep["decided"] == 0.8
+    assert rep["accuracy_decided"] == 0.5 and rep["approaching_share"] == 0.6
+    # of the 3 approaching windows one was called receding (one undecided); of 2 receding, one approaching
+    assert rep["receding_when_approaching"] == pytest.approx(1 / 3, abs=1e-4)
+    assert rep["approaching_when_receding"] == 0.5
+    assert rep["by_scenario"]["a"]["correct"] == 0.5 and rep["by_scenario"]["b"]["decided"] == pytest.approx(
+        2 / 3, abs=1e-4
+    )
+    bands = rep["by_speed_mps"]
+    assert list(bands) == ["1-3", "3-6", "6-10", "10-inf"]
+    assert [b["windows"] for b in bands.values()] == [1, 2, 1, 1] and bands["3-6"]["correct"] == 0.5
 
 
 def test_shipped_classifier_tells_the_pass_by(pass_rec: Recording, networks: SirenModel) -> None:

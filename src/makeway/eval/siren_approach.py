@@ -17,11 +17,17 @@ and that decision — and returns per window:
   itself flips).
 
 :func:`approach_report` scores decisions on the scored windows: ``correct`` (the share decided and
-right; undecided counts as wrong), ``decided``, ``accuracy_decided``, and the same per scenario.
+right; undecided counts as wrong), ``decided``, ``accuracy_decided``; the two errors apart —
+``receding_when_approaching`` (the share of approaching windows called receding: the costly one,
+since the yield decision lets a receding EV go, ``makeway.decide.yield_fsm``) and
+``approaching_when_receding``; and ``correct`` per scenario and per band of relative speed
+(:data:`SPEED_BANDS_MPS`).
 """
 
 from __future__ import annotations
 
+import itertools
+import math
 from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
@@ -38,6 +44,8 @@ from makeway.sense.recording import Recording, read_recording
 
 MIN_RANGE_RATE_MPS = 1.0
 """Windows whose siren moves slower than this relative to the car are not scored."""
+SPEED_BANDS_MPS = (1.0, 3.0, 6.0, 10.0, math.inf)
+"""Edges of the bands of ``|range rate|`` (m/s) that :func:`approach_report` breaks ``correct`` into."""
 
 
 def _scenario(rec: Recording) -> str:
@@ -112,8 +120,18 @@ def approach_report(arrays: dict[str, np.ndarray], state: np.ndarray) -> dict[st
             "accuracy_decided": round(float(right[mask & decided].sum() / n_dec), 4) if n_dec else None,
         }
 
+    def share(num: np.ndarray, den: np.ndarray) -> float | None:
+        return round(float(num.sum() / den.sum()), 4) if den.any() else None
+
     scen = arrays["scenario"][sel]
+    speed = np.abs(arrays["range_rate"][sel])
     out = block(np.ones(len(st), dtype=bool))
     out["approaching_share"] = round(float(truth.mean()), 4) if len(truth) else None
+    out["receding_when_approaching"] = share(decided & (st < 0.5) & truth, truth)
+    out["approaching_when_receding"] = share(decided & (st > 0.5) & ~truth, ~truth)
     out["by_scenario"] = {s: block(scen == s) for s in sorted(set(scen.tolist()))}
+    out["by_speed_mps"] = {
+        f"{lo:g}-{hi:g}": block((speed >= lo) & (speed < hi))
+        for lo, hi in itertools.pairwise(SPEED_BANDS_MPS)
+    }
     return out
