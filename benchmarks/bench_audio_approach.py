@@ -33,7 +33,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from makeway.eval.siren_approach import approach_report, approach_windows, pool
+from makeway.eval.siren_approach import approach_recordings, approach_report
 from makeway.perceive.audio.features import window_batch
 from makeway.perceive.audio.labels import label_recording
 from makeway.perceive.audio.motion import DEFAULT_APPROACH_MODEL, TrendApproach, get_approach_method
@@ -81,13 +81,9 @@ def main() -> int:
     seeds = [int(s) for s in args.seeds.split(",")]
     with tempfile.TemporaryDirectory() as tmp:
         folders = held_out_folders(args.data, tmp, args.n, seeds, args.duration)
-        parts = []
         with progress_bar("recordings", len(folders), unit="rec") as advance:
-            for folder in folders:
-                parts.append(approach_windows(folder, networks, trend))
-                advance(1)
+            arrays = approach_recordings(folders, networks, trend, advance=advance)
         cost = _update_cost(folders[0], networks)
-    arrays = pool(parts)
     results: dict[str, Any] = {
         "recordings": len(folders),
         "level (anchor)": approach_report(arrays, arrays["level_state"]),

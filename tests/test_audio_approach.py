@@ -183,6 +183,21 @@ def test_cli_train_approach_and_listen_approach(tmp_path: Path) -> None:
     assert json.loads(trained.session_.get_modelmeta().custom_metadata_map["training"])["recordings"] == 3
     assert [p.name for p in out.parent.iterdir()] == ["approach.onnx"]  # nothing half-written beside it
 
+    res = runner.invoke(audio_app, ["eval", "--data", str(recs), "--approach", "--json", "-q"])
+    assert res.exit_code == 0, res.output
+    scored = json.loads(res.stdout.strip().splitlines()[-1])["approach"]
+    assert scored["min_range_rate_mps"] == MIN_RANGE_RATE_MPS and scored["trend"]["windows"] > 20
+    assert set(scored["trend"]) >= {
+        "correct",
+        "decided",
+        "receding_when_approaching",
+        "by_scenario",
+        "by_speed_mps",
+    }
+    assert scored["trend"]["windows"] == scored["level"]["windows"]
+    res = runner.invoke(audio_app, ["eval", "--data", str(recs), "--approach", "--baseline", "srp"])
+    assert res.exit_code == 2 and "--approach scores the network's" in res.output
+
     folder = recs / "rec_00000"
     for approach, has_probability in (("trend", True), ("level", False)):
         res = runner.invoke(audio_app, ["listen", str(folder), "--approach", approach])

@@ -311,6 +311,26 @@ def _approach_estimator(name: str | None, net: SirenModel | None) -> Any:
     return cls()
 
 
+def _score_approach(
+    recs: list[Path], net: SirenModel, full_scale_db_spl: float | None, quiet: bool
+) -> dict[str, Any]:
+    """``eval --approach``: each recording run as ``listen`` runs it, the approaching/receding call
+    of the distance-trend classifier and of the level/Doppler rule scored against the labelled
+    range rate (:mod:`makeway.eval.siren_approach`)."""
+    from makeway.eval.siren_approach import MIN_RANGE_RATE_MPS, approach_recordings, approach_report
+    from makeway.perceive.audio.motion import TrendApproach
+    from makeway.progress import progress_bar
+
+    trend = TrendApproach()
+    with progress_bar("approach", len(recs), enabled=not quiet, unit="rec") as advance:
+        arrays = approach_recordings(recs, net, trend, full_scale_db_spl=full_scale_db_spl, advance=advance)
+    return {
+        "min_range_rate_mps": MIN_RANGE_RATE_MPS,
+        "trend": approach_report(arrays, trend.decide(arrays["features"])[0]),
+        "level": approach_report(arrays, arrays["level_state"]),
+    }
+
+
 @audio_app.command("eval")
 @friendly_errors
 def eval_cmd(
@@ -345,6 +365,15 @@ def eval_cmd(
     ] = 1,
     average: AverageOption = SMOOTH_AVERAGE,
     full_scale_db_spl: FullScaleOption = None,
+    approach: Annotated[
+        bool,
+        typer.Option(
+            "--approach",
+            help="Also score approaching/receding as 'audio listen' calls it (the distance-trend "
+            'classifier and the level/Doppler rule) against the labelled range rate: an "approach" key. '
+            "Runs the networks a second time.",
+        ),
+    ] = False,
     as_json: Annotated[bool, typer.Option("--json", help="Print only the JSON line.")] = False,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")] = False,
 ) -> None:
@@ -353,11 +382,17 @@ def eval_cmd(
     Runs the shipped siren network (or --model), or with --baseline a classical method. Keys:
     recall, false_alarm_rate (per window), accuracy, angle_median_deg, angle_mean_deg (wrapped),
     distance_median_m, distance_mean_m (null for the baselines), the same inside "range_10_50", and
-    "by_distance" (10 m bins).
+    "by_distance" (10 m bins). With --approach, "approach": for the windows where the listener
+    reports a siren moving by at least 1 m/s, the share called right (correct; undecided counts as
+    wrong), decided, the two errors apart, and the same per scenario and per band of speed.
     """
     _check_baseline(baseline, model, localizer, ranger)
     if baseline is None and fit is not None:
         raise ValueError("--fit fits the baseline detector; it needs --baseline")
+    if baseline is not None and approach:
+        raise ValueError(
+            "--approach scores the network's approaching/receding call; it needs the network, not --baseline"
+        )
     from makeway.perceive.audio.doa import SirenEnergyDetector
     from makeway.perceive.audio.evaluate import evaluate, model_estimator
     from makeway.perceive.audio.features import window_batch
@@ -405,6 +440,8 @@ def eval_cmd(
     if net is not None:
         result["localizer"] = net.localizer.path.name if net.localizer is not None else None
         result["ranger"] = [r.path.name for r in net.rangers]
+    if approach:
+        result["approach"] = _score_approach(recs, net, full_scale_db_spl, quiet)
     result["seconds"] = round(time.perf_counter() - t0, 2)
     if detector is not None:
         result["detector"] = {"slope": round(detector.slope, 6), "offset": round(detector.offset, 6)}

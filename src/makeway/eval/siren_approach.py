@@ -28,7 +28,7 @@ from __future__ import annotations
 
 import itertools
 import math
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -40,7 +40,7 @@ from makeway.perceive.audio.features import window_batch
 from makeway.perceive.audio.labels import LISTEN_SMOOTH, SMOOTH_AVERAGE, label_recording
 from makeway.perceive.audio.motion import TrendApproach
 from makeway.perceive.audio.siren_model import SirenModel
-from makeway.sense.recording import Recording, read_recording
+from makeway.sense.recording import Recording, assume_calibration, read_recording
 
 MIN_RANGE_RATE_MPS = 1.0
 """Windows whose siren moves slower than this relative to the car are not scored."""
@@ -93,6 +93,28 @@ def approach_windows(
         "scenario": np.full(len(windows), _scenario(rec)),
         "distance": labels.nearest()[1],
     }
+
+
+def approach_recordings(
+    folders: Sequence[str | Path],
+    model: SirenModel,
+    estimator: TrendApproach,
+    *,
+    full_scale_db_spl: float | None = None,
+    advance: Callable[[int], Any] | None = None,
+) -> dict[str, np.ndarray]:
+    """:func:`approach_windows` of every recording folder, pooled, with ``recording`` (its index)
+    added; ``full_scale_db_spl`` is the calibration of recordings that state none
+    (:func:`~makeway.sense.recording.assume_calibration`)."""
+    parts = []
+    for i, folder in enumerate(folders):
+        rec = assume_calibration(read_recording(folder), full_scale_db_spl)
+        part = approach_windows(rec, model, estimator)
+        part["recording"] = np.full(len(part["scored"]), i)
+        parts.append(part)
+        if advance is not None:
+            advance(1)
+    return pool(parts)
 
 
 def pool(parts: Iterable[dict[str, np.ndarray]]) -> dict[str, np.ndarray]:

@@ -24,7 +24,7 @@ from typing import Any
 
 import numpy as np
 
-from makeway.eval.siren_approach import approach_windows, pool
+from makeway.eval.siren_approach import approach_recordings
 from makeway.perceive.audio.motion import TrendApproach
 from makeway.perceive.audio.siren_model import SirenModel
 from makeway.sense.recording import recording_folders
@@ -46,18 +46,10 @@ def approach_dataset(
     *,
     advance: Callable[[int], Any] | None = None,
 ) -> dict[str, np.ndarray]:
-    """Per-window arrays (:func:`~makeway.eval.siren_approach.approach_windows`) of every recording
-    under ``folders``, pooled, with ``recording`` (index) added."""
-    features = TrendApproach(model=None)
-    parts = []
+    """Per-window arrays of every recording under ``folders`` (:func:`~makeway.eval.siren_approach
+    .approach_recordings`, the trend estimator making feature rows only), pooled."""
     recordings = [r for f in folders for r in recording_folders(Path(f))]
-    for i, rec in enumerate(recordings):
-        part = approach_windows(rec, model, features)
-        part["recording"] = np.full(len(part["scored"]), i)
-        parts.append(part)
-        if advance is not None:
-            advance(1)
-    return pool(parts)
+    return approach_recordings(recordings, model, TrendApproach(model=None), advance=advance)
 
 
 def fit_approach(features: np.ndarray, approaching: np.ndarray, *, seed: int = 0, threads: int = 2) -> Any:

@@ -182,7 +182,9 @@ def plot_listen(
     ax.set_ylim(0.0, PLOT_MAX_HZ)
     ax.set_xlabel("time (s)")
     ax.set_ylabel("frequency (Hz), channel 0")
-    ax.set_title("spectrogram; shaded: siren detected; top strip: approaching (red), receding (blue)")
+    ax.set_title(
+        "spectrogram; shaded: siren detected\ntop strip: approaching (red), receding (blue), undecided (cyan)"
+    )
 
     pax: Any = fig.add_subplot(gs[0, 2], projection="polar")  # a PolarAxes
     pax.set_theta_zero_location("N")  # 0 = straight ahead, up; positive = left, counter-clockwise
