@@ -103,7 +103,7 @@ def test_trend_approach_settings_and_model_errors(tmp_path: Path) -> None:
     junk.write_bytes(b"not an onnx file")
     with pytest.raises(InputError, match="not a readable ONNX model"):
         TrendApproach(junk)
-    with pytest.raises(InputError, match="not a makeway approach classifier"):
+    with pytest.raises(InputError, match="not a makeway siren approach model"):
         TrendApproach(DEFAULT_SIREN_MODEL)
     with pytest.raises(InputError, match="reads the features"):
         TrendApproach(DEFAULT_APPROACH_MODEL, horizons=(1.0, 2.0))

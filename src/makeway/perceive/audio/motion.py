@@ -59,6 +59,7 @@ from typing import Any
 import numpy as np
 
 from makeway.errors import InputError
+from makeway.onnx_models import open_makeway_onnx
 from makeway.perceive.audio.features import BAND_HZ, frame_params, power_spectrogram
 
 DB_PER_NEPER_RANGE = 20.0 / math.log(10.0)
@@ -290,24 +291,12 @@ class TrendApproach:
         return [*names, "level_slope_db_s", "has_level_slope", "doppler", "log_distance"]
 
     def _load(self, path: Path) -> Any:
-        import onnxruntime as ort
-
-        if not path.is_file():
-            raise InputError(path, "approach model not found (train one with `makeway audio train-approach`)")
-        opts = ort.SessionOptions()
-        if self.threads is not None:
-            opts.intra_op_num_threads = int(self.threads)
-            opts.inter_op_num_threads = 1
-        opts.log_severity_level = 3
-        try:
-            session = ort.InferenceSession(str(path), opts, providers=["CPUExecutionProvider"])
-        except Exception as exc:  # onnxruntime raises its own exception types
-            raise InputError(path, f"not a readable ONNX model ({str(exc).splitlines()[0][:200]})") from None
-        meta = session.get_modelmeta().custom_metadata_map
-        if meta.get("makeway_model") != "siren_approach":
-            raise InputError(
-                path, "an ONNX model, but not a makeway approach classifier (no siren_approach metadata)"
-            )
+        session, meta = open_makeway_onnx(
+            path,
+            "siren_approach",
+            threads=self.threads,
+            missing_hint="train one with `makeway audio train-approach`",
+        )
         try:
             names = json.loads(meta["feature_names"])
         except (KeyError, ValueError) as exc:

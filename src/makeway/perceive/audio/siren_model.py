@@ -50,6 +50,7 @@ from typing import Any
 import numpy as np
 
 from makeway.errors import InputError
+from makeway.onnx_models import open_makeway_onnx
 from makeway.perceive.audio.siren_features import SirenFeatureConfig, SirenFeatures
 from makeway.sense.recording import REFERENCE_FULL_SCALE_DB_SPL, calibration_gain
 
@@ -117,28 +118,10 @@ class SirenModel:
         localizer: str | Path | bool = True,
         ranger: str | Path | bool | Sequence[str | Path] = True,
     ) -> None:
-        import onnxruntime as ort
-
         self.path = Path(path) if path is not None else DEFAULT_SIREN_MODEL
-        if not self.path.is_file():
-            raise InputError(self.path, "siren model not found (train one with `makeway audio train`)")
-        opts = ort.SessionOptions()
-        if threads is not None:
-            opts.intra_op_num_threads = int(threads)
-            opts.inter_op_num_threads = 1
-        opts.log_severity_level = 3
-        opts.add_session_config_entry("session.intra_op.allow_spinning", "0")
-        try:
-            self.session = ort.InferenceSession(str(self.path), opts, providers=["CPUExecutionProvider"])
-        except Exception as exc:  # onnxruntime raises its own exception types
-            raise InputError(
-                self.path, f"not a readable ONNX model ({str(exc).splitlines()[0][:200]})"
-            ) from None
-        meta = self.session.get_modelmeta().custom_metadata_map
-        if meta.get("makeway_model") != "siren_net":
-            raise InputError(
-                self.path, "an ONNX model, but not a makeway siren network (no siren_net metadata)"
-            )
+        self.session, meta = open_makeway_onnx(
+            self.path, "siren_net", threads=threads, missing_hint="train one with `makeway audio train`"
+        )
         try:
             self.streams: tuple[str, ...] = tuple(json.loads(meta["streams"]))
             self.features = SirenFeatures(SirenFeatureConfig.from_dict(json.loads(meta["features"])))
