@@ -141,7 +141,8 @@ def test_cli_listen(tmp_path: Path) -> None:
     out, png = tmp_path / "o" / "msgs.jsonl", tmp_path / "o" / "plot.png"
     res = runner.invoke(audio_app, ["listen", str(folder), "--jsonl", str(out), "--plot", str(png)])
     assert res.exit_code == 0, res.output
-    summary = json.loads(res.stdout.strip().splitlines()[-1])
+    (summary_line,) = res.stdout.strip().splitlines()  # the progress bar goes to stderr
+    summary = json.loads(summary_line)
     assert summary["messages"] == len(lines) and png.exists()
     assert [json.loads(x) for x in out.read_text().splitlines()] == lines
 

@@ -34,7 +34,7 @@ class Progress:
 def progress_bar(
     description: str, total: int | None, *, enabled: bool = True, unit: str = "frames"
 ) -> Iterator[Progress]:
-    """A rich progress bar showing count, rate, elapsed and remaining time.
+    """A rich progress bar on stderr showing count, rate, elapsed and remaining time.
 
     Yields a :class:`Progress`; call it (``advance(n=1)``) per item. With ``enabled=False`` it
     counts silently.
@@ -59,6 +59,9 @@ def progress_bar(
         TimeElapsedColumn(),
         TimeRemainingColumn(),
     )
-    with RichProgress(*columns) as bar:
+    from rich.console import Console
+
+    # on stderr: stdout stays for the JSON lines the commands print
+    with RichProgress(*columns, console=Console(stderr=True)) as bar:
         task = bar.add_task(description, total=total, rate="")
         yield Progress(bar, task, unit)

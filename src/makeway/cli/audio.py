@@ -831,8 +831,10 @@ def listen(
     is_siren is decided on the mean logit of the last --smooth windows (default 8, 1.36 s of audio:
     more recall at fewer false alarms than one window alone; --average probability averages the
     probabilities instead)."""
+    from makeway.perceive.audio.labels import window_starts
     from makeway.perceive.audio.stream import listen as listen_stream
     from makeway.perceive.audio.stream import plot_listen
+    from makeway.progress import progress_bar
     from makeway.sense.recording import assume_calibration, read_recording
 
     _check_baseline(baseline, model, localizer, ranger)
@@ -845,19 +847,23 @@ def listen(
     t0 = time.perf_counter()
     messages = []
     method = baseline or "gccphat"
-    for msg in listen_stream(
-        rec,
-        window_s=window,
-        hop_s=hop,
-        method=method,
-        model=net,
-        smooth=smooth,
-        average=average,
-        approach=estimator,
-    ):
-        messages.append(msg)
-        if jsonl is None:
-            print_json_line(msg)
+    hops = len(window_starts(rec.n_samples, rec.sample_rate, window, hop))
+    # with --jsonl the messages go to a file: a progress bar on stderr instead (stdout stays JSON)
+    with progress_bar("listening", hops, enabled=jsonl is not None, unit="hop") as advance:
+        for msg in listen_stream(
+            rec,
+            window_s=window,
+            hop_s=hop,
+            method=method,
+            model=net,
+            smooth=smooth,
+            average=average,
+            approach=estimator,
+        ):
+            messages.append(msg)
+            if jsonl is None:
+                print_json_line(msg)
+            advance(1)
     wall = time.perf_counter() - t0
     if jsonl is not None:
         from makeway.atomic import write_text_atomic
