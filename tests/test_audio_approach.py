@@ -214,3 +214,11 @@ def test_cli_train_approach_and_listen_approach(tmp_path: Path) -> None:
     assert res.exit_code == 2 and "unknown approach method 'bogus'" in res.output
     res = runner.invoke(audio_app, ["train-approach", "--data", str(tmp_path / "nothing")])
     assert res.exit_code == 2
+    quiet = tmp_path / "quiet"  # no siren: nothing to learn from, and no file written
+    write_recording(
+        quiet / "rec_00000", simulate_recording("none", 3.0, seed=5, siren="synth", noise="generated")
+    )
+    res = runner.invoke(
+        audio_app, ["train-approach", "--data", str(quiet), "--out", str(tmp_path / "q.onnx")]
+    )
+    assert res.exit_code == 2 and "only one class" in res.output and not (tmp_path / "q.onnx").exists()
