@@ -28,7 +28,7 @@ from __future__ import annotations
 
 import itertools
 import math
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -91,7 +91,6 @@ def approach_windows(
         "approaching": rate < 0,
         "scored": labels.kept & labels.siren & is_siren & moving,
         "scenario": np.full(len(windows), _scenario(rec)),
-        "distance": labels.nearest()[1],
     }
 
 
@@ -114,12 +113,6 @@ def approach_recordings(
         parts.append(part)
         if advance is not None:
             advance(1)
-    return pool(parts)
-
-
-def pool(parts: Iterable[dict[str, np.ndarray]]) -> dict[str, np.ndarray]:
-    """Concatenate the arrays of several recordings, key by key."""
-    parts = list(parts)
     return {k: np.concatenate([p[k] for p in parts]) for k in parts[0]} if parts else {}
 
 
