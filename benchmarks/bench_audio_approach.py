@@ -33,7 +33,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from makeway.eval.siren_approach import approach_recordings, approach_report
+from makeway.eval.siren_approach import approach_recordings, approach_scores
 from makeway.perceive.audio.features import window_batch
 from makeway.perceive.audio.labels import label_recording
 from makeway.perceive.audio.motion import DEFAULT_APPROACH_MODEL, TrendApproach, get_approach_method
@@ -41,6 +41,8 @@ from makeway.perceive.audio.siren_model import SirenModel
 from makeway.progress import progress_bar
 from makeway.sense.recording import read_recording
 from makeway.sim.audio_scenarios import held_out_folders
+
+ROWS = {"level": "level (anchor)", "trend": "trend"}
 
 
 def _pct(v: float | None) -> str:
@@ -55,7 +57,7 @@ def _update_cost(folder: Path, networks: SirenModel) -> dict[str, float]:
     windows = window_batch(rec, labels)
     distance = networks.predict(windows, rec.full_scale_db_spl).distance
     out = {}
-    for name in ("level", "trend"):
+    for name in ROWS:
         est = get_approach_method(name)()
         times = []
         for i in range(len(windows)):
@@ -84,12 +86,8 @@ def main() -> int:
         with progress_bar("recordings", len(folders), unit="rec") as advance:
             arrays = approach_recordings(folders, networks, trend, advance=advance)
         cost = _update_cost(folders[0], networks)
-    results: dict[str, Any] = {
-        "recordings": len(folders),
-        "level (anchor)": approach_report(arrays, arrays["level_state"]),
-        "trend": approach_report(arrays, trend.decide(arrays["features"])[0]),
-    }
-    anchor = results["level (anchor)"]
+    results: dict[str, Any] = {"recordings": len(folders), **approach_scores(arrays, trend)}
+    anchor = results["level"]
     print(
         f"\napproaching/receding on {len(folders)} recordings, {anchor['windows']} scored windows "
         f"(siren reported, |range rate| >= 1 m/s); approaching share {_pct(anchor['approaching_share'])}"
@@ -99,22 +97,22 @@ def main() -> int:
         f"{'':16s}{'correct':>10s}{'decided':>10s}{'acc|decided':>13s}"
         + "".join(f"{s[:13]:>15s}" for s in scenarios)
     )
-    for name in ("level (anchor)", "trend"):
+    for name in ROWS:
         r = results[name]
         per = "".join(f"{_pct(r['by_scenario'][s]['correct']):>15s}" for s in scenarios)
         print(
-            f"{name:16s}{_pct(r['correct']):>10s}{_pct(r['decided']):>10s}{_pct(r['accuracy_decided']):>13s}{per}"
+            f"{ROWS[name]:16s}{_pct(r['correct']):>10s}{_pct(r['decided']):>10s}{_pct(r['accuracy_decided']):>13s}{per}"
         )
     bands = list(anchor["by_speed_mps"])
     print(f"\n{'correct by |range rate|':24s}" + "".join(f"{b + ' m/s':>14s}" for b in bands))
-    for name in ("level (anchor)", "trend"):
+    for name in ROWS:
         r = results[name]["by_speed_mps"]
-        print(f"{name:24s}" + "".join(f"{_pct(r[b]['correct']):>14s}" for b in bands))
+        print(f"{ROWS[name]:24s}" + "".join(f"{_pct(r[b]['correct']):>14s}" for b in bands))
     print(f"\n{'errors':24s}{'receding when approaching':>28s}{'approaching when receding':>28s}")
-    for name in ("level (anchor)", "trend"):
+    for name in ROWS:
         r = results[name]
         print(
-            f"{name:24s}{_pct(r['receding_when_approaching']):>28s}{_pct(r['approaching_when_receding']):>28s}"
+            f"{ROWS[name]:24s}{_pct(r['receding_when_approaching']):>28s}{_pct(r['approaching_when_receding']):>28s}"
         )
     gain = results["trend"]["correct"] / anchor["correct"] if anchor["correct"] else float("nan")
     print(f"\ntrend / level, share correct: {gain:.2f}×")

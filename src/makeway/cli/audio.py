@@ -317,18 +317,14 @@ def _score_approach(
     """``eval --approach``: each recording run as ``listen`` runs it, the approaching/receding call
     of the distance-trend classifier and of the level/Doppler rule scored against the labelled
     range rate (:mod:`makeway.eval.siren_approach`)."""
-    from makeway.eval.siren_approach import MIN_RANGE_RATE_MPS, approach_recordings, approach_report
+    from makeway.eval.siren_approach import MIN_RANGE_RATE_MPS, approach_recordings, approach_scores
     from makeway.perceive.audio.motion import TrendApproach
     from makeway.progress import progress_bar
 
     trend = TrendApproach()
     with progress_bar("approach", len(recs), enabled=not quiet, unit="rec") as advance:
         arrays = approach_recordings(recs, net, trend, full_scale_db_spl=full_scale_db_spl, advance=advance)
-    return {
-        "min_range_rate_mps": MIN_RANGE_RATE_MPS,
-        "trend": approach_report(arrays, trend.decide(arrays["features"])[0]),
-        "level": approach_report(arrays, arrays["level_state"]),
-    }
+    return {"min_range_rate_mps": MIN_RANGE_RATE_MPS, **approach_scores(arrays, trend)}
 
 
 @audio_app.command("eval")
@@ -750,7 +746,7 @@ def train_approach(
     at least 1 m/s relative to the car are the training rows, with the sign of the labelled range
     rate as the target. Gradient-boosted trees, written as ONNX. With --val, prints the validation
     scores of the new classifier and of the level/Doppler rule (JSON line last)."""
-    from makeway.eval.siren_approach import approach_report
+    from makeway.eval.siren_approach import approach_scores
     from makeway.perceive.audio.motion import DEFAULT_APPROACH_MODEL, TrendApproach
     from makeway.progress import progress_bar
     from makeway.train.approach import XGB_PARAMS, approach_dataset, export_approach_onnx, fit_approach
@@ -763,7 +759,6 @@ def train_approach(
         train_set = approach_dataset(folders, net, advance=advance)
     rows = train_set["scored"]
     clf = fit_approach(train_set["features"][rows], train_set["approaching"][rows], seed=seed)
-    features = TrendApproach(model=None)
     training = {
         "recordings": len(folders),
         "windows": int(rows.sum()),
@@ -772,16 +767,13 @@ def train_approach(
         "seed": seed,
         "siren_model": repr(net),
     }
-    export_approach_onnx(clf, target, features.feature_names, extra={"training": training})
+    export_approach_onnx(clf, target, TrendApproach(model=None).feature_names, extra={"training": training})
     result: dict[str, Any] = {"model": str(target), "training": training}
     if val_folders:
         trained = TrendApproach(target)
         with progress_bar("validation", len(val_folders), unit="rec") as advance:
             val_set = approach_dataset(val_folders, net, advance=advance)
-        result["validation"] = {
-            "trend": approach_report(val_set, trained.decide(val_set["features"])[0]),
-            "level": approach_report(val_set, val_set["level_state"]),
-        }
+        result["validation"] = approach_scores(val_set, trained)
     err_console.print(f"approach classifier on {int(rows.sum())} windows → {target}", highlight=False)
     print_json_line(result)
 

@@ -150,3 +150,12 @@ def approach_report(arrays: dict[str, np.ndarray], state: np.ndarray) -> dict[st
         for lo, hi in itertools.pairwise(SPEED_BANDS_MPS)
     }
     return out
+
+
+def approach_scores(arrays: dict[str, np.ndarray], trend: TrendApproach) -> dict[str, dict[str, Any]]:
+    """:func:`approach_report` of ``trend``'s classifier (``"trend"``) and of the level/Doppler rule
+    inside it (``"level"``, the anchor) on the same windows."""
+    return {
+        "trend": approach_report(arrays, trend.decide(arrays["features"])[0]),
+        "level": approach_report(arrays, arrays["level_state"]),
+    }
