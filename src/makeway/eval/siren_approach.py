@@ -33,7 +33,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import yaml
 
 from makeway.perceive.audio.evaluate import model_estimator, smoothed_probability
 from makeway.perceive.audio.features import window_batch
@@ -49,13 +48,12 @@ SPEED_BANDS_MPS = (1.0, 3.0, 6.0, 10.0, math.inf)
 
 
 def _scenario(rec: Recording) -> str:
-    """The simulator's scenario of the recording's first siren (``meta.yaml``), or "unknown"."""
-    meta_path = Path(rec.path) / "meta.yaml" if rec.path else None
-    if meta_path is None or not meta_path.is_file():
-        return "unknown"
-    meta = yaml.safe_load(meta_path.read_text()) or {}
-    sirens = meta.get("sirens") or []
-    return str(sirens[0].get("scenario", "unknown")) if sirens else "none"
+    """The simulator's scenario of the recording's first siren (its ``meta.yaml``, read with the
+    recording): "none" without a siren, "unknown" when not stated."""
+    sirens = rec.meta.get("sirens") or []
+    if not sirens:
+        return "none" if not rec.sources else "unknown"
+    return str(sirens[0].get("scenario", "unknown"))
 
 
 def approach_windows(
