@@ -10,9 +10,10 @@ import pytest
 from typer.testing import CliRunner
 
 from makeway.cli.main import app
+from makeway.fuse.relation import classify_relation
 from makeway.messages import EVRelation
 from makeway.pipeline.closed_loop import ClosedLoopResult, _corners, rect_distance, run_scenario
-from makeway.sim.perception import EVTruth, PerceptionConfig, SimulatedPerception, classify_relation
+from makeway.sim.perception import EVTruth, PerceptionConfig, SimulatedPerception
 from makeway.sim.scenarios import SCENARIOS, get_scenario
 
 runner = CliRunner()

@@ -15,11 +15,12 @@ Conventions, stated once here and nowhere else:
   crop too small to classify), which the smoother skips rather than counting as negative.
 
 Audio (``SirenObservation``), decision (``YieldDecision``), path and control messages
-(``ControlCommand``, ``VehicleState``) are added here by the issues that introduce those stages.
+(``ControlCommand``, ``VehicleState``) and the fused belief (``EVBelief``) live here too.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from enum import StrEnum
 from typing import Any
@@ -209,6 +210,63 @@ class PerceptionFrame:
                 }
             )
         return {"index": self.frame_index, "time_s": round(self.time_s, 4), "tracks": tracks}
+
+
+# --------------------------------------------------------------------------------------------- audio
+
+
+@dataclass(frozen=True, slots=True)
+class SirenSource:
+    """One siren heard in an audio window, vehicle frame (SPEC §3).
+
+    ``bearing_rad`` (0 ahead, positive to the left); ``distance_m`` in the ground plane, ``None`` when
+    the producer gives none (a classical bearing, or a further source found by time–frequency
+    assignment); ``approaching`` ``None`` when undecided, ``approach_probability`` P(approaching)
+    when a trained estimator gave one.
+    """
+
+    bearing_rad: float
+    distance_m: float | None = None
+    approaching: bool | None = None
+    approach_probability: float | None = None
+
+
+@dataclass(frozen=True, slots=True)
+class SirenObservation:
+    """What the siren listener concluded about the audio window ending at ``t_end`` (s); one line of
+    ``makeway audio listen --jsonl``.
+
+    ``probability`` is this window's, ``smoothed_probability`` the listener's decision value and
+    ``is_siren`` the decision. ``sources`` lists the sirens heard, nearest first (empty without a
+    siren).
+    """
+
+    t_end: float
+    is_siren: bool
+    probability: float
+    smoothed_probability: float
+    sources: tuple[SirenSource, ...] = ()
+
+    def to_json(self) -> dict[str, Any]:
+        """A JSON-ready dict (the ``listen`` message; bearings also in degrees)."""
+        return {
+            "t_end": round(self.t_end, 6),
+            "is_siren": self.is_siren,
+            "probability": round(self.probability, 6),
+            "smoothed_probability": round(self.smoothed_probability, 6),
+            "sources": [
+                {
+                    "bearing_rad": round(s.bearing_rad, 6),
+                    "bearing_deg": round(math.degrees(s.bearing_rad), 3),
+                    "distance_m": None if s.distance_m is None else round(s.distance_m, 2),
+                    "approaching": s.approaching,
+                    "approach_probability": (
+                        None if s.approach_probability is None else round(s.approach_probability, 4)
+                    ),
+                }
+                for s in self.sources
+            ],
+        }
 
 
 # ------------------------------------------------------------------------------- decide / plan / control

@@ -3,8 +3,11 @@
 :func:`run_scenario` steps a built-in :class:`~makeway.sim.scenarios.Scenario` at 100 Hz:
 
 1. the EV moves along its own path (keeping a gap behind a vehicle in its lane);
-2. perception — simulated (:class:`~makeway.sim.perception.SimulatedPerception`, latency, dropouts,
-   noise) — publishes an :class:`~makeway.messages.EVBelief`;
+2. perception publishes an :class:`~makeway.messages.EVBelief`: simulated
+   (:class:`~makeway.sim.perception.SimulatedPerception`: latency, dropouts, noise; the default), or
+   the siren stack itself (:class:`~makeway.pipeline.siren_perception.SirenPerception`, with a
+   :class:`~makeway.pipeline.siren_perception.SirenPerceptionConfig`): the array's audio rendered
+   as the car drives, the shipped siren networks, and the fused EV track;
 3. the yield state machine decides at 20 Hz; the planner replans the reference path on a new
    manoeuvre;
 4. the lateral controller (feed-forward + feedback by default, or a baseline) and the longitudinal
@@ -24,7 +27,9 @@ import numpy as np
 
 from makeway.control import LATERAL_CONTROLLERS, LongitudinalController
 from makeway.decide import YieldConfig, YieldStateMachine
-from makeway.messages import ControlCommand, RoadContext, VehicleState, YieldState
+from makeway.messages import ControlCommand, EVBelief, RoadContext, SirenObservation, VehicleState, YieldState
+from makeway.perceive.audio.siren_model import SirenModel
+from makeway.pipeline.siren_perception import SirenPerception, SirenPerceptionConfig
 from makeway.plan.path import lateral_offsets, nearest_index, point_at
 from makeway.plan.planner import YieldPlanner
 from makeway.sim.perception import EVTruth, PerceptionConfig, SimulatedPerception
@@ -57,6 +62,8 @@ LOG_COLUMNS = [
     "ev_on",
     "belief_detected",
     "belief_conf",
+    "belief_distance",
+    "belief_bearing",
     "state",
     "target_speed",
     "gap_to_ev",
@@ -75,6 +82,8 @@ class ClosedLoopResult:
     replans: list[tuple[float, str]]
     paths: list[tuple[float, np.ndarray, np.ndarray]] = field(default_factory=list)
     actions: list[tuple[float, str, str]] = field(default_factory=list)
+    siren: list[tuple[SirenObservation, EVBelief]] = field(default_factory=list)
+    """With siren perception: every listener observation and the belief it gave."""
 
 
 # ----------------------------------------------------------------------------------------- geometry
@@ -157,11 +166,17 @@ def run_scenario(
     scenario: Scenario,
     *,
     controller: str = "ffb",
-    perception: PerceptionConfig | None = None,
+    perception: PerceptionConfig | SirenPerceptionConfig | None = None,
     params: VehicleParams | None = None,
     yield_config: YieldConfig | None = None,
+    siren_model: SirenModel | None = None,
 ) -> ClosedLoopResult:
-    """Run ``scenario`` in closed loop with the lateral controller ``controller`` (registry name)."""
+    """Run ``scenario`` in closed loop with the lateral controller ``controller`` (registry name).
+
+    ``perception``: a :class:`~makeway.sim.perception.PerceptionConfig` (or ``None``) simulates
+    perception; a :class:`~makeway.pipeline.siren_perception.SirenPerceptionConfig` runs the siren
+    stack on simulated array audio, with ``siren_model`` (default: the shipped networks; pass one to
+    share it between runs)."""
     if controller not in LATERAL_CONTROLLERS:
         raise ValueError(f"unknown controller {controller!r}; available: {', '.join(LATERAL_CONTROLLERS)}")
     params = params if params is not None else VehicleParams()
@@ -169,7 +184,13 @@ def run_scenario(
     lateral = LATERAL_CONTROLLERS[controller](params)
     longitudinal = LongitudinalController()
     fsm = YieldStateMachine(yield_config)
-    sensing = SimulatedPerception(perception)
+    sensing: SimulatedPerception | SirenPerception
+    if isinstance(perception, SirenPerceptionConfig):
+        sensing = SirenPerception(
+            scenario.duration_s, perception, model=siren_model, initial_speed_mps=scenario.ego_speed_mps
+        )
+    else:
+        sensing = SimulatedPerception(perception)
     planner = YieldPlanner(
         scenario.lane, right_edge_offset_m=scenario.right_edge_offset_m, intersections=scenario.intersections
     )
@@ -245,6 +266,8 @@ def run_scenario(
             "ev_on": float(ev_truth is not None and (ev_truth.lights or ev_truth.siren)),
             "belief_detected": float(belief.detected),
             "belief_conf": belief.confidence,
+            "belief_distance": belief.distance_m,
+            "belief_bearing": belief.bearing_rad,
             "state": float(states.index(decision.state)),
             "target_speed": decision.target_speed_mps,
             "gap_to_ev": gap,
@@ -256,8 +279,9 @@ def run_scenario(
     arrays = {k: np.asarray(v) for k, v in log.items()}
     transitions = [(t, a.value, b.value, why) for t, a, b, why in fsm.history]
     metrics = compute_metrics(scenario, arrays, transitions, planner.replans, actions)
+    siren = sensing.observations if isinstance(sensing, SirenPerception) else []
     return ClosedLoopResult(
-        scenario.name, controller, metrics, arrays, transitions, planner.replans, paths, actions
+        scenario.name, controller, metrics, arrays, transitions, planner.replans, paths, actions, siren
     )
 
 

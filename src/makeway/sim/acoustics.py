@@ -298,17 +298,20 @@ def simulate_array(
     c: float = SPEED_OF_SOUND,
     kernel: str = "sinc",
     grid: int = DELAY_GRID,
+    start_s: float = 0.0,
 ) -> np.ndarray:
     """Pressure (Pa) at each capsule, ``(n_samples, M)`` float64, from moving ``sources``.
 
-    Sample ``i`` is heard at ``t = i / sample_rate``; ``mics (M, 3)`` are vehicle-frame positions
-    moved with the ego pose. See the module docstring for the physics.
+    Sample ``i`` is heard at ``t = start_s + i / sample_rate``; ``mics (M, 3)`` are vehicle-frame
+    positions moved with the ego pose. See the module docstring for the physics. A later
+    ``start_s`` renders a stretch of a longer scene (the closed loop renders hop by hop:
+    :class:`makeway.sim.live_array.LiveArraySimulator`).
     """
     mics = np.asarray(mics, dtype=np.float64)
     n_mics = len(mics)
     out = np.zeros((n_samples, n_mics))
-    t = np.arange(n_samples) / sample_rate
-    tg = np.arange(0, n_samples + grid, grid) / sample_rate
+    t = start_s + np.arange(n_samples) / sample_rate
+    tg = start_s + np.arange(0, n_samples + grid, grid) / sample_rate
     world = mic_world_positions(ego, mics, tg)
     centre = world.mean(axis=1)
     for src in sources:

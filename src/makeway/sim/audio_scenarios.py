@@ -252,7 +252,9 @@ def _clip_to_span(traj: Trajectory, duration_s: float) -> Trajectory:
     return Trajectory(t, x, y, yaw)
 
 
-def _pick_by_group(pool: Sequence[AudioSource], rng: np.random.Generator) -> AudioSource:
+def pick_by_group(pool: Sequence[AudioSource], rng: np.random.Generator) -> AudioSource:
+    """One source of ``pool``: a group drawn uniformly, then one of its members (so a group with many
+    clips is not drawn more often than a single recording)."""
     groups = sorted({s.group for s in pool})
     g = groups[int(rng.integers(len(groups)))]
     members = [s for s in pool if s.group == g]
@@ -357,7 +359,7 @@ def simulate_recording(
         info: dict[str, Any] = dict(p)
         sp: SirenParams | None = None
         if use_real:
-            src = _pick_by_group(siren_pool, rng)
+            src = pick_by_group(siren_pool, rng)
             sig = fit_length(src.load(sample_rate), n_sig, rng, crossfade=0 if src.kind == "tone" else 2400)
             info.update(ingredient="real", name=src.name, group=src.group, kind=src.kind, mode=src.mode)
         else:
@@ -372,60 +374,15 @@ def simulate_recording(
                 f_high_hz=round(sp.f_high, 1),
                 period_s=round(sp.period_s, 3),
             )
-        level = float(rng.uniform(*SIREN_LEVEL_DB_1M))
-        ps = PointSource(
-            signal=np.asarray(sig, dtype=np.float32) * np.float32(db_spl_to_pa(level)),
-            t0=-PRE_ROLL_S,
-            trajectory=ev,
-            height_m=float(rng.uniform(*SIREN_HEIGHT_M)),
-            reflection=float(rng.uniform(*GROUND_REFLECTION)),
-            rear_attenuation_db=float(rng.uniform(*SIREN_REAR_ATTENUATION_DB)),
-        )
-        info.update(
-            level_db_1m=round(level, 2),
-            height_m=round(ps.height_m, 3),
-            reflection=round(ps.reflection, 3),
-            rear_attenuation_db=round(ps.rear_attenuation_db, 2),
-        )
+        ps, drawn = siren_point_source(sig, ev, rng)
+        info.update(drawn)
         sources.append(ps)
         siren_meta.append(info)
     siren_pa = simulate_array(sources, tracks.ego, mics, n, sample_rate, kernel=kernel) if sources else None
 
     # --- street noise: a few point sources fixed around the car
-    k = int(rng.integers(N_NOISE_SOURCES[0], N_NOISE_SOURCES[1] + 1))
-    use_real_noise = bool(noise_pool) and noise in ("auto", "real")
-    extra = round(0.25 * sample_rate)
-    signals: list[np.ndarray] = []
-    names: list[str] = []
-    if use_real_noise:
-        pool = list(noise_pool)
-        picks = rng.choice(len(pool), size=k, replace=len(pool) < k)
-        for i in picks:
-            signals.append(fit_length(pool[int(i)].load(sample_rate), n + extra, rng))
-            names.append(pool[int(i)].name)
-    else:
-        signals = [generated_street_noise(n + extra, sample_rate, rng) for _ in range(k)]
-    bearing = rng.uniform(-math.pi, math.pi, size=k)
-    dist = rng.uniform(*NOISE_DISTANCE_M, size=k)
-    pos = np.stack(
-        [dist * np.cos(bearing), dist * np.sin(bearing), rng.uniform(*NOISE_HEIGHT_M, size=k)], axis=1
-    )
-    pos[:, :2] += mics[:, :2].mean(axis=0)
-    street = place_fixed_sources(
-        signals, pos, mics, n, sample_rate, reflection=float(rng.uniform(*GROUND_REFLECTION))
-    )
-    lo, hi = (float(v) for v in street_dba)
-    if not lo <= hi:
-        raise ValueError(f"street_dba must be (low, high) with low <= high, not {street_dba!r}")
-    street_level = float(rng.uniform(lo, hi))
-    street *= 10 ** ((street_level - a_weighted_level_db(street, sample_rate)) / 20.0)
-    meta["street_noise"] = {
-        "ingredient": "real" if use_real_noise else "generated",
-        "names": names,
-        "groups": [f"street:{nm}" for nm in names],
-        "level_dba": round(street_level, 2),
-        "positions_vehicle_m": np.round(pos, 2).tolist(),
-    }
+    pool = list(noise_pool) if noise in ("auto", "real") else []
+    street, meta["street_noise"] = street_noise_field(n, sample_rate, mics, rng, pool, street_dba)
 
     # --- wind and self-noise
     wind_10 = float(rng.uniform(*WIND_LEVEL_10_DB))
@@ -455,6 +412,79 @@ def simulate_recording(
     return Recording(
         audio.astype(np.float32), sample_rate, mics, ego_out, srcs_out, None, meta, float(full_scale_db_spl)
     )
+
+
+def siren_point_source(
+    signal: np.ndarray, trajectory: Trajectory, rng: np.random.Generator
+) -> tuple[PointSource, dict[str, float]]:
+    """A siren as a :class:`~makeway.sim.acoustics.PointSource`: ``signal`` (unit RMS, its first
+    sample emitted :data:`PRE_ROLL_S` before t = 0) played at a level drawn from
+    :data:`SIREN_LEVEL_DB_1M`, from a speaker height, ground reflection and rear attenuation drawn
+    from their ranges (module docstring). Returns the source and the drawn values."""
+    level = float(rng.uniform(*SIREN_LEVEL_DB_1M))
+    ps = PointSource(
+        signal=np.asarray(signal, dtype=np.float32) * np.float32(db_spl_to_pa(level)),
+        t0=-PRE_ROLL_S,
+        trajectory=trajectory,
+        height_m=float(rng.uniform(*SIREN_HEIGHT_M)),
+        reflection=float(rng.uniform(*GROUND_REFLECTION)),
+        rear_attenuation_db=float(rng.uniform(*SIREN_REAR_ATTENUATION_DB)),
+    )
+    drawn = {
+        "level_db_1m": round(level, 2),
+        "height_m": round(ps.height_m, 3),
+        "reflection": round(ps.reflection, 3),
+        "rear_attenuation_db": round(ps.rear_attenuation_db, 2),
+    }
+    return ps, drawn
+
+
+def street_noise_field(
+    n: int,
+    sample_rate: int,
+    mics: np.ndarray,
+    rng: np.random.Generator,
+    noise_pool: Sequence[AudioSource] = (),
+    street_dba: tuple[float, float] = STREET_NOISE_DBA,
+) -> tuple[np.ndarray, dict[str, Any]]:
+    """Street noise at the array, Pa ``(n, M)``: 2–4 point sources fixed around the car
+    (:data:`N_NOISE_SOURCES`, :data:`NOISE_DISTANCE_M`, :data:`NOISE_HEIGHT_M`), each playing a
+    stretch of a real recording of ``noise_pool`` (generated street noise when it is empty), scaled
+    to an A-weighted level drawn from ``street_dba``. Returns the field and its description."""
+    k = int(rng.integers(N_NOISE_SOURCES[0], N_NOISE_SOURCES[1] + 1))
+    extra = round(0.25 * sample_rate)
+    signals: list[np.ndarray] = []
+    names: list[str] = []
+    if noise_pool:
+        pool = list(noise_pool)
+        picks = rng.choice(len(pool), size=k, replace=len(pool) < k)
+        for i in picks:
+            signals.append(fit_length(pool[int(i)].load(sample_rate), n + extra, rng))
+            names.append(pool[int(i)].name)
+    else:
+        signals = [generated_street_noise(n + extra, sample_rate, rng) for _ in range(k)]
+    bearing = rng.uniform(-math.pi, math.pi, size=k)
+    dist = rng.uniform(*NOISE_DISTANCE_M, size=k)
+    pos = np.stack(
+        [dist * np.cos(bearing), dist * np.sin(bearing), rng.uniform(*NOISE_HEIGHT_M, size=k)], axis=1
+    )
+    pos[:, :2] += mics[:, :2].mean(axis=0)
+    street = place_fixed_sources(
+        signals, pos, mics, n, sample_rate, reflection=float(rng.uniform(*GROUND_REFLECTION))
+    )
+    lo, hi = (float(v) for v in street_dba)
+    if not lo <= hi:
+        raise ValueError(f"street_dba must be (low, high) with low <= high, not {street_dba!r}")
+    street_level = float(rng.uniform(lo, hi))
+    street *= 10 ** ((street_level - a_weighted_level_db(street, sample_rate)) / 20.0)
+    meta = {
+        "ingredient": "real" if noise_pool else "generated",
+        "names": names,
+        "groups": [f"street:{nm}" for nm in names],
+        "level_dba": round(street_level, 2),
+        "positions_vehicle_m": np.round(pos, 2).tolist(),
+    }
+    return street, meta
 
 
 def _vary_siren(

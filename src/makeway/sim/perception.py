@@ -28,7 +28,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from makeway.messages import EVBelief, EVRelation
+from makeway.fuse.relation import classify_relation
+from makeway.messages import EVBelief
 
 
 @dataclass(frozen=True)
@@ -64,25 +65,6 @@ class EVTruth:
     speed_mps: float
     lights: bool
     siren: bool
-
-
-def classify_relation(
-    rel_x: float, rel_y: float, rel_heading: float, *, same_road_half_width_m: float = 6.0
-) -> EVRelation:
-    """Where an EV is relative to the ego: from its position in the ego frame and its heading.
-
-    Same direction (|Δheading| < 45°): behind or ahead by the sign of ``rel_x``. Opposite direction
-    (|Δheading| > 135°) and ahead: oncoming (behind and opposite: it has gone, called AHEAD-like
-    "receding" by the caller through ``approaching``). Otherwise crossing.
-    """
-    d = math.atan2(math.sin(rel_heading), math.cos(rel_heading))
-    if abs(d) < math.radians(45):
-        return EVRelation.BEHIND if rel_x < 0 else EVRelation.AHEAD
-    if abs(d) > math.radians(135):
-        return EVRelation.ONCOMING if rel_x > 0 else EVRelation.BEHIND
-    if abs(rel_y) < same_road_half_width_m and abs(rel_x) < 10.0:
-        return EVRelation.UNKNOWN
-    return EVRelation.CROSSING
 
 
 class SimulatedPerception:

@@ -36,13 +36,13 @@ shaded, and a polar plot of the bearing track coloured by time.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from makeway.messages import SirenObservation, SirenSource
 from makeway.perceive.audio.doa import SirenEnergyDetector, detector_score, get_doa_method
 from makeway.perceive.audio.labels import HOP_S, LISTEN_SMOOTH, SMOOTH_AVERAGE, WINDOW_S, window_starts
 from makeway.perceive.audio.motion import DEFAULT_APPROACH_MODEL, ApproachEstimator, TrendApproach
@@ -51,6 +51,96 @@ from makeway.sense.recording import Recording
 from makeway.track.smoother import StreamSmoother
 
 PLOT_MAX_HZ = 4000.0
+
+
+class SirenListener:
+    """The listener's state and its per-window step (module docstring): one
+    :class:`~makeway.messages.SirenObservation` per 0.5 s window of the array, in time order.
+
+    :func:`listen` runs it over a recording; the closed loop runs it on audio rendered as the car
+    drives (:class:`makeway.pipeline.siren_perception.SirenPerception`). ``mics`` and
+    ``sample_rate`` are the array's, checked against the network's; ``full_scale_db_spl`` its
+    calibration (``None``: the networks' scale). ``source`` names the stream in error messages.
+    """
+
+    def __init__(
+        self,
+        mics: np.ndarray,
+        sample_rate: int,
+        *,
+        model: SirenModel | None = None,
+        method: str = "gccphat",
+        detector: SirenEnergyDetector | None = None,
+        approach: ApproachEstimator | TrendApproach | None = None,
+        smooth: int = LISTEN_SMOOTH,
+        average: str = SMOOTH_AVERAGE,
+        window_s: float = WINDOW_S,
+        full_scale_db_spl: float | None = None,
+        source: str | Path = "recording",
+    ) -> None:
+        self.smoother = StreamSmoother(smooth, average)
+        self.doa = get_doa_method(method)
+        self.mics = np.asarray(mics, dtype=np.float64)
+        self.sample_rate = int(sample_rate)
+        if model is not None:
+            model.check_array(self.mics, self.sample_rate, source)
+            if abs(window_s - model.config.window_s) > 1e-9:
+                raise ValueError(
+                    f"the siren model works on {model.config.window_s:g} s windows, not {window_s:g} s"
+                )
+        self.model = model
+        self.window_s = float(window_s)
+        self.full_scale_db_spl = full_scale_db_spl
+        self.detector = detector if detector is not None else SirenEnergyDetector(self.sample_rate)
+        self.approach = approach if approach is not None else default_approach(model)
+        self.reset()
+
+    @property
+    def window_samples(self) -> int:
+        """Samples per window."""
+        return round(self.window_s * self.sample_rate)
+
+    @property
+    def threshold(self) -> float:
+        """The decision threshold on the smoothed probability."""
+        return self.model.threshold if self.model is not None else 0.5
+
+    def reset(self) -> SirenListener:
+        """Forget the history (decision smoothing, approach trend)."""
+        self.smoother.reset()
+        self.approach.reset()
+        return self
+
+    def step(self, window: np.ndarray, t_end: float) -> SirenObservation:
+        """Judge one window ``(channels, samples)`` ending at ``t_end`` (s)."""
+        window = np.asarray(window, dtype=np.float64)
+        sr = self.sample_rate
+        model = self.model
+        pred = model.predict(window, self.full_scale_db_spl) if model is not None else None
+        if pred is not None:
+            p = float(pred.prob[0])
+        else:
+            p = float(self.detector.proba_from_scores(np.array([detector_score(window, sr)]))[0])
+        p_smooth = self.smoother.update(p)
+        is_siren = p_smooth >= self.threshold
+        distance = float(pred.distance[0]) if pred is not None else None
+        approaching, _ = self.approach.update(window, sr, t_end, distance_m=distance, is_siren=is_siren)
+        p_approach = self.approach.probability_
+        if model is not None and pred is not None:
+            found = model.sources(pred, 0, window, is_siren=is_siren)
+        else:
+            bearing = float(self.doa(window, self.mics, sr)) if is_siren else 0.0
+            found = [{"bearing_rad": bearing, "distance_m": None}] if is_siren else []
+        sources = tuple(
+            SirenSource(
+                bearing_rad=float(src["bearing_rad"]),
+                distance_m=None if src["distance_m"] is None else float(src["distance_m"]),
+                approaching=approaching if k == 0 else None,
+                approach_probability=None if k or p_approach is None else float(p_approach),
+            )
+            for k, src in enumerate(found)
+        )
+        return SirenObservation(float(t_end), bool(is_siren), p, float(p_smooth), sources)
 
 
 def listen(
@@ -65,70 +155,34 @@ def listen(
     smooth: int = LISTEN_SMOOTH,
     average: str = SMOOTH_AVERAGE,
 ) -> Iterator[dict[str, Any]]:
-    """One message per hop over ``recording`` (see the module docstring).
+    """One JSON message per hop over ``recording`` (see the module docstring): a
+    :class:`SirenListener` stepped over the windows of
+    :func:`~makeway.perceive.audio.labels.window_starts`.
 
     With ``model`` (a :class:`~makeway.perceive.audio.siren_model.SirenModel`) the network gives
     the probability, the nearest siren's bearing and distance, and further sirens by time–frequency
     bin assignment (:meth:`~makeway.perceive.audio.siren_model.SirenModel.sources`); ``method`` and
-    ``detector`` are then unused. Approaching/receding always comes from the level trend and Doppler
-    (:class:`~makeway.perceive.audio.motion.ApproachEstimator`) and is given for the nearest siren.
-    ``smooth`` windows are averaged for the decision, their logits or (``average``) probabilities
-    (module docstring)."""
-    smoother = StreamSmoother(smooth, average)
-    doa = get_doa_method(method)
+    ``detector`` are then unused. ``approach`` (default :func:`default_approach`) says approaching or
+    receding for the nearest siren. ``smooth`` windows are averaged for the decision, their logits
+    or (``average``) probabilities (module docstring)."""
     sr = int(recording.sample_rate)
-    if model is not None:
-        model.check_array(recording.mics, sr, recording.path or "recording")
-        if abs(window_s - model.config.window_s) > 1e-9:
-            raise ValueError(
-                f"the siren model works on {model.config.window_s:g} s windows, not {window_s:g} s"
-            )
-    det = detector if detector is not None else SirenEnergyDetector(sr)
-    est = approach if approach is not None else default_approach(model)
-    est.reset()
+    listener = SirenListener(
+        recording.mics,
+        sr,
+        model=model,
+        method=method,
+        detector=detector,
+        approach=approach,
+        smooth=smooth,
+        average=average,
+        window_s=window_s,
+        full_scale_db_spl=recording.full_scale_db_spl,
+        source=recording.path or "recording",
+    )
     audio = np.asarray(recording.audio)
-    win = round(window_s * sr)
+    win = listener.window_samples
     for start in window_starts(recording.n_samples, sr, window_s, hop_s):
-        window = np.asarray(audio[start : start + win].T, dtype=np.float64)
-        t_end = (int(start) + win) / sr
-        sources: list[dict[str, Any]] = []
-        pred = model.predict(window, recording.full_scale_db_spl) if model is not None else None
-        if pred is not None:
-            p = float(pred.prob[0])
-        else:
-            p = float(det.proba_from_scores(np.array([detector_score(window, sr)]))[0])
-        p_smooth = smoother.update(p)
-        is_siren = p_smooth >= (model.threshold if model is not None else 0.5)
-        distance = float(pred.distance[0]) if pred is not None else None
-        approaching, _ = est.update(window, sr, t_end, distance_m=distance, is_siren=is_siren)
-        p_approach = est.probability_
-        if model is not None and pred is not None:
-            found = model.sources(pred, 0, window, is_siren=is_siren)
-        else:
-            found = (
-                [{"bearing_rad": float(doa(window, recording.mics, sr)), "distance_m": None}]
-                if is_siren
-                else []
-            )
-        for k, src in enumerate(found):
-            bearing = float(src["bearing_rad"])
-            dist = src["distance_m"]
-            sources.append(
-                {
-                    "bearing_rad": round(bearing, 6),
-                    "bearing_deg": round(math.degrees(bearing), 3),
-                    "distance_m": None if dist is None else round(float(dist), 2),
-                    "approaching": approaching if k == 0 else None,
-                    "approach_probability": None if k or p_approach is None else round(p_approach, 4),
-                }
-            )
-        yield {
-            "t_end": round(t_end, 6),
-            "is_siren": is_siren,
-            "probability": round(p, 6),
-            "smoothed_probability": round(p_smooth, 6),
-            "sources": sources,
-        }
+        yield listener.step(audio[start : start + win].T, (int(start) + win) / sr).to_json()
 
 
 def default_approach(model: SirenModel | None) -> ApproachEstimator | TrendApproach:

@@ -1,0 +1,109 @@
+"""Siren perception inside the closed loop (SPEC §7): simulated array audio → the siren listener →
+the fused EV track → the :class:`~makeway.messages.EVBelief` the yield decision reads.
+
+:class:`SirenPerception` has the same ``update`` as the simulated perception
+(:class:`~makeway.sim.perception.SimulatedPerception`), so :func:`~makeway.pipeline.closed_loop.run_scenario`
+takes either. Per simulation step it
+
+1. tells the array simulator (:class:`~makeway.sim.live_array.LiveArraySimulator`) where the ego
+   and the EV are and whether the siren sounds;
+2. every ``hop_s`` (0.17 s) renders the audio heard since the last hop and runs the shipped siren
+   networks on the latest 0.5 s window (:class:`~makeway.perceive.audio.stream.SirenListener`, the
+   ``makeway audio listen`` rule: logit mean of 8 windows, stored threshold, distance-trend
+   approach classifier);
+3. folds the observation into the EV track (:class:`~makeway.fuse.siren_track.SirenTrackFusion`)
+   and publishes the belief ``latency_s`` after the window's end (the networks' compute time).
+
+Only the siren is perceived: an EV with lights but no siren is not (the camera is not in this
+loop). Every observation is kept in :attr:`SirenPerception.observations` (time, the listener's
+message, the belief) for reports.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from makeway.fuse.siren_track import SOURCE, SirenTrackFusion
+from makeway.messages import EVBelief, SirenObservation
+from makeway.perceive.audio.labels import HOP_S
+from makeway.perceive.audio.siren_model import SirenModel
+from makeway.perceive.audio.stream import SirenListener
+from makeway.sim.live_array import LiveArraySimulator, LiveAudioConfig
+from makeway.sim.perception import EVTruth
+
+
+@dataclass(frozen=True)
+class SirenPerceptionConfig:
+    """Settings of :class:`SirenPerception`: the simulated scene (``audio``), the hop, and the
+    compute latency added to each window's end."""
+
+    audio: LiveAudioConfig = field(default_factory=LiveAudioConfig)
+    hop_s: float = HOP_S
+    latency_s: float = 0.02
+
+    def __post_init__(self) -> None:
+        if self.hop_s <= 0 or self.latency_s < 0:
+            raise ValueError("hop_s must be > 0 and latency_s >= 0")
+
+
+class SirenPerception:
+    """Array audio → siren listener → EV track → belief, hop by hop (module docstring).
+
+    ``duration_s`` bounds the run; ``model`` is the siren network set (default: the shipped one);
+    ``initial_speed_mps`` the ego's speed at the start (the wind noise's reference).
+    """
+
+    def __init__(
+        self,
+        duration_s: float,
+        config: SirenPerceptionConfig | None = None,
+        *,
+        model: SirenModel | None = None,
+        initial_speed_mps: float = 0.0,
+    ) -> None:
+        self.config = config if config is not None else SirenPerceptionConfig()
+        cfg = self.config
+        self.array = LiveArraySimulator(duration_s, cfg.audio, initial_speed_mps=initial_speed_mps)
+        sr = self.array.sample_rate
+        self.model = model if model is not None else SirenModel()
+        self.listener = SirenListener(
+            self.array.mics,
+            sr,
+            model=self.model,
+            full_scale_db_spl=self.array.full_scale_db_spl,
+            source="the closed loop's simulated array",
+        )
+        self.fusion = SirenTrackFusion()
+        self._win = self.listener.window_samples
+        self._hop = round(cfg.hop_s * sr)
+        self._buffer = np.zeros((0, len(self.array.mics)), dtype=np.float32)
+        self._rendered = 0  # samples rendered so far
+        self._next_end = self._win  # sample index where the next window ends
+        self._pending: deque[EVBelief] = deque()
+        self._last = EVBelief.nothing(0.0, source=SOURCE)
+        self.observations: list[tuple[SirenObservation, EVBelief]] = []
+
+    def update(
+        self, time_s: float, ego_x: float, ego_y: float, ego_yaw: float, ev: EVTruth | None
+    ) -> EVBelief:
+        """Advance to ``time_s`` with the ego pose and the EV's truth; return the belief published
+        by then."""
+        self.array.observe(time_s, ego_x, ego_y, ego_yaw, None if ev is None else (ev.x_m, ev.y_m, ev.siren))
+        sr = self.array.sample_rate
+        while self._next_end / sr <= time_s + 1e-9:
+            end = self._next_end
+            new = self.array.render(self._rendered / sr, end / sr)
+            self._buffer = np.concatenate([self._buffer, new])[-self._win :]
+            self._rendered = end
+            t_end = end / sr
+            obs = self.listener.step(self._buffer.T, t_end)
+            belief = self.fusion.update(obs, ego_x, ego_y, ego_yaw)
+            self.observations.append((obs, belief))
+            self._pending.append(belief)
+            self._next_end += self._hop
+        while self._pending and self._pending[0].time_s + self.config.latency_s <= time_s + 1e-9:
+            self._last = self._pending.popleft()
+        return self._last

@@ -1,0 +1,236 @@
+"""The roof array's audio, rendered while the closed loop drives (SPEC §3 inside SPEC §7's loop).
+
+The recordings of :mod:`makeway.sim.audio_scenarios` are rendered from trajectories known in
+advance. In closed loop the ego's trajectory depends on what the car decides, so
+:class:`LiveArraySimulator` renders the eight capsules hop by hop, from what has happened so far:
+
+* :meth:`LiveArraySimulator.observe` is called every simulation step with the ego pose and the EV's
+  true state (position, siren on or off);
+* :meth:`LiveArraySimulator.render` returns the audio heard between two instants up to the latest
+  observed one, with the physics of :func:`~makeway.sim.acoustics.simulate_array` (per-capsule
+  propagation delay with the emission time solved, Doppler, spherical spreading, air absorption, one
+  ground reflection). The siren's emitted signal is gated by its on/off state at the emission time,
+  with a 10 ms ramp, so the sound of a siren switched on reaches the car later the farther away it is.
+
+Everything it renders at a time ``t`` depends only on states observed up to ``t`` (causal). Each
+stretch is rendered with 2,048 samples of margin on both sides, then cut, so the block-wise air
+absorption leaves no seams.
+
+**The scene around the siren** is drawn once per run from ``seed``, with the recordings' ranges
+(:mod:`makeway.sim.audio_scenarios`): the siren (synthesized, or a real held-out siren with
+``siren="real"`` and the shared data), its level, speaker height, ground reflection and rear
+attenuation; street noise of 2–4 fixed sources around the car at a level from ``street_dba``
+(generated, or real held-out street recordings with ``noise="real"``); wind noise independent per
+capsule; capsule self-noise. The noise is rendered in advance for the whole run. The wind's level
+follows the ego's air speed as the car slows (40·log10 law, gain per sample); its spectrum keeps the
+shape of the starting speed.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from makeway.sense.recording import REFERENCE_SAMPLE_RATE, Trajectory, reference_mics
+from makeway.sim.acoustics import FULL_SCALE_DB_SPL, db_spl_to_pa, self_noise, simulate_array, wind_noise
+from makeway.sim.audio_scenarios import (
+    AMBIENT_WIND_MPS,
+    PRE_ROLL_S,
+    STREET_NOISE_DBA,
+    WIND_LEVEL_10_DB,
+    pick_by_group,
+    siren_point_source,
+    source_pools,
+    street_noise_field,
+)
+from makeway.sim.siren import fit_length, synthesize_siren
+
+MARGIN_SAMPLES = 2048
+"""Samples rendered beyond each end of a stretch and cut (the air-absorption blocks' length)."""
+HISTORY_S = 2.0
+"""The trajectories passed to a render reach this far back before its start (sound from ≤ 600 m)."""
+GATE_RAMP_S = 0.01
+"""The siren's switch-on/off ramp."""
+
+
+@dataclass(frozen=True)
+class LiveAudioConfig:
+    """How :class:`LiveArraySimulator` draws the scene (module docstring).
+
+    ``siren``: ``"synth"`` (procedural; needs no data) or ``"real"`` (a held-out siren of the shared
+    data, ``split``); ``noise``: ``"generated"`` or ``"real"`` likewise; ``street_dba``: the range
+    the street noise's A-weighted level is drawn from.
+    """
+
+    seed: int = 0
+    siren: str = "synth"
+    noise: str = "generated"
+    split: str = "test"
+    street_dba: tuple[float, float] = STREET_NOISE_DBA
+
+    def __post_init__(self) -> None:
+        if self.siren not in ("synth", "real"):
+            raise ValueError(f"siren must be synth or real, not {self.siren!r}")
+        if self.noise not in ("generated", "real"):
+            raise ValueError(f"noise must be generated or real, not {self.noise!r}")
+
+
+class LiveArraySimulator:
+    """Renders the array's audio of one closed-loop run, hop by hop (module docstring).
+
+    ``duration_s`` bounds the run; ``mics`` default to the reference array. Audio comes out as the
+    array records it: digital samples where an RMS of 1.0 stands for ``full_scale_db_spl``.
+    """
+
+    def __init__(
+        self,
+        duration_s: float,
+        config: LiveAudioConfig | None = None,
+        *,
+        mics: np.ndarray | None = None,
+        sample_rate: int = REFERENCE_SAMPLE_RATE,
+        full_scale_db_spl: float = FULL_SCALE_DB_SPL,
+        initial_speed_mps: float = 0.0,
+    ) -> None:
+        self.config = config if config is not None else LiveAudioConfig()
+        cfg = self.config
+        self.mics = reference_mics() if mics is None else np.asarray(mics, dtype=np.float64)
+        self.sample_rate = int(sample_rate)
+        self.full_scale_db_spl = float(full_scale_db_spl)
+        self.duration_s = float(duration_s)
+        sr = self.sample_rate
+        rng = np.random.default_rng(cfg.seed)
+        sirens, noise = source_pools(cfg.split) if "real" in (cfg.siren, cfg.noise) else ([], [])
+        if cfg.siren == "real" and not sirens:
+            raise ValueError(
+                "siren='real' needs the shared data (audio/siren_clips, siren_tones); none found"
+            )
+        if cfg.noise == "real" and not noise:
+            raise ValueError("noise='real' needs the shared data (audio/street_recordings); none found")
+
+        # the siren: its raw signal, and the emitted one (gated as the run goes)
+        n_sig = round((self.duration_s + PRE_ROLL_S) * sr) + 2 * MARGIN_SAMPLES + 64
+        if cfg.siren == "real":
+            src = pick_by_group(sirens, rng)
+            raw = fit_length(src.load(sr), n_sig, rng, crossfade=0 if src.kind == "tone" else 2400)
+            self.siren_name = src.name
+        else:
+            raw, params = synthesize_siren(None, n_sig / sr, sr, rng=rng)
+            self.siren_name = f"synth:{params.mode}"
+        # the EV's trajectory is set per render; this one is a placeholder
+        self._source, self.siren_draws = siren_point_source(
+            raw, Trajectory(np.array([0.0, 1.0]), np.zeros(2), np.zeros(2)), rng
+        )
+        self._raw = self._source.signal.copy()
+        self._source.signal[:] = 0.0
+        self._gated_until = 0  # emitted samples [0, _gated_until) are final
+
+        # the noise bed for the whole run
+        n = round(self.duration_s * sr) + 2 * MARGIN_SAMPLES
+        street, self.street_noise = street_noise_field(n, sr, self.mics, rng, noise, cfg.street_dba)
+        wind_10 = float(rng.uniform(*WIND_LEVEL_10_DB))
+        self._ambient_wind = float(rng.uniform(*AMBIENT_WIND_MPS))
+        self._air_ref = max(initial_speed_mps + self._ambient_wind, 0.3)
+        self._wind = wind_noise(n, len(self.mics), sr, self._air_ref, wind_10, rng).astype(np.float32)
+        self._bed = (street + self_noise(n, len(self.mics), rng)).astype(np.float32)
+        self.wind_level_10_db = wind_10
+
+        self._t: list[float] = []
+        self._ego: list[tuple[float, float, float]] = []
+        self._ev: list[tuple[float, float, float]] = []  # x, y, siren on (1/0)
+
+    # ------------------------------------------------------------------------------------ inputs
+
+    def observe(
+        self, time_s: float, ego_x: float, ego_y: float, ego_yaw: float, ev: tuple[float, float, bool] | None
+    ) -> None:
+        """Record the state at ``time_s`` (not decreasing; the same time again replaces the state):
+        the ego pose (world frame; its position is the vehicle frame's origin) and the EV's
+        ``(x, y, siren on)``, ``None`` without an EV."""
+        if self._t and time_s < self._t[-1]:
+            raise ValueError(f"observe: time {time_s} is before the last one ({self._t[-1]})")
+        if time_s > self.duration_s + 1e-9:
+            raise ValueError(f"observe: time {time_s} is past the run's duration ({self.duration_s} s)")
+        if self._t and time_s == self._t[-1]:
+            self._t.pop(), self._ego.pop(), self._ev.pop()
+        self._t.append(float(time_s))
+        self._ego.append((float(ego_x), float(ego_y), float(ego_yaw)))
+        self._ev.append(
+            (math.nan, math.nan, 0.0) if ev is None else (float(ev[0]), float(ev[1]), float(ev[2]))
+        )
+
+    @property
+    def time_s(self) -> float:
+        """The latest observed time (−inf before the first)."""
+        return self._t[-1] if self._t else -math.inf
+
+    # ----------------------------------------------------------------------------------- output
+
+    def render(self, t_from: float, t_to: float) -> np.ndarray:
+        """The digital audio ``(samples, channels)`` float32 heard in ``[t_from, t_to)``; needs
+        ``t_to`` ≤ the latest observed time. Sample ``i`` is heard at ``t_from + i / sample_rate``,
+        ``t_from`` a whole number of samples."""
+        sr = self.sample_rate
+        if not self._t or t_to > self._t[-1] + 1e-9:
+            raise ValueError(f"render: audio up to {t_to} s needs states observed up to then")
+        i0, i1 = round(t_from * sr), round(t_to * sr)
+        n = i1 - i0
+        if n <= 0:
+            return np.zeros((0, len(self.mics)), dtype=np.float32)
+        t = np.asarray(self._t)
+        ego = np.asarray(self._ego)
+        ev = np.asarray(self._ev)
+        keep = t >= t_from - HISTORY_S
+        t, ego, ev = t[keep], ego[keep], ev[keep]
+        if len(t) == 1:  # a one-point trajectory: hold it
+            t, ego, ev = np.r_[t, t + 1.0], np.vstack([ego, ego]), np.vstack([ev, ev])
+        out = self._noise(i0, n, t, ego)
+        has_ev = np.isfinite(ev[:, 0])
+        if has_ev.any():
+            self._gate_until(t_to)
+            self._source.trajectory = Trajectory(t[has_ev], ev[has_ev, 0], ev[has_ev, 1])
+            ego_traj = Trajectory(t, ego[:, 0], ego[:, 1], ego[:, 2])
+            m = MARGIN_SAMPLES
+            pa = simulate_array([self._source], ego_traj, self.mics, n + 2 * m, sr, start_s=(i0 - m) / sr)[
+                m : m + n
+            ]
+            out += pa / db_spl_to_pa(self.full_scale_db_spl)
+        return out.astype(np.float32)
+
+    def _noise(self, i0: int, n: int, t: np.ndarray, ego: np.ndarray) -> np.ndarray:
+        """Street noise, self-noise and wind (scaled to the ego's air speed) for samples i0 … i0+n."""
+        sr = self.sample_rate
+        a, b = MARGIN_SAMPLES + i0, MARGIN_SAMPLES + i0 + n
+        if a < 0 or b > len(self._bed):
+            raise ValueError(f"render: samples {i0}…{i0 + n} lie outside the run's {self.duration_s} s")
+        ts = (i0 + np.arange(n)) / sr
+        if len(t) >= 2:
+            speed = np.hypot(np.gradient(ego[:, 0], t), np.gradient(ego[:, 1], t))
+            air = np.maximum(np.interp(ts, t, speed) + self._ambient_wind, 0.3)
+        else:
+            air = np.full(n, self._air_ref)
+        gain = (air / self._air_ref) ** 2  # 40·log10(U): amplitude ∝ U²
+        pa = self._bed[a:b].astype(np.float64) + self._wind[a:b] * gain[:, None]
+        return pa / db_spl_to_pa(self.full_scale_db_spl)
+
+    def _gate_until(self, t_to: float) -> None:
+        """Fix the emitted siren signal up to the emission time ``t_to`` from the observed on/off
+        (later samples stay silent until then; only the cut margin of a render reads them)."""
+        sr = self.sample_rate
+        sig = self._source.signal
+        j1 = min(len(sig), round((t_to - self._source.t0) * sr))
+        j0 = self._gated_until
+        if j1 <= j0:
+            return
+        te = self._source.t0 + np.arange(j0, j1) / sr
+        t = np.asarray(self._t)
+        on = np.asarray(self._ev)[:, 2]
+        # a step per observation, ramped over GATE_RAMP_S
+        grid = np.arange(t[0] - GATE_RAMP_S, t[-1] + GATE_RAMP_S, GATE_RAMP_S)
+        steps = on[np.clip(np.searchsorted(t, grid, side="right") - 1, 0, len(t) - 1)]
+        steps[grid < t[0]] = on[0]
+        gate = np.interp(te, grid, steps, left=on[0], right=on[-1]).astype(np.float32)
+        sig[j0:j1] = self._raw[j0:j1] * gate
+        self._gated_until = j1
