@@ -153,6 +153,9 @@ def test_demo_writes_the_report(tmp_path: Path) -> None:
     assert (out / "closed_loop" / "seed003" / "errors.png").exists()
     assert (out / "tracking" / "summary.json").exists()
     assert s.seed003["max_abs_e_lat_m"] <= 0.25
+    assert doc["seed003_siren"]["action"] == "pull_over_and_stop" and not doc["seed003_siren"]["collision"]
+    assert (out / "closed_loop" / "seed003_siren" / "siren.png").exists()
+    assert (out / "closed_loop" / "seed003_siren" / "siren.jsonl").read_text().count("\n") > 100
     assert not any(p.name.endswith(".partial") for p in tmp_path.iterdir())
 
 

@@ -3,7 +3,10 @@
 ``write_closed_loop_report(result, out_dir)`` writes ``paths.png`` (reference paths, driven path, the
 EV, and where the EV was detected), ``speed.png``, ``errors.png`` (lateral, yaw and yaw-rate error
 against time with the field-test bounds), ``states.png`` (yield state and perception), and
-``metrics.json``. Matplotlib's Agg backend; all writes are atomic.
+``metrics.json``. With siren perception in the loop it also writes ``siren.png`` (the EV's true
+distance and bearing against what the siren stack heard and the fused track it kept) and
+``siren.jsonl`` (every listener message with the belief it gave). Matplotlib's Agg backend; all
+writes are atomic.
 """
 
 from __future__ import annotations
@@ -142,6 +145,9 @@ def write_closed_loop_report(
     _save(fig, out / "states.png")
     files["states"] = str(out / "states.png")
 
+    if result.siren:
+        files.update(_siren_report(result, out))
+
     doc = {
         "scenario": scenario.name,
         "description": scenario.description,
@@ -156,3 +162,64 @@ def write_closed_loop_report(
     write_text_atomic(out / "metrics.json", json.dumps(doc, indent=2) + "\n")
     files["metrics"] = str(out / "metrics.json")
     return files
+
+
+def _siren_report(result: ClosedLoopResult, out: Path) -> dict[str, str]:
+    """``siren.png`` and ``siren.jsonl`` of a run with siren perception (module docstring)."""
+    plt = _plt()
+    log = result.log
+    t = log["t"]
+    dx, dy = log["ev_x"] - log["x"], log["ev_y"] - log["y"]
+    c, s = np.cos(log["yaw"]), np.sin(log["yaw"])
+    rel_x, rel_y = c * dx + s * dy, -s * dx + c * dy
+    on = log["ev_on"] > 0.5
+    true_d = np.where(on, np.hypot(rel_x, rel_y), np.nan)
+    true_b = np.where(on, np.degrees(np.arctan2(rel_y, rel_x)), np.nan)
+    obs_t = np.array([o.t_end for o, _ in result.siren])
+    heard = [(o.t_end, o.sources[0]) for o, _ in result.siren if o.is_siren and o.sources]
+    fused = [(b.time_s, b.distance_m, b.bearing_rad) for _, b in result.siren if b.detected]
+    fig, axes = plt.subplots(3, 1, figsize=(10, 7.5), sharex=True)
+    axes[0].plot(obs_t, [o.smoothed_probability for o, _ in result.siren], color="tab:red", lw=1)
+    axes[0].set_ylabel("P(siren), smoothed")
+    axes[0].set_ylim(-0.05, 1.05)
+    axes[1].plot(t, true_d, color="k", lw=1.2, label="true (siren on)")
+    axes[2].plot(t, true_b, color="k", lw=1.2, label="true (siren on)")
+    if heard:
+        ht = np.array([h[0] for h in heard])
+        hd = np.array([np.nan if h[1].distance_m is None else h[1].distance_m for h in heard])
+        axes[1].plot(ht, hd, ".", color="tab:orange", ms=3, label="heard (networks)")
+        axes[2].plot(
+            ht, np.degrees([h[1].bearing_rad for h in heard]), ".", color="tab:orange", ms=3, label="heard"
+        )
+    if fused:
+        ft = np.array([f[0] for f in fused])
+        axes[1].plot(ft, [f[1] for f in fused], color="tab:blue", lw=1, label="fused track")
+        axes[2].plot(ft, np.degrees([f[2] for f in fused]), color="tab:blue", lw=1, label="fused track")
+    axes[1].set_ylabel("distance (m)")
+    axes[1].set_ylim(0, 150)
+    axes[2].set_ylabel("bearing (°, 0 ahead, + left)")
+    axes[2].set_ylim(-185, 185)
+    for ax in axes:
+        _event_lines(ax, result)
+        ax.grid(alpha=0.3)
+    axes[1].legend(fontsize=8, loc="upper right")
+    axes[2].set_xlabel("time (s)")
+    axes[0].set_title(f"{result.scenario}: what the siren stack heard")
+    _save(fig, out / "siren.png")
+    lines = [
+        json.dumps(
+            {
+                **o.to_json(),
+                "belief": {
+                    "detected": b.detected,
+                    "relation": b.relation.value,
+                    "distance_m": to_jsonable(b.distance_m, digits=2),
+                    "bearing_rad": to_jsonable(b.bearing_rad, digits=4),
+                    "approaching": b.approaching,
+                },
+            }
+        )
+        for o, b in result.siren
+    ]
+    write_text_atomic(out / "siren.jsonl", "\n".join(lines) + "\n")
+    return {"siren_plot": str(out / "siren.png"), "siren_jsonl": str(out / "siren.jsonl")}

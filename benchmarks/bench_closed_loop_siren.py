@@ -1,0 +1,135 @@
+"""Make way with the siren stack as perception: every built-in scenario, heard, against the same
+scenarios with the perception model (SPEC §7's closed loop; issue 5 item 7 once issue 4 landed).
+
+    .venv/bin/python benchmarks/bench_closed_loop_siren.py [--seeds 0,1] [--sirens synth,real]
+
+For each scenario, scene seed and siren kind (``synth``: a procedural siren in generated street
+noise, needs no data; ``real``: a held-out real siren in held-out real street recordings), the car
+drives in closed loop hearing the EV through
+:class:`~makeway.pipeline.siren_perception.SirenPerception` (array audio rendered as it drives →
+the shipped siren networks → the fused EV track). The anchor is the same scenario with the
+simulated perception (:class:`~makeway.sim.perception.SimulatedPerception`, seed 0). Printed per
+run, side by side with the anchor:
+
+* the action and whether it is the scenario's expected one, collision, stopped;
+* the time from the EV's signals on to EV_CONFIRMED and to standstill;
+* ``extra yields``: manoeuvres started after the first one (a receding EV taken for an approaching
+  one starts a second pull-over), and the final state;
+* the run's wall time against the simulated time (the audio stack's cost).
+
+The last line is one JSON object with every run.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from typing import Any
+
+from makeway.perceive.audio.siren_model import SirenModel
+from makeway.pipeline.closed_loop import ClosedLoopResult, run_scenario
+from makeway.pipeline.siren_perception import SirenPerceptionConfig
+from makeway.sim.live_array import LiveAudioConfig
+from makeway.sim.scenarios import SCENARIOS, get_scenario
+
+
+def _row(res: ClosedLoopResult, wall_s: float, duration_s: float) -> dict[str, Any]:
+    m = res.metrics
+    moves = sum(1 for _, _, to, _ in res.transitions if to == "moving_over")
+    return {
+        "action": m["action"],
+        "action_ok": m["action_ok"],
+        "collision": m["collision"],
+        "stopped": m["stopped"],
+        "detected_s": m["time_active_to_detected_s"],
+        "stopped_s": m["time_active_to_stopped_s"],
+        "extra_yields": max(0, moves - 1),
+        "final_state": m["final_state"],
+        "real_time_factor": round(duration_s / wall_s, 2),
+    }
+
+
+def _fmt(v: Any) -> str:
+    if v is None:
+        return "—"
+    if isinstance(v, bool):
+        return "yes" if v else "no"
+    if isinstance(v, float):
+        return f"{v:.2f}"
+    return str(v)
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--seeds", default="0,1", help="scene seeds (comma-separated)")
+    ap.add_argument("--sirens", default="synth,real", help="siren kinds: synth, real (needs the data)")
+    ap.add_argument("--scenarios", default=",".join(SCENARIOS), help="scenario names (comma-separated)")
+    args = ap.parse_args()
+    seeds = [int(s) for s in args.seeds.split(",") if s]
+    sirens = [s for s in args.sirens.split(",") if s]
+    names = [s for s in args.scenarios.split(",") if s]
+    model = SirenModel()
+    runs: list[dict[str, Any]] = []
+    cols = (
+        "action",
+        "action_ok",
+        "collision",
+        "stopped",
+        "detected_s",
+        "stopped_s",
+        "extra_yields",
+        "final_state",
+    )
+    print(
+        f"{'scenario':13s} {'perception':16s} "
+        + " ".join(f"{c:>13s}" for c in cols)
+        + f" {'×real time':>10s}"
+    )
+    for name in names:
+        sc = get_scenario(name)
+        t0 = time.perf_counter()
+        anchor = _row(run_scenario(sc), time.perf_counter() - t0, sc.duration_s)
+        runs.append({"scenario": name, "perception": "simulated", "seed": 0, **anchor})
+        print(
+            f"{name:13s} {'simulated':16s} "
+            + " ".join(f"{_fmt(anchor[c]):>13s}" for c in cols)
+            + f" {anchor['real_time_factor']:>10.2f}",
+            flush=True,
+        )
+        for kind in sirens:
+            for seed in seeds:
+                noise = "real" if kind == "real" else "generated"
+                cfg = SirenPerceptionConfig(audio=LiveAudioConfig(seed=seed, siren=kind, noise=noise))
+                t0 = time.perf_counter()
+                res = run_scenario(sc, perception=cfg, siren_model=model)
+                row = _row(res, time.perf_counter() - t0, sc.duration_s)
+                label = f"siren {kind} s{seed}"
+                runs.append({"scenario": name, "perception": f"siren:{kind}", "seed": seed, **row})
+                print(
+                    f"{name:13s} {label:16s} "
+                    + " ".join(f"{_fmt(row[c]):>13s}" for c in cols)
+                    + f" {row['real_time_factor']:>10.2f}",
+                    flush=True,
+                )
+    heard = [r for r in runs if r["perception"] != "simulated"]
+    anchors = [r for r in runs if r["perception"] == "simulated"]
+    summary = {
+        "siren_runs": len(heard),
+        "siren_action_ok": sum(r["action_ok"] for r in heard),
+        "siren_collisions": sum(r["collision"] for r in heard),
+        "siren_extra_yields": sum(r["extra_yields"] for r in heard),
+        "simulated_action_ok": f"{sum(r['action_ok'] for r in anchors)}/{len(anchors)}",
+    }
+    print(
+        f"siren stack: expected action in {summary['siren_action_ok']}/{len(heard)} runs, "
+        f"{summary['siren_collisions']} collisions, {summary['siren_extra_yields']} extra yields "
+        f"(simulated perception: expected action in {summary['simulated_action_ok']})"
+    )
+    print(json.dumps({"summary": summary, "runs": runs}))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
