@@ -5,7 +5,7 @@ BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 OUT    ?= reports/demo
 
-.PHONY: venv demo test lint typecheck bench bench-sort bench-video bench-pull-over bench-audio clean
+.PHONY: venv demo test lint typecheck bench bench-sort bench-video bench-pull-over bench-siren-loop bench-audio clean
 
 venv: $(STAMP)
 
@@ -42,6 +42,9 @@ bench-video: venv
 bench-pull-over: venv
 	$(BIN)/python benchmarks/bench_pull_over.py
 
+bench-siren-loop: venv
+	$(BIN)/python benchmarks/bench_closed_loop_siren.py
+
 bench-audio: venv
 	$(BIN)/python benchmarks/bench_audio_model.py
 	$(BIN)/python benchmarks/bench_audio_real.py --sweep 65,75,80,85
@@ -52,7 +55,7 @@ bench-audio: venv
 	$(BIN)/python benchmarks/bench_audio_calibration.py
 	$(BIN)/python benchmarks/bench_audio_range_bound.py
 
-bench: bench-sort bench-video bench-pull-over bench-audio
+bench: bench-sort bench-video bench-pull-over bench-siren-loop bench-audio
 
 clean:
 	rm -rf $(VENV) reports .pytest_cache .mypy_cache .ruff_cache

@@ -1,7 +1,8 @@
 """Simulated EV perception for closed-loop scenarios (SPEC §6–7).
 
-Until the siren detector (audio issue) and the crop classifier (vision issue) run inside the loop,
-the decision stage is fed by this model of them. It turns the true ego and EV states into the
+The closed loop's default perception: a model of the perception stack rather than the stack itself
+(the siren stack can run in the loop instead: :mod:`makeway.pipeline.siren_perception`; the crop
+classifier cannot yet, for want of rendered camera images). It turns the true ego and EV states into the
 :class:`~makeway.messages.EVBelief` a perception stack would publish, with the imperfections that
 matter for the decision:
 
