@@ -17,6 +17,11 @@ run, side by side with the anchor:
   one starts a second pull-over), and the final state;
 * the run's wall time against the simulated time (the audio stack's cost).
 
+Then ``--no-ev-runs`` drives of the ``no_ev`` scenario (20 s each, no emergency vehicle) through
+held-out real street recordings (scene seeds 100, 101, …): how often the car yields to nothing, as
+false yields per hour of driving, beside the modelled perception (which never hears what is not
+there) and the listener's per-window false-alarm rate on the same audio.
+
 The last line is one JSON object with every run.
 """
 
@@ -66,6 +71,7 @@ def main() -> int:
     ap.add_argument("--seeds", default="0,1", help="scene seeds (comma-separated)")
     ap.add_argument("--sirens", default="synth,real", help="siren kinds: synth, real (needs the data)")
     ap.add_argument("--scenarios", default=",".join(SCENARIOS), help="scenario names (comma-separated)")
+    ap.add_argument("--no-ev-runs", type=int, default=20, help="no-EV drives through real street noise")
     args = ap.parse_args()
     seeds = [int(s) for s in args.seeds.split(",") if s]
     sirens = [s for s in args.sirens.split(",") if s]
@@ -113,6 +119,29 @@ def main() -> int:
                     + f" {row['real_time_factor']:>10.2f}",
                     flush=True,
                 )
+    quiet = get_scenario("no_ev")
+    false_yields, windows, alarms = 0, 0, 0
+    for k in range(args.no_ev_runs):
+        cfg = SirenPerceptionConfig(audio=LiveAudioConfig(seed=100 + k, noise="real"))
+        res = run_scenario(quiet, perception=cfg, siren_model=model)
+        false_yields += sum(1 for _, _, to, _ in res.transitions if to == "moving_over")
+        windows += len(res.siren)
+        alarms += sum(o.is_siren for o, _ in res.siren)
+    hours = args.no_ev_runs * quiet.duration_s / 3600.0
+    no_ev = {
+        "drives": args.no_ev_runs,
+        "hours": round(hours, 4),
+        "false_yields": false_yields,
+        "false_yields_per_hour": round(false_yields / hours, 2) if hours else None,
+        "window_false_alarm_rate": round(alarms / windows, 5) if windows else None,
+    }
+    if args.no_ev_runs:
+        print(
+            f"no EV, real held-out street noise: {false_yields} false yields in {args.no_ev_runs} drives "
+            f"({hours * 60:.1f} min) = {no_ev['false_yields_per_hour']} per hour; listener false alarms "
+            f"{100 * (no_ev['window_false_alarm_rate'] or 0):.2f} % of windows "
+            "(modelled perception: 0 per hour)"
+        )
     heard = [r for r in runs if r["perception"] != "simulated"]
     anchors = [r for r in runs if r["perception"] == "simulated"]
     summary = {
@@ -127,7 +156,7 @@ def main() -> int:
         f"{summary['siren_collisions']} collisions, {summary['siren_extra_yields']} extra yields "
         f"(simulated perception: expected action in {summary['simulated_action_ok']})"
     )
-    print(json.dumps({"summary": summary, "runs": runs}))
+    print(json.dumps({"summary": summary, "no_ev": no_ev, "runs": runs}))
     return 0
 
 

@@ -19,7 +19,7 @@ from makeway.perceive.audio.stream import listen, plot_listen
 from makeway.sense.recording import Recording, write_recording
 from makeway.sim.audio_scenarios import simulate_recording
 
-MESSAGE_KEYS = {"t_end", "is_siren", "probability", "smoothed_probability", "sources"}
+MESSAGE_KEYS = {"t_end", "is_siren", "probability", "smoothed_probability", "level_db_spl", "sources"}
 SOURCE_KEYS = {"bearing_rad", "bearing_deg", "distance_m", "approaching", "approach_probability"}
 
 

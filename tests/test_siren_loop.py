@@ -130,7 +130,24 @@ def test_far_fixes_keep_the_approach_decided_in_range() -> None:
     for k in range(12, 30):  # beyond far_m the networks' distance saturates and the call flips
         t = 0.17 * k
         b = fusion.update(_obs(t, 70.0, 0.0, 0.95), 0.0, 0.0, 0.0)
+    assert b.approaching is False and b.relation is EVRelation.AHEAD
+    assert math.isnan(b.distance_m) and math.isnan(b.rel_x_m) and abs(b.bearing_rad) < 0.1  # a bearing only
+    for k in range(30, 33):  # a few stray fixes back in range change nothing ...
+        b = fusion.update(_obs(0.17 * k, 45.0, 0.0, 0.95), 0.0, 0.0, 0.0)
     assert b.approaching is False
+    for k in range(33, 40):  # ... sustained ones do
+        b = fusion.update(_obs(0.17 * k, 40.0 - (k - 33), 0.0, 0.95), 0.0, 0.0, 0.0)
+    assert b.approaching is True
+
+
+def test_a_faint_siren_counts_as_far_whatever_its_distance_reads() -> None:
+    fusion = SirenTrackFusion()
+    faint = SirenObservation(0.5, True, 0.99, 0.99, (SirenSource(0.3, 30.0, True, 0.9),), level_db_spl=70.0)
+    b = fusion.update(faint, 0.0, 0.0, 0.0)  # 110 dB at 1 m would be 100 m away at 70 dB
+    assert b.detected and math.isnan(b.distance_m) and b.approaching is None
+    loud = SirenObservation(0.67, True, 0.99, 0.99, (SirenSource(0.3, 30.0, True, 0.9),), level_db_spl=85.0)
+    b = fusion.update(loud, 0.0, 0.0, 0.0)
+    assert b.distance_m == pytest.approx(30.0, abs=3.0) and b.approaching is True
 
 
 def test_one_stray_call_does_not_flip_the_approach() -> None:
@@ -154,6 +171,7 @@ def test_a_crossing_ev_approaches_until_it_has_crossed() -> None:
         d, th = _heard(0.0, 0.0, 40.0, ev_y)
         b = fusion.update(_obs(t, d, th, None), 0.0, 0.0, 0.0)
         calls.append((ev_y, b.relation, b.approaching))
+    assert all(a is None or type(a) is bool for _, _, a in calls)  # the decision tests `is False`
     placed = [(y, a) for y, r, a in calls if r is EVRelation.CROSSING]
     assert len(placed) > 40
     assert all(a for y, a in placed if y < -10.0) and not any(a for y, a in placed if y > 10.0)
@@ -186,6 +204,17 @@ def test_seed003_heard_by_the_siren_stack() -> None:
     assert len(moves) == 1  # the EV that went by is not taken for a new one
     assert YieldState.RESUMING.value in [to for _, _, to, _ in res.transitions]
     assert len(res.siren) > 100 and all(o.t_end == b.time_s for o, b in res.siren)
+
+
+def test_crossing_heard_waits_until_the_ev_has_crossed() -> None:
+    res = run_scenario(get_scenario("crossing"), perception=SirenPerceptionConfig())
+    m = res.metrics
+    assert m["stopped"] and not m["collision"] and m["stopped_clear_of_intersections"]
+    passed = [t for t, _, to, _ in res.transitions if to == YieldState.EV_PASSED.value]
+    log = res.log
+    crossed = log["t"][(log["ev_y"] > 0.0).argmax()]  # the EV reaches the ego's road
+    assert passed and crossed - 1.0 <= passed[0] <= crossed + 3.0  # not before it has crossed, nor long after
+    assert YieldState.RESUMING.value in [to for _, _, to, _ in res.transitions]
 
 
 def test_no_ev_heard_by_the_siren_stack_is_no_ev() -> None:

@@ -238,7 +238,8 @@ class SirenObservation:
 
     ``probability`` is this window's, ``smoothed_probability`` the listener's decision value and
     ``is_siren`` the decision. ``sources`` lists the sirens heard, nearest first (empty without a
-    siren).
+    siren). ``level_db_spl`` is the window's level in the siren band (500–1800 Hz) at the array,
+    power-averaged over the capsules, ``None`` when unknown.
     """
 
     t_end: float
@@ -246,6 +247,7 @@ class SirenObservation:
     probability: float
     smoothed_probability: float
     sources: tuple[SirenSource, ...] = ()
+    level_db_spl: float | None = None
 
     def to_json(self) -> dict[str, Any]:
         """A JSON-ready dict (the ``listen`` message; bearings also in degrees)."""
@@ -254,6 +256,7 @@ class SirenObservation:
             "is_siren": self.is_siren,
             "probability": round(self.probability, 6),
             "smoothed_probability": round(self.smoothed_probability, 6),
+            "level_db_spl": None if self.level_db_spl is None else round(self.level_db_spl, 2),
             "sources": [
                 {
                     "bearing_rad": round(s.bearing_rad, 6),

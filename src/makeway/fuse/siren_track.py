@@ -18,20 +18,27 @@ decision reads:
   is known to ``max_speed_sigma_mps`` and it moves faster than ``min_speed_mps``; ``UNKNOWN``
   before (the yield decision treats a heard, unplaced siren conservatively).
 * **Far sirens.** The networks' distance is informative up to about 50 m and saturates beyond (on
-  held-out recordings a siren 80–100 m away is put at 60 m on median), so a fix at ``far_m`` or
-  more counts as a bearing with a weak distance (radial sigma = the distance itself).
+  held-out recordings a siren 80–100 m away is put at 60 m on median; at 150–300 m it can even
+  read 45–60 m). A fix is *far* when the networks put it at ``far_m`` or more, or when its level in
+  the siren band is so low that even the quietest siren (``quiet_siren_db_1m``, the low end of
+  road sirens' 110–120 dB at 1 m) would be ``far_m`` away. A far fix counts as a bearing with a
+  weak distance (radial sigma = the distance itself), and the belief then gives the bearing with
+  distance and position unknown (NaN). Once the track has been in range, the relation and the
+  approach call stay those of the last fix in range (an EV that went by stays gone by) until
+  ``near_after`` fixes in a row are in range again; before it has ever been in range, the
+  relation is the track's, and approaching is unknown until the track has seen an EV on a
+  crossing road close in on the ego's road or leave it (below), and then that call.
 * **Approaching.** Within ``far_m``, the listener's call for the nearest siren (the distance-trend
   classifier, :class:`~makeway.perceive.audio.motion.TrendApproach`) through a leaky log-odds
   filter: ``L ← approach_decay·L + logit(p)``, approaching when ``L ≥ approach_log_odds``,
   receding when ``L ≤ −approach_log_odds``, unchanged in between (one stray window does not flip
-  it). Beyond ``far_m`` the call is held (an EV that went by stays gone by), ``None`` if the siren
-  was never in range. For an EV on a crossing road, approaching means closing in on the ego's road
+  it). For an EV on a crossing road, approaching means closing in on the ego's road
   (its offset across the road shrinking, from the track), which works far away too.
 * **Confidence** is the listener's smoothed probability, **detected** its decision.
 
 Position, distance and bearing in the belief are the filtered ones, relative to the ego (vehicle
-frame). A siren heard without a distance (the classical fallback) gives a bearing only and relation
-``UNKNOWN``.
+frame); beyond ``far_m`` only the bearing. A siren heard without a distance (the classical
+fallback) gives a bearing only and relation ``UNKNOWN``.
 """
 
 from __future__ import annotations
@@ -64,6 +71,8 @@ class SirenTrackFusion:
         min_speed_mps: float = 3.0,
         max_speed_sigma_mps: float = 4.0,
         far_m: float = 50.0,
+        near_after: int = 4,
+        quiet_siren_db_1m: float = 110.0,
         approach_decay: float = 0.7,
         approach_log_odds: float = 2.0,
     ) -> None:
@@ -85,6 +94,8 @@ class SirenTrackFusion:
         if far_m <= 0 or not 0.0 <= approach_decay < 1.0 or approach_log_odds <= 0:
             raise ValueError("far_m and approach_log_odds must be > 0, approach_decay in [0, 1)")
         self.far_m = far_m
+        self.near_after = max(1, int(near_after))
+        self.quiet_siren_db_1m = quiet_siren_db_1m
         self.approach_decay = approach_decay
         self.approach_log_odds = approach_log_odds
         self.reset()
@@ -99,6 +110,9 @@ class SirenTrackFusion:
         self.misses_ = 0
         self.approach_evidence_ = 0.0
         self.approaching_: bool | None = None
+        self.placed_ = False
+        self.near_fixes_ = 0
+        self.held_relation_ = EVRelation.UNKNOWN
         return self
 
     # --------------------------------------------------------------------------------- filter
@@ -189,28 +203,46 @@ class SirenTrackFusion:
             self._correct(t, z, r)
         assert self.state_ is not None
         c, s = math.cos(ego_yaw), math.sin(ego_yaw)
-        dx, dy = self.state_[0] - ego_x, self.state_[1] - ego_y
+        dx, dy = float(self.state_[0]) - ego_x, float(self.state_[1]) - ego_y
         rel_x, rel_y = c * dx + s * dy, -s * dx + c * dy
         relation = self.relation(rel_x, rel_y, ego_yaw)
-        if float(src.distance_m) < self.far_m:
+        far = self._is_far(float(src.distance_m), obs.level_db_spl)
+        self.near_fixes_ = 0 if far else self.near_fixes_ + 1
+        if self.near_fixes_ >= (self.near_after if self.placed_ else 1):
+            self.placed_ = True
+            self.held_relation_ = relation
             self._listen_approach(src.approaching, src.approach_probability)
-        approaching = self.approaching_
+            approaching = self.approaching_
+        elif self.placed_:  # was placed in range: keep what was known then
+            relation, approaching = self.held_relation_, self.approaching_
+        else:  # never in range: what the track alone has told
+            approaching = self.approaching_
         if relation is EVRelation.CROSSING:  # closing in on our road: its offset across it shrinks
             v_across = -s * float(self.state_[2]) + c * float(self.state_[3])
-            approaching = rel_y * v_across < 0.0
+            approaching = self.approaching_ = bool(rel_y * v_across < 0.0)
+        nan = float("nan")
         return EVBelief(
             time_s=t,
             detected=True,
             confidence=float(obs.smoothed_probability),
             relation=relation,
-            rel_x_m=rel_x,
-            rel_y_m=rel_y,
-            distance_m=math.hypot(rel_x, rel_y),
+            rel_x_m=nan if far else rel_x,
+            rel_y_m=nan if far else rel_y,
+            distance_m=nan if far else math.hypot(rel_x, rel_y),
             bearing_rad=math.atan2(rel_y, rel_x),
             approaching=approaching,
             siren=True,
             source=SOURCE,
         )
+
+    def _is_far(self, distance_m: float, level_db_spl: float | None) -> bool:
+        """A fix beyond ranging: the networks' distance at ``far_m`` or more, or a level so low that
+        even the quietest siren (``quiet_siren_db_1m``) would be ``far_m`` away."""
+        if distance_m >= self.far_m:
+            return True
+        if level_db_spl is None:
+            return False
+        return 10.0 ** ((self.quiet_siren_db_1m - level_db_spl) / 20.0) >= self.far_m
 
     def _listen_approach(self, approaching: bool | None, probability: float | None) -> None:
         """Fold the listener's call into the approach filter (module docstring)."""

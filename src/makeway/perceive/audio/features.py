@@ -10,6 +10,7 @@ per band.
 from __future__ import annotations
 
 import functools
+import math
 
 import numpy as np
 from scipy.fft import dct, rfft
@@ -29,6 +30,19 @@ LOG_FLOOR = 1e-10
 @functools.lru_cache(maxsize=16)
 def _band_sos(sample_rate: int, low_hz: float, high_hz: float, order: int) -> np.ndarray:
     return np.asarray(butter(order, [low_hz, high_hz], btype="bandpass", fs=sample_rate, output="sos"))
+
+
+def band_level_db(window: np.ndarray, sample_rate: int, band: tuple[float, float] = BAND_HZ) -> float:
+    """The in-band level of ``window (channels, samples)``: 10·log10 of its mean square within
+    ``band`` (Hz; default the siren band), power-averaged over the channels, in dB re a digital RMS
+    of 1.0. Add the array's ``full_scale_db_spl`` for dB SPL."""
+    x = np.atleast_2d(np.asarray(window, dtype=np.float64))
+    n = x.shape[-1]
+    f = np.fft.rfftfreq(n, 1.0 / sample_rate)
+    sel = (f >= band[0]) & (f <= band[1])
+    power = np.abs(np.fft.rfft(x, axis=-1)[:, sel]) ** 2
+    mean_square = 2.0 * float(power.sum(axis=-1).mean()) / n**2
+    return 10.0 * math.log10(max(mean_square, 1e-30))
 
 
 def bandpass(

@@ -5,6 +5,7 @@
 and yields one message per hop::
 
     {"t_end": 1.17, "is_siren": true, "probability": 0.93, "smoothed_probability": 0.88,
+     "level_db_spl": 78.4,
      "sources": [{"bearing_rad": 2.9, "bearing_deg": 166.2, "distance_m": 31.4, "approaching": true,
                   "approach_probability": 0.91}]}
 
@@ -21,6 +22,8 @@ default :class:`~makeway.perceive.audio.motion.TrendApproach` (the trend of the 
 and the level and Doppler cues, through a trained classifier; ``approach_probability`` is its
 P(approaching)); without one, :class:`~makeway.perceive.audio.motion.ApproachEstimator` (level and
 Doppler; ``approach_probability`` null). ``sources`` is empty when there is no siren.
+``level_db_spl`` is the window's level in the siren band at the array (the recording's
+calibration, or the networks' reference scale).
 
 ``is_siren`` is decided on ``smoothed_probability``, the mean of this window and the ``smooth`` − 1
 before it, taken over their logits unless ``average="probability"``
@@ -44,10 +47,11 @@ import numpy as np
 
 from makeway.messages import SirenObservation, SirenSource
 from makeway.perceive.audio.doa import SirenEnergyDetector, detector_score, get_doa_method
+from makeway.perceive.audio.features import band_level_db
 from makeway.perceive.audio.labels import HOP_S, LISTEN_SMOOTH, SMOOTH_AVERAGE, WINDOW_S, window_starts
 from makeway.perceive.audio.motion import DEFAULT_APPROACH_MODEL, ApproachEstimator, TrendApproach
 from makeway.perceive.audio.siren_model import SirenModel
-from makeway.sense.recording import Recording
+from makeway.sense.recording import REFERENCE_FULL_SCALE_DB_SPL, Recording
 from makeway.track.smoother import StreamSmoother
 
 PLOT_MAX_HZ = 4000.0
@@ -91,6 +95,8 @@ class SirenListener:
         self.model = model
         self.window_s = float(window_s)
         self.full_scale_db_spl = full_scale_db_spl
+        self.full_scale = full_scale_db_spl if full_scale_db_spl is not None else REFERENCE_FULL_SCALE_DB_SPL
+        """The dB SPL of a digital RMS of 1.0 (the reference scale when the array states none)."""
         self.detector = detector if detector is not None else SirenEnergyDetector(self.sample_rate)
         self.approach = approach if approach is not None else default_approach(model)
         self.reset()
@@ -140,7 +146,8 @@ class SirenListener:
             )
             for k, src in enumerate(found)
         )
-        return SirenObservation(float(t_end), bool(is_siren), p, float(p_smooth), sources)
+        level = band_level_db(window, sr) + self.full_scale
+        return SirenObservation(float(t_end), bool(is_siren), p, float(p_smooth), sources, level)
 
 
 def listen(
