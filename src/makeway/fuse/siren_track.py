@@ -32,8 +32,10 @@ decision reads:
   classifier, :class:`~makeway.perceive.audio.motion.TrendApproach`) through a leaky log-odds
   filter: ``L ← approach_decay·L + logit(p)``, approaching when ``L ≥ approach_log_odds``,
   receding when ``L ≤ −approach_log_odds``, unchanged in between (one stray window does not flip
-  it). For an EV on a crossing road, approaching means closing in on the ego's road
-  (its offset across the road shrinking, from the track), which works far away too.
+  it). For an EV on a crossing road, approaching means closing in on the ego's road (its offset
+  across the road shrinking, from the track), which works far away too; once made, that call
+  changes only after ``crossing_flip_fixes`` fixes in a row disagree (1 s: a far track's heading
+  wobbles as the ego drives past the crossing road).
 * **Confidence** is the listener's smoothed probability, **detected** its decision.
 
 Position, distance and bearing in the belief are the filtered ones, relative to the ego (vehicle
@@ -72,6 +74,7 @@ class SirenTrackFusion:
         max_speed_sigma_mps: float = 4.0,
         far_m: float = 50.0,
         near_after: int = 4,
+        crossing_flip_fixes: int = 6,
         quiet_siren_db_1m: float = 110.0,
         approach_decay: float = 0.7,
         approach_log_odds: float = 2.0,
@@ -95,6 +98,7 @@ class SirenTrackFusion:
             raise ValueError("far_m and approach_log_odds must be > 0, approach_decay in [0, 1)")
         self.far_m = far_m
         self.near_after = max(1, int(near_after))
+        self.crossing_flip_fixes = max(1, int(crossing_flip_fixes))
         self.quiet_siren_db_1m = quiet_siren_db_1m
         self.approach_decay = approach_decay
         self.approach_log_odds = approach_log_odds
@@ -112,6 +116,7 @@ class SirenTrackFusion:
         self.approaching_: bool | None = None
         self.placed_ = False
         self.near_fixes_ = 0
+        self.flip_votes_ = 0
         self.held_relation_ = EVRelation.UNKNOWN
         return self
 
@@ -219,7 +224,7 @@ class SirenTrackFusion:
             approaching = self.approaching_
         if relation is EVRelation.CROSSING:  # closing in on our road: its offset across it shrinks
             v_across = -s * float(self.state_[2]) + c * float(self.state_[3])
-            approaching = self.approaching_ = bool(rel_y * v_across < 0.0)
+            approaching = self._crossing_approach(bool(rel_y * v_across < 0.0))
         nan = float("nan")
         return EVBelief(
             time_s=t,
@@ -243,6 +248,17 @@ class SirenTrackFusion:
         if level_db_spl is None:
             return False
         return 10.0 ** ((self.quiet_siren_db_1m - level_db_spl) / 20.0) >= self.far_m
+
+    def _crossing_approach(self, closing: bool) -> bool:
+        """The crossing EV's call: taken at once when there is none yet, changed only after
+        ``crossing_flip_fixes`` fixes in a row say otherwise (a far track's heading wobbles)."""
+        if self.approaching_ is None or closing == self.approaching_:
+            self.approaching_, self.flip_votes_ = closing, 0
+        else:
+            self.flip_votes_ += 1
+            if self.flip_votes_ >= self.crossing_flip_fixes:
+                self.approaching_, self.flip_votes_ = closing, 0
+        return bool(self.approaching_)
 
     def _listen_approach(self, approaching: bool | None, probability: float | None) -> None:
         """Fold the listener's call into the approach filter (module docstring)."""
