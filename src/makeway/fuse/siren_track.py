@@ -113,7 +113,10 @@ class SirenTrackFusion:
         self.fixes_ = 0
         self.misses_ = 0
         self.approach_evidence_ = 0.0
-        self.approaching_: bool | None = None
+        self.approaching_: bool | None = None  # the call the belief gave last
+        self.listened_: bool | None = None  # the listener's calls, filtered
+        self.crossing_: bool | None = None  # the crossing EV's call
+        self.known_relation_ = EVRelation.UNKNOWN
         self.placed_ = False
         self.near_fixes_ = 0
         self.flip_votes_ = 0
@@ -210,21 +213,29 @@ class SirenTrackFusion:
         c, s = math.cos(ego_yaw), math.sin(ego_yaw)
         dx, dy = float(self.state_[0]) - ego_x, float(self.state_[1]) - ego_y
         rel_x, rel_y = c * dx + s * dy, -s * dx + c * dy
-        relation = self.relation(rel_x, rel_y, ego_yaw)
+        told = self.relation(rel_x, rel_y, ego_yaw)
+        if told is not EVRelation.UNKNOWN:
+            self.known_relation_ = told  # a track that could tell once keeps it while it cannot
         far = self._is_far(float(src.distance_m), obs.level_db_spl)
         self.near_fixes_ = 0 if far else self.near_fixes_ + 1
-        if self.near_fixes_ >= (self.near_after if self.placed_ else 1):
+        near = self.near_fixes_ >= (self.near_after if self.placed_ else 1)
+        if near:
             self.placed_ = True
-            self.held_relation_ = relation
             self._listen_approach(src.approaching, src.approach_probability)
-            approaching = self.approaching_
+            relation = self.held_relation_ = self.known_relation_
         elif self.placed_:  # was placed in range: keep what was known then
-            relation, approaching = self.held_relation_, self.approaching_
-        else:  # never in range: what the track alone has told
-            approaching = self.approaching_
+            relation = self.held_relation_
+        else:  # never in range: what the track alone tells
+            relation = self.known_relation_
+        approaching: bool | None
         if relation is EVRelation.CROSSING:  # closing in on our road: its offset across it shrinks
             v_across = -s * float(self.state_[2]) + c * float(self.state_[3])
             approaching = self._crossing_approach(bool(rel_y * v_across < 0.0))
+        elif near:
+            approaching = self.listened_
+        else:  # far: the last call made
+            approaching = self.approaching_
+        self.approaching_ = approaching
         nan = float("nan")
         return EVBelief(
             time_s=t,
@@ -252,26 +263,26 @@ class SirenTrackFusion:
     def _crossing_approach(self, closing: bool) -> bool:
         """The crossing EV's call: taken at once when there is none yet, changed only after
         ``crossing_flip_fixes`` fixes in a row say otherwise (a far track's heading wobbles)."""
-        if self.approaching_ is None or closing == self.approaching_:
-            self.approaching_, self.flip_votes_ = closing, 0
+        if self.crossing_ is None or closing == self.crossing_:
+            self.crossing_, self.flip_votes_ = closing, 0
         else:
             self.flip_votes_ += 1
             if self.flip_votes_ >= self.crossing_flip_fixes:
-                self.approaching_, self.flip_votes_ = closing, 0
-        return bool(self.approaching_)
+                self.crossing_, self.flip_votes_ = closing, 0
+        return self.crossing_
 
     def _listen_approach(self, approaching: bool | None, probability: float | None) -> None:
         """Fold the listener's call into the approach filter (module docstring)."""
         if probability is None:  # an estimator without a probability: its call as it is
             if approaching is not None:
-                self.approaching_ = approaching
+                self.listened_ = approaching
             return
         p = min(max(float(probability), 0.01), 0.99)
         self.approach_evidence_ = self.approach_decay * self.approach_evidence_ + math.log(p / (1.0 - p))
         if self.approach_evidence_ >= self.approach_log_odds:
-            self.approaching_ = True
+            self.listened_ = True
         elif self.approach_evidence_ <= -self.approach_log_odds:
-            self.approaching_ = False
+            self.listened_ = False
 
     def relation(self, rel_x: float, rel_y: float, ego_yaw: float) -> EVRelation:
         """The track's relation to the ego, ``UNKNOWN`` while its heading is not known (module
