@@ -16,7 +16,8 @@ decision reads:
 * **Relation** (behind, ahead, oncoming, crossing: :func:`~makeway.fuse.relation.classify_relation`)
   from the filtered position and the track's heading, once ``min_fixes`` fixes are in, its speed
   is known to ``max_speed_sigma_mps`` and it moves faster than ``min_speed_mps``; ``UNKNOWN``
-  before (the yield decision treats a heard, unplaced siren conservatively).
+  before (the yield decision treats a heard, unplaced siren conservatively). Once told, a relation
+  is kept while the heading is uncertain again.
 * **Far sirens.** The networks' distance is informative up to about 50 m and saturates beyond (on
   held-out recordings a siren 80–100 m away is put at 60 m on median; at 150–300 m it can even
   read 45–60 m). A fix is *far* when the networks put it at ``far_m`` or more, or when its level in
