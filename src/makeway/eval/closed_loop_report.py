@@ -18,6 +18,7 @@ from typing import Any
 import numpy as np
 
 from makeway.atomic import atomic_path, write_text_atomic
+from makeway.frames import to_vehicle_frame
 from makeway.jsonable import to_jsonable
 from makeway.messages import YieldState
 from makeway.pipeline.closed_loop import ClosedLoopResult
@@ -170,8 +171,7 @@ def _siren_report(result: ClosedLoopResult, out: Path) -> dict[str, str]:
     log = result.log
     t = log["t"]
     dx, dy = log["ev_x"] - log["x"], log["ev_y"] - log["y"]
-    c, s = np.cos(log["yaw"]), np.sin(log["yaw"])
-    rel_x, rel_y = c * dx + s * dy, -s * dx + c * dy
+    rel_x, rel_y = to_vehicle_frame(dx, dy, log["yaw"])
     on = log["ev_on"] > 0.5
     true_d = np.where(on, np.hypot(rel_x, rel_y), np.nan)
     true_b = np.where(on, np.degrees(np.arctan2(rel_y, rel_x)), np.nan)

@@ -50,6 +50,7 @@ import math
 
 import numpy as np
 
+from makeway.frames import to_vehicle_frame
 from makeway.fuse.relation import classify_relation
 from makeway.messages import EVBelief, EVRelation, SirenObservation
 
@@ -211,9 +212,8 @@ class SirenTrackFusion:
         else:
             self._correct(t, z, r)
         assert self.state_ is not None
-        c, s = math.cos(ego_yaw), math.sin(ego_yaw)
-        dx, dy = float(self.state_[0]) - ego_x, float(self.state_[1]) - ego_y
-        rel_x, rel_y = c * dx + s * dy, -s * dx + c * dy
+        x, y, vx, vy = (float(v) for v in self.state_)
+        rel_x, rel_y = (float(v) for v in to_vehicle_frame(x - ego_x, y - ego_y, ego_yaw))
         told = self.relation(rel_x, rel_y, ego_yaw)
         if told is not EVRelation.UNKNOWN:
             self.known_relation_ = told  # a track that could tell once keeps it while it cannot
@@ -230,7 +230,7 @@ class SirenTrackFusion:
             relation = self.known_relation_
         approaching: bool | None
         if relation is EVRelation.CROSSING:  # closing in on our road: its offset across it shrinks
-            v_across = -s * float(self.state_[2]) + c * float(self.state_[3])
+            v_across = float(to_vehicle_frame(vx, vy, ego_yaw)[1])
             approaching = self._crossing_approach(bool(rel_y * v_across < 0.0))
         elif near:
             approaching = self.listened_

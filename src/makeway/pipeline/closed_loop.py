@@ -27,6 +27,7 @@ import numpy as np
 
 from makeway.control import LATERAL_CONTROLLERS, LongitudinalController
 from makeway.decide import YieldConfig, YieldStateMachine
+from makeway.frames import to_vehicle_frame
 from makeway.messages import ControlCommand, EVBelief, RoadContext, SirenObservation, VehicleState, YieldState
 from makeway.perceive.audio.siren_model import SirenModel
 from makeway.pipeline.siren_perception import SirenPerception, SirenPerceptionConfig
@@ -287,9 +288,7 @@ def run_scenario(
 
 def _follow_speed(ego: VehicleState, ev: EVTruth, plan: EVPlan, time_gap_s: float = 1.5) -> float:
     """Speed that keeps a 1.5 s gap (+ 2 m) behind the EV when it is ahead in the ego's lane (ACC)."""
-    c, s = math.cos(ego.yaw_rad), math.sin(ego.yaw_rad)
-    dx, dy = ev.x_m - ego.x_m, ev.y_m - ego.y_m
-    along, across = c * dx + s * dy, -s * dx + c * dy
+    along, across = (float(v) for v in to_vehicle_frame(ev.x_m - ego.x_m, ev.y_m - ego.y_m, ego.yaw_rad))
     if along <= 0.0 or abs(across) > 0.5 * (plan.width_m + EGO_WIDTH_M) + 0.3:
         return math.inf
     gap = along - 0.5 * (plan.length_m + EGO_LENGTH_M)

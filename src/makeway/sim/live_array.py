@@ -189,7 +189,7 @@ class LiveArraySimulator:
         out = self._noise(i0, n, t, ego)
         has_ev = np.isfinite(ev[:, 0])
         if has_ev.any():
-            self._gate_until(t_to)
+            self._gate_until(t_to, t, ev[:, 2])
             self._source.trajectory = Trajectory(t[has_ev], ev[has_ev, 0], ev[has_ev, 1])
             ego_traj = Trajectory(t, ego[:, 0], ego[:, 1], ego[:, 2])
             m = MARGIN_SAMPLES
@@ -215,9 +215,10 @@ class LiveArraySimulator:
         pa = self._bed[a:b].astype(np.float64) + self._wind[a:b] * gain[:, None]
         return pa / db_spl_to_pa(self.full_scale_db_spl)
 
-    def _gate_until(self, t_to: float) -> None:
-        """Fix the emitted siren signal up to the emission time ``t_to`` from the observed on/off
-        (later samples stay silent until then; only the cut margin of a render reads them)."""
+    def _gate_until(self, t_to: float, t: np.ndarray, on: np.ndarray) -> None:
+        """Fix the emitted siren signal up to the emission time ``t_to`` from the siren states ``on``
+        observed at times ``t`` (the render's history; later samples stay silent until then, only
+        the cut margin of a render reads them)."""
         sr = self.sample_rate
         sig = self._source.signal
         j1 = min(len(sig), round((t_to - self._source.t0) * sr))
@@ -225,8 +226,6 @@ class LiveArraySimulator:
         if j1 <= j0:
             return
         te = self._source.t0 + np.arange(j0, j1) / sr
-        t = np.asarray(self._t)
-        on = np.asarray(self._ev)[:, 2]
         # a step per observation, ramped over GATE_RAMP_S
         grid = np.arange(t[0] - GATE_RAMP_S, t[-1] + GATE_RAMP_S, GATE_RAMP_S)
         steps = on[np.clip(np.searchsorted(t, grid, side="right") - 1, 0, len(t) - 1)]

@@ -29,6 +29,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from makeway.frames import to_vehicle_frame
 from makeway.fuse.relation import classify_relation
 from makeway.messages import EVBelief
 
@@ -108,8 +109,7 @@ class SimulatedPerception:
             self._prev_distance = None
             return EVBelief.nothing(t)
         dx, dy = ev.x_m - ego_x, ev.y_m - ego_y
-        c, s = math.cos(ego_yaw), math.sin(ego_yaw)
-        rel_x, rel_y = c * dx + s * dy, -s * dx + c * dy
+        rel_x, rel_y = (float(v) for v in to_vehicle_frame(dx, dy, ego_yaw))
         distance = math.hypot(rel_x, rel_y)
         if distance > cfg.range_m or t < self._burst_until_s or rng.random() < cfg.dropout_prob:
             return EVBelief.nothing(t)

@@ -27,6 +27,7 @@ from typing import Any
 
 import numpy as np
 
+from makeway.frames import to_vehicle_frame
 from makeway.sense.recording import Recording, Trajectory
 
 WINDOW_S = 0.5
@@ -169,9 +170,7 @@ def relative_position(
     ex, ey = ego.position(times)
     yaw = ego.heading(times)
     sx, sy = source.position(times)
-    dx, dy = sx - ex, sy - ey
-    c, s = np.cos(yaw), np.sin(yaw)
-    return c * dx + s * dy, -s * dx + c * dy
+    return to_vehicle_frame(sx - ex, sy - ey, yaw)
 
 
 def label_recording(

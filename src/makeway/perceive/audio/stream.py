@@ -95,8 +95,10 @@ class SirenListener:
         self.model = model
         self.window_s = float(window_s)
         self.full_scale_db_spl = full_scale_db_spl
-        self.full_scale = full_scale_db_spl if full_scale_db_spl is not None else REFERENCE_FULL_SCALE_DB_SPL
-        """The dB SPL of a digital RMS of 1.0 (the reference scale when the array states none)."""
+        assumed = model.full_scale_db_spl if model is not None else REFERENCE_FULL_SCALE_DB_SPL
+        self.full_scale = full_scale_db_spl if full_scale_db_spl is not None else assumed
+        """The dB SPL of a digital RMS of 1.0 (when the array states none: the networks' scale, as
+        :meth:`~makeway.perceive.audio.siren_model.SirenModel.predict` assumes)."""
         self.detector = detector if detector is not None else SirenEnergyDetector(self.sample_rate)
         self.approach = approach if approach is not None else default_approach(model)
         self.reset()
