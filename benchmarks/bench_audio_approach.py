@@ -36,7 +36,7 @@ from typing import Any
 from makeway.eval.siren_approach import approach_recordings, approach_scores
 from makeway.perceive.audio.features import window_batch
 from makeway.perceive.audio.labels import label_recording
-from makeway.perceive.audio.motion import DEFAULT_APPROACH_MODEL, TrendApproach, get_approach_method
+from makeway.perceive.audio.motion import APPROACH_METHODS, DEFAULT_APPROACH_MODEL, TrendApproach
 from makeway.perceive.audio.siren_model import SirenModel
 from makeway.progress import progress_bar
 from makeway.sense.recording import read_recording
@@ -58,7 +58,7 @@ def _update_cost(folder: Path, networks: SirenModel) -> dict[str, float]:
     distance = networks.predict(windows, rec.full_scale_db_spl).distance
     out = {}
     for name in ROWS:
-        est = get_approach_method(name)()
+        est = APPROACH_METHODS[name]()
         times = []
         for i in range(len(windows)):
             t0 = time.perf_counter()

@@ -37,7 +37,7 @@ from makeway.perceive.audio.siren_model import SirenModel
 from makeway.pipeline.closed_loop import ClosedLoopResult, run_scenario
 from makeway.pipeline.siren_perception import SirenPerceptionConfig
 from makeway.sim.live_array import LiveAudioConfig
-from makeway.sim.scenarios import SCENARIOS, get_scenario
+from makeway.sim.scenarios import SCENARIOS
 
 
 def _row(res: ClosedLoopResult, wall_s: float, duration_s: float) -> dict[str, Any]:
@@ -94,7 +94,7 @@ def main() -> int:
         + f" {'×real time':>10s}"
     )
     for name in names:
-        sc = get_scenario(name)
+        sc = SCENARIOS[name]()
         t0 = time.perf_counter()
         anchor = _row(run_scenario(sc), time.perf_counter() - t0, sc.duration_s)
         runs.append({"scenario": name, "perception": "simulated", "seed": 0, **anchor})
@@ -107,9 +107,11 @@ def main() -> int:
         for kind in sirens:
             for seed in seeds:
                 noise = "real" if kind == "real" else "generated"
-                cfg = SirenPerceptionConfig(audio=LiveAudioConfig(seed=seed, siren=kind, noise=noise))
+                cfg = SirenPerceptionConfig(
+                    audio=LiveAudioConfig(seed=seed, siren=kind, noise=noise), model=model
+                )
                 t0 = time.perf_counter()
-                res = run_scenario(sc, perception=cfg, siren_model=model)
+                res = run_scenario(sc, perception=cfg)
                 row = _row(res, time.perf_counter() - t0, sc.duration_s)
                 label = f"siren {kind} s{seed}"
                 runs.append({"scenario": name, "perception": f"siren:{kind}", "seed": seed, **row})
@@ -119,11 +121,11 @@ def main() -> int:
                     + f" {row['real_time_factor']:>10.2f}",
                     flush=True,
                 )
-    quiet = get_scenario("no_ev")
+    quiet = SCENARIOS["no_ev"]()
     false_yields, windows, alarms = 0, 0, 0
     for k in range(args.no_ev_runs):
-        cfg = SirenPerceptionConfig(audio=LiveAudioConfig(seed=100 + k, noise="real"))
-        res = run_scenario(quiet, perception=cfg, siren_model=model)
+        cfg = SirenPerceptionConfig(audio=LiveAudioConfig(seed=100 + k, noise="real"), model=model)
+        res = run_scenario(quiet, perception=cfg)
         false_yields += sum(1 for _, _, to, _ in res.transitions if to == "moving_over")
         windows += len(res.siren)
         alarms += sum(o.is_siren for o, _ in res.siren)

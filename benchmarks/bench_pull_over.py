@@ -19,7 +19,7 @@ import sys
 
 from makeway.pipeline.closed_loop import run_scenario
 from makeway.sim.perception import PerceptionConfig
-from makeway.sim.scenarios import SCENARIOS, get_scenario
+from makeway.sim.scenarios import SCENARIOS
 
 FIELD = {"max": 0.55, "settled": 0.10, "yaw": (-0.05, 0.01), "yaw_rate": (-0.08, 0.06)}
 
@@ -33,7 +33,7 @@ def main() -> int:
     ap.add_argument("--seeds", type=int, default=10, help="perception seeds for the robustness sweep")
     args = ap.parse_args()
 
-    sc = get_scenario("seed003")
+    sc = SCENARIOS["seed003"]()
     print("seed003: ego 13.4 m/s, EV 50 m behind switches lights and siren on (simulated perception)")
     header = (
         f"{'':28s} {'max|e_lat| m':>12s} {'settled m':>10s} {'yaw err rad':>18s} {'yaw-rate err rad/s':>20s}"
@@ -82,7 +82,7 @@ def main() -> int:
     all_ok = True
     rows = {}
     for name in SCENARIOS:
-        m = run_scenario(get_scenario(name)).metrics
+        m = run_scenario(SCENARIOS[name]()).metrics
         ok = m["action_ok"] and not m["collision"]
         all_ok &= ok
         rows[name] = {k: m[k] for k in ("action", "expected_action", "collision", "min_distance_to_ev_m")}

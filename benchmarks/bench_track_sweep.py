@@ -1,7 +1,7 @@
 """Per-actor smoother sweep on the real clips, beside seed 000's Table 3 (issue 3, SPEC §1).
 
 Framework B (YOLOX-nano → SORT → shipped EV crop head) runs once per clip; every track's per-frame
-probability is cached under ``--cache`` (``makeway.eval.actor_sweep.cached_clip``), so reruns only
+probability is cached under ``--cache`` (``makeway.pipeline.clip_record.cached_clip``), so reruns only
 replay the smoother. Actors are SORT tracks labelled by the committed
 ``src/makeway/data/video_track_labels.csv``; an actor is predicted positive when the smoother marks
 it active on at least one frame (see ``makeway.eval.actor_sweep``). Prints, for the raw per-frame
@@ -32,7 +32,6 @@ from makeway.eval.actor_sweep import (
     TRACK_LABELS,
     ClipRecord,
     SweepRow,
-    cached_clip,
     read_track_labels,
     relative_change,
     sweep,
@@ -42,6 +41,7 @@ from makeway.messages import Box
 from makeway.paths import data_dir
 from makeway.perceive.vision.crops import square_crop
 from makeway.perceive.vision.ev_classifier import DEFAULT_MODEL
+from makeway.pipeline.clip_record import cached_clip
 from makeway.sense.video import VideoReader
 
 

@@ -22,8 +22,8 @@ import time
 from pathlib import Path
 
 from makeway.paths import data_dir
-from makeway.perceive.vision.detectors import create_detector
-from makeway.perceive.vision.ev_classifier import EVTrackClassifier, named_crop_classifier
+from makeway.perceive.vision.detectors import DETECTORS
+from makeway.perceive.vision.ev_classifier import EVTrackClassifier, load_crop_classifier
 from makeway.pipeline.video import TrackClassifier, VideoRunSummary, run_video
 from makeway.sense.video import VideoReader
 
@@ -61,7 +61,7 @@ def main() -> int:
     clip = root / "video" / args.clip
 
     # detector alone, same frames: the floor the pipeline sits on
-    det = create_detector(args.detector, class_agnostic=True)
+    det = DETECTORS[args.detector](class_agnostic=True)
     det_ms = []
     with VideoReader(clip, stride=args.stride, max_frames=60) as reader:
         for _, _, frame in reader:
@@ -74,7 +74,7 @@ def main() -> int:
     factors: list[float] = []
     variants: dict[int, TrackClassifier] = {}
     if args.classifier.strip().lower() != "none":
-        crop_clf = named_crop_classifier(
+        crop_clf = load_crop_classifier(
             args.classifier, single_view=args.single_view, num_threads=args.classifier_threads
         )
         variants = {int(k): EVTrackClassifier(crop_clf, every=int(k)) for k in args.classify_every.split(",")}

@@ -18,12 +18,12 @@ from makeway.eval.actor_sweep import (
     TRACK_LABELS,
     ClipRecord,
     actor_predictions,
-    cached_clip,
     read_track_labels,
     relative_change,
     sweep,
 )
 from makeway.perceive.vision.ev_classifier import DEFAULT_MODEL
+from makeway.pipeline.clip_record import cached_clip
 
 CLIP = "night_ambulance_lights"
 

@@ -22,7 +22,6 @@ from makeway.perceive.audio.motion import (
     TREND_HORIZONS_S,
     ApproachEstimator,
     TrendApproach,
-    get_approach_method,
 )
 from makeway.perceive.audio.siren_model import DEFAULT_SIREN_MODEL, SirenModel
 from makeway.perceive.audio.stream import default_approach, listen
@@ -108,9 +107,9 @@ def test_trend_approach_settings_and_model_errors(tmp_path: Path) -> None:
     with pytest.raises(InputError, match="reads the features"):
         TrendApproach(DEFAULT_APPROACH_MODEL, horizons=(1.0, 2.0))
     assert set(APPROACH_METHODS) == {"level", "trend"}
-    assert get_approach_method("level") is ApproachEstimator
+    assert APPROACH_METHODS["level"] is ApproachEstimator
     with pytest.raises(ValueError, match="unknown approach method 'doppler'"):
-        get_approach_method("doppler")
+        APPROACH_METHODS["doppler"]
 
 
 def test_approach_report_counts_undecided_as_wrong() -> None:

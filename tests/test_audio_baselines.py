@@ -183,7 +183,7 @@ def test_evaluate_returns_all_keys(tiny_recordings: Path) -> None:
     assert res["windows"] == 2 * 5 and res["negatives"] >= 5
     assert 0.0 <= res["accuracy"] <= 1.0
     assert sum(b["n"] for b in res["by_distance"]) == res["positives"]
-    with pytest.raises(ValueError, match="unknown DOA method"):
+    with pytest.raises(ValueError, match="unknown bearing estimator"):
         evaluate(paths, "beamformer")
 
 

@@ -11,17 +11,19 @@ from typer.testing import CliRunner
 
 from makeway.cli.main import app
 from makeway.fuse.relation import classify_relation
-from makeway.messages import EVRelation
-from makeway.pipeline.closed_loop import ClosedLoopResult, _corners, rect_distance, run_scenario
-from makeway.sim.perception import EVTruth, PerceptionConfig, SimulatedPerception
-from makeway.sim.scenarios import SCENARIOS, get_scenario
+from makeway.geometry import rect_distance, rectangle_corners
+from makeway.messages import EVRelation, VehicleState
+from makeway.pipeline.closed_loop import ClosedLoopResult, run_scenario
+from makeway.sim.perception import PerceptionConfig, SimulatedPerception
+from makeway.sim.scenarios import SCENARIOS
+from makeway.sim.world import EVTruth, SimWorld
 
 runner = CliRunner()
 
 
 @pytest.fixture(scope="module")
 def results() -> dict[str, ClosedLoopResult]:
-    return {name: run_scenario(get_scenario(name)) for name in SCENARIOS}
+    return {name: run_scenario(SCENARIOS[name]()) for name in SCENARIOS}
 
 
 @pytest.mark.parametrize("name", list(SCENARIOS))
@@ -54,14 +56,14 @@ def test_seed003_meets_the_targets(results: dict[str, ClosedLoopResult]) -> None
 def test_ffb_beats_stanley_and_pure_pursuit(results: dict[str, ClosedLoopResult]) -> None:
     ffb = results["seed003"].metrics["max_abs_e_lat_m"]
     for ctrl in ("stanley", "pure_pursuit"):
-        other = run_scenario(get_scenario("seed003"), controller=ctrl).metrics
+        other = run_scenario(SCENARIOS["seed003"](), controller=ctrl).metrics
         assert other["action"] == "pull_over_and_stop" and not other["collision"]
         assert ffb < other["max_abs_e_lat_m"], ctrl
 
 
 def test_crossing_stops_before_the_intersection(results: dict[str, ClosedLoopResult]) -> None:
     r = results["crossing"]
-    s0, _ = get_scenario("crossing").intersections[0]
+    s0, _ = SCENARIOS["crossing"]().intersections[0]
     stop_t = next(t for t, _, to, _ in r.transitions if to == "stopped_waiting")
     i = int(round(stop_t / 0.01))
     assert r.log["lane_s"][i] + 2.4 < s0  # the front bumper is short of the intersection
@@ -76,26 +78,30 @@ def test_signals_off_resumes_and_follows(results: dict[str, ClosedLoopResult]) -
 
 def test_unknown_controller_and_scenario() -> None:
     with pytest.raises(ValueError, match="stanley"):
-        run_scenario(get_scenario("no_ev"), controller="bang_bang")
+        run_scenario(SCENARIOS["no_ev"](), controller="bang_bang")
     with pytest.raises(ValueError, match="seed003"):
-        get_scenario("nope")
+        SCENARIOS["nope"]()
 
 
 def test_perception_latency_rate_and_range() -> None:
+    world = SimWorld()
     sensing = SimulatedPerception(
-        PerceptionConfig(latency_s=0.3, rate_hz=10, dropout_prob=0.0, burst_prob_per_s=0.0)
+        PerceptionConfig(latency_s=0.3, rate_hz=10, dropout_prob=0.0, burst_prob_per_s=0.0), world
     )
     first = None
     for i in range(200):
         t = i * 0.01
-        ev = EVTruth(t, -40.0 + 5 * t, 0.0, 0.0, 5.0, lights=t >= 0.5, siren=t >= 0.5)
-        b = sensing.update(t, 0.0, 0.0, 0.0, ev)
+        world.ev = EVTruth(t, -40.0 + 5 * t, 0.0, 0.0, 5.0, lights=t >= 0.5, siren=t >= 0.5)
+        b = sensing.update(t, VehicleState(t, 0.0, 0.0, 0.0, 0.0))
         if b.detected and first is None:
             first = t
             assert b.relation is EVRelation.BEHIND and 30 < b.distance_m < 50
     assert first is not None and 0.5 + 0.3 - 1e-6 <= first <= 0.5 + 0.3 + 0.1 + 1e-6
-    far = SimulatedPerception(PerceptionConfig(range_m=50.0, dropout_prob=0.0, burst_prob_per_s=0.0))
-    b = far.update(1.0, 0.0, 0.0, 0.0, EVTruth(1.0, 80.0, 0.0, math.pi, 10.0, True, True))
+    far_world = SimWorld(EVTruth(1.0, 80.0, 0.0, math.pi, 10.0, True, True))
+    far = SimulatedPerception(
+        PerceptionConfig(range_m=50.0, dropout_prob=0.0, burst_prob_per_s=0.0), far_world
+    )
+    b = far.update(1.0, VehicleState(1.0, 0.0, 0.0, 0.0, 0.0))
     assert not b.detected
 
 
@@ -107,10 +113,10 @@ def test_relation_classification() -> None:
 
 
 def test_rectangle_gap() -> None:
-    a = _corners(0.0, 0.0, 0.0, 4.0, 2.0)
-    assert rect_distance(a, _corners(10.0, 0.0, 0.0, 4.0, 2.0)) == pytest.approx(6.0)
-    assert rect_distance(a, _corners(0.0, 5.0, 0.0, 4.0, 2.0)) == pytest.approx(3.0)
-    assert rect_distance(a, _corners(3.0, 0.5, 0.3, 4.0, 2.0)) == 0.0
+    a = rectangle_corners(0.0, 0.0, 0.0, 4.0, 2.0)
+    assert rect_distance(a, rectangle_corners(10.0, 0.0, 0.0, 4.0, 2.0)) == pytest.approx(6.0)
+    assert rect_distance(a, rectangle_corners(0.0, 5.0, 0.0, 4.0, 2.0)) == pytest.approx(3.0)
+    assert rect_distance(a, rectangle_corners(3.0, 0.5, 0.3, 4.0, 2.0)) == 0.0
 
 
 def test_cli_simulate_json_and_plots(tmp_path: Path) -> None:
@@ -141,7 +147,7 @@ def test_cli_simulate_json_and_plots(tmp_path: Path) -> None:
 
 
 def test_demo_writes_the_report(tmp_path: Path) -> None:
-    from makeway.pipeline.demo import run_demo
+    from makeway.apps.demo import run_demo
 
     out = tmp_path / "demo"
     s = run_demo(out, write_video=False, progress=False, tracking_duration_s=4.0)

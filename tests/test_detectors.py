@@ -17,7 +17,6 @@ from makeway.perceive.vision.detectors import (
     Detector,
     NanoDetM,
     YoloxNano,
-    create_detector,
     nms,
     resolve_model_path,
 )
@@ -59,12 +58,12 @@ def night_frame(shared_data: Path) -> np.ndarray:
 
 @pytest.fixture(scope="module")
 def yolox(shared_data: Path) -> Detector:
-    return create_detector("yolox_nano", num_threads=2)
+    return DETECTORS["yolox_nano"](num_threads=2)
 
 
 @pytest.fixture(scope="module")
 def nanodet(shared_data: Path) -> Detector:
-    return create_detector("nanodet_m", num_threads=2)
+    return DETECTORS["nanodet_m"](num_threads=2)
 
 
 @pytest.fixture(scope="module")
@@ -228,19 +227,19 @@ def test_blank_image_gives_empty_arrays(yolox: Detector, nanodet: Detector) -> N
 
 
 def test_class_filter_threshold_and_agnostic_nms(shared_data: Path, night_frame: np.ndarray) -> None:
-    only_cars = create_detector("yolox_nano", classes=[2], num_threads=2)
+    only_cars = DETECTORS["yolox_nano"](classes=[2], num_threads=2)
     _, _, class_ids = only_cars.detect_arrays(night_frame)
     assert len(class_ids) >= 4 and set(class_ids.tolist()) == {2}
 
-    strict = create_detector("yolox_nano", score_threshold=0.7, num_threads=2)
+    strict = DETECTORS["yolox_nano"](score_threshold=0.7, num_threads=2)
     _, scores, _ = strict.detect_arrays(night_frame)
     assert len(scores) >= 2 and scores.min() >= 0.7
 
     # Frame 72: YOLOX calls the ambulance both "truck" and "bus"; class-aware NMS keeps both boxes,
     # class-agnostic NMS keeps one.
     frame = _read_frame(shared_data, "night_ambulance_lights.mp4", 72)
-    aware = create_detector("yolox_nano", num_threads=2)
-    agnostic = create_detector("yolox_nano", num_threads=2, class_agnostic=True)
+    aware = DETECTORS["yolox_nano"](num_threads=2)
+    agnostic = DETECTORS["yolox_nano"](num_threads=2, class_agnostic=True)
     ab, _, _ = aware.detect_arrays(frame)
     gb, _, _ = agnostic.detect_arrays(frame)
     assert len(gb) < len(ab)
@@ -253,18 +252,18 @@ def test_class_filter_threshold_and_agnostic_nms(shared_data: Path, night_frame:
 
 def test_registry_and_factory(shared_data: Path, models: Path) -> None:
     assert dict(DETECTORS) == {"yolox_nano": YoloxNano, "nanodet_m": NanoDetM}
-    det = create_detector("nanodet_m", models, score_threshold=0.4, nms_iou=0.5, num_threads=1)
+    det = DETECTORS["nanodet_m"](models, score_threshold=0.4, nms_iou=0.5, num_threads=1)
     assert isinstance(det, NanoDetM)
     assert det.model_path == models / "nanodet_m_416.onnx"  # a folder is joined with the default name
     assert (det.score_threshold, det.nms_iou, det.num_threads) == (0.4, 0.5, 1)
-    assert create_detector().name == "yolox_nano"
+    assert DETECTORS["yolox_nano"]().name == "yolox_nano"
     assert len(COCO_CLASSES) == 80
     assert [COCO_CLASSES[c] for c in VEHICLE_CLASSES] == ["car", "motorcycle", "bus", "truck"]
 
 
 def test_unknown_detector_name() -> None:
-    with pytest.raises(ValueError, match=r"unknown detector 'yolo'.*nanodet_m, yolox_nano"):
-        create_detector("yolo")
+    with pytest.raises(ValueError, match=r"unknown detector 'yolo'.*yolox_nano, nanodet_m"):
+        DETECTORS["yolo"]()
 
 
 @pytest.mark.parametrize(
@@ -311,7 +310,7 @@ def test_missing_model_lists_every_folder(tmp_path: Path, monkeypatch: pytest.Mo
     folders = [tmp_path / "env_models", tmp_path / "data" / "models"]
     monkeypatch.setattr(detectors_module, "models_candidates", lambda: folders)
     with pytest.raises(InputError) as info:
-        create_detector("nanodet_m")
+        DETECTORS["nanodet_m"]()
     msg = str(info.value)
     for folder in folders:
         assert str(folder / "nanodet_m_416.onnx") in msg

@@ -183,16 +183,16 @@ def test_cli_train_rejects_bad_blocks_and_logreg_distillation(ev_root: Path) -> 
     assert r.exit_code == 2 and "distillation is for the CNN" in r.output
 
 
-def test_named_crop_classifiers(tmp_path: Path) -> None:
+def test_load_crop_classifiers(tmp_path: Path) -> None:
     from makeway.perceive.vision.cnn_classifier import OnnxCropClassifier
-    from makeway.perceive.vision.ev_classifier import FAST_MODEL, named_crop_classifier
+    from makeway.perceive.vision.ev_classifier import FAST_MODEL, load_crop_classifier
 
-    assert isinstance(named_crop_classifier("default"), EVCropClassifier)
-    fast = named_crop_classifier(" Fast ")
+    assert isinstance(load_crop_classifier("default"), EVCropClassifier)
+    fast = load_crop_classifier(" Fast ")
     assert isinstance(fast, OnnxCropClassifier) and fast.input_size == 64
-    assert named_crop_classifier(FAST_MODEL).input_size == 64  # a file works too
+    assert load_crop_classifier(FAST_MODEL).input_size == 64  # a file works too
     with pytest.raises(InputError, match=r"nowhere\.onnx"):
-        named_crop_classifier(tmp_path / "nowhere.onnx")
+        load_crop_classifier(tmp_path / "nowhere.onnx")
 
 
 def test_cli_detect_single_view(video_dir: Path, tmp_path: Path) -> None:
@@ -208,9 +208,9 @@ def test_cli_detect_single_view(video_dir: Path, tmp_path: Path) -> None:
 def test_imagenet_head_on_the_holdout(ev_split: tuple[CropSet, CropSet]) -> None:
     """The EfficientNet-Lite0 head (``--model imagenet``): the most accurate on still crops."""
     from makeway.perceive.vision.backbone import IMAGENET_BLOCKS
-    from makeway.perceive.vision.ev_classifier import IMAGENET_MODEL, named_crop_classifier
+    from makeway.perceive.vision.ev_classifier import IMAGENET_MODEL, load_crop_classifier
 
-    head = named_crop_classifier("imagenet", num_threads=2)
+    head = load_crop_classifier("imagenet", num_threads=2)
     assert isinstance(head, EVCropClassifier) and head.blocks == IMAGENET_BLOCKS and head.flip
     assert IMAGENET_MODEL.stat().st_size < 200_000
     # stage6 and head (average + max per channel) and the 1000 ImageNet class scores

@@ -18,7 +18,7 @@ from makeway.pipeline.siren_perception import SirenPerceptionConfig
 from makeway.sense.recording import Trajectory
 from makeway.sim.acoustics import SPEED_OF_SOUND, db_spl_to_pa, simulate_array
 from makeway.sim.live_array import LiveArraySimulator, LiveAudioConfig
-from makeway.sim.scenarios import get_scenario
+from makeway.sim.scenarios import SCENARIOS
 
 runner = CliRunner()
 SR = 48_000
@@ -195,7 +195,7 @@ def test_outliers_are_gated_then_restart_the_track() -> None:
 
 
 def test_seed003_heard_by_the_siren_stack() -> None:
-    res = run_scenario(get_scenario("seed003"), perception=SirenPerceptionConfig())
+    res = run_scenario(SCENARIOS["seed003"](), perception=SirenPerceptionConfig())
     m = res.metrics
     assert m["action"] == "pull_over_and_stop" and m["stopped"] and not m["collision"]
     assert m["time_active_to_detected_s"] is not None and m["time_active_to_detected_s"] < 2.5
@@ -207,7 +207,7 @@ def test_seed003_heard_by_the_siren_stack() -> None:
 
 
 def test_crossing_heard_waits_until_the_ev_has_crossed() -> None:
-    res = run_scenario(get_scenario("crossing"), perception=SirenPerceptionConfig())
+    res = run_scenario(SCENARIOS["crossing"](), perception=SirenPerceptionConfig())
     m = res.metrics
     assert m["stopped"] and not m["collision"] and m["stopped_clear_of_intersections"]
     passed = [t for t, _, to, _ in res.transitions if to == YieldState.EV_PASSED.value]

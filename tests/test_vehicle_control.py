@@ -22,7 +22,8 @@ from makeway.control import (
 )
 from makeway.messages import ControlCommand, ReferencePath, TrackingErrors, VehicleState
 from makeway.plan.path import make_path
-from makeway.sim.vehicle import SingleTrackModel, VehicleParams, lateral_dynamics_matrices
+from makeway.sim.vehicle import SingleTrackModel
+from makeway.vehicle import VehicleParams, lateral_dynamics_matrices
 
 P = VehicleParams()
 DT = 0.01

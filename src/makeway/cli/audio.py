@@ -300,12 +300,12 @@ def _siren_networks(
 def _approach_estimator(name: str | None, net: SirenModel | None) -> Any:
     """The approach estimator named by ``--approach`` (None: :func:`~makeway.perceive.audio.stream
     .default_approach`); ``trend`` needs the network's distances."""
-    from makeway.perceive.audio.motion import get_approach_method
+    from makeway.perceive.audio.motion import APPROACH_METHODS
     from makeway.perceive.audio.stream import default_approach
 
     if name is None:
         return default_approach(net)
-    cls = get_approach_method(name)
+    cls = APPROACH_METHODS[name]
     if name == "trend" and net is None:
         raise ValueError("--approach trend reads the network's distances; it cannot run with --baseline")
     return cls()

@@ -283,7 +283,7 @@ def build_ambulance_crops(
 
     from makeway.paths import data_dir
     from makeway.perceive.vision.crops import detection_crop_items
-    from makeway.perceive.vision.detectors import create_detector
+    from makeway.perceive.vision.detectors import DETECTORS
     from makeway.progress import progress_bar
     from makeway.sense.crops import read_yolo_set, roboflow_source, write_crop_folder
 
@@ -295,8 +295,8 @@ def build_ambulance_crops(
             )
         data = base / "vision" / "ambulance_yolo" / "valid"
     images = read_yolo_set(data)
-    det = create_detector(
-        detector, model, score_threshold=score_threshold, class_agnostic=True, num_threads=threads
+    det = DETECTORS[detector](
+        model, score_threshold=score_threshold, class_agnostic=True, num_threads=threads
     )
     counts = {"positive": 0, "negative": 0, "boxes": 0}
 
@@ -363,13 +363,13 @@ def _teacher_targets(
     probabilities (soft targets) and decisions, leaving out crops that are near-duplicates of a
     held-out crop (they would leak the test set into training). Returns ``(images, probabilities,
     labels, description)``."""
-    from makeway.perceive.vision.ev_classifier import named_crop_classifier
+    from makeway.perceive.vision.ev_classifier import load_crop_classifier
     from makeway.perceive.vision.mining import list_pool, score_pool
     from makeway.progress import progress_bar
     from makeway.sense.crops import CropSet, near_duplicates_of
 
     files = [f for pool in pools for f in list_pool(pool)]  # every pool checked before any work
-    model = named_crop_classifier(teacher)
+    model = load_crop_classifier(teacher)
     with progress_bar(
         "teacher on the unlabelled crops", len(files), enabled=progress, unit="crops"
     ) as advance:
@@ -697,10 +697,10 @@ def eval_cmd(
     line last.
 
     On ev_crops only the committed held-out part is scored."""
-    from makeway.perceive.vision.ev_classifier import SHIPPED_MODELS, named_crop_classifier
+    from makeway.perceive.vision.ev_classifier import SHIPPED_MODELS, load_crop_classifier
     from makeway.sense.crops import read_crop_folder
 
-    clf = named_crop_classifier(model)
+    clf = load_crop_classifier(model)
     crops = read_crop_folder(data)
     split = _ev_crops_split(crops)
     if split is not None:
@@ -751,10 +751,10 @@ def mine(
     false positive — ranked for review: OUT/candidates.csv (rank, image, probability, blank
     emergency), OUT/contact_sheet.png (top N) and OUT/labels_template.csv (image,emergency, ready to
     fill and append to a crop folder). Unreadable files are skipped and counted. One JSON line last."""
-    from makeway.perceive.vision.ev_classifier import named_crop_classifier
+    from makeway.perceive.vision.ev_classifier import load_crop_classifier
     from makeway.perceive.vision.mining import mine as mine_pool
 
-    clf = named_crop_classifier(model)
+    clf = load_crop_classifier(model)
     result = mine_pool(pool, clf, out, top=top, threshold=threshold, progress=not quiet)
     summary = result.summary()
     if result.unreadable:

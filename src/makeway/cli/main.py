@@ -17,7 +17,7 @@ from rich.table import Table
 
 from makeway import __version__
 from makeway.cli.common import console, err_console, friendly_errors, new_app, print_json_line
-from makeway.errors import InputError, MakewayError
+from makeway.errors import MakewayError
 
 app = new_app(
     "makeway",
@@ -95,9 +95,9 @@ def detect(
 
     track_classifier = None
     if classifier.strip().lower() != "none":
-        from makeway.perceive.vision.ev_classifier import EVTrackClassifier, named_crop_classifier
+        from makeway.perceive.vision.ev_classifier import EVTrackClassifier, load_crop_classifier
 
-        crop_classifier = named_crop_classifier(classifier, single_view=single_view)
+        crop_classifier = load_crop_classifier(classifier, single_view=single_view)
         track_classifier = EVTrackClassifier(crop_classifier, every=classify_every)
         getattr(track_classifier.classifier, "extractors", None)  # build them now: bad weights fail early
     out_dir = out if out is not None else Path("makeway_out") / video.stem
@@ -200,7 +200,7 @@ def demo(
     3) SORT + smoother on a simulated roadside camera. Writes OUT/report.md, OUT/summary.json, plots
     and an annotated video.
     """
-    from makeway.pipeline.demo import run_demo
+    from makeway.apps.demo import run_demo
 
     summary = run_demo(out, write_video=not no_video, progress=not as_json)
     if as_json:
@@ -297,37 +297,18 @@ def simulate(
     switching on to detection and to standstill, the closest approach, and the action taken.
     With --perception siren the EV is heard by the siren stack (--out adds siren.png, siren.jsonl).
     """
-    from makeway.pipeline.closed_loop import run_scenario
-    from makeway.sim.perception import PerceptionConfig
-    from makeway.sim.scenarios import get_scenario
+    from makeway.apps.simulate import simulate as run
 
-    if path is not None:
-        from makeway.plan.path import load_path_csv
-        from makeway.sim.scenarios import on_recorded_path
-
-        try:
-            scenario = on_recorded_path(load_path_csv(path))
-        except ValueError as exc:
-            raise InputError(path, str(exc)) from None
-    else:
-        scenario = get_scenario(name)
-    if perception not in ("simulated", "siren"):
-        raise ValueError(f"--perception must be simulated or siren, not {perception!r}")
-    if perception == "siren":
-        from makeway.pipeline.siren_perception import SirenPerceptionConfig
-        from makeway.sim.live_array import LiveAudioConfig
-
-        config: PerceptionConfig | SirenPerceptionConfig = SirenPerceptionConfig(
-            audio=LiveAudioConfig(seed=seed, siren=siren, noise=noise)
-        )
-    else:
-        config = PerceptionConfig(seed=seed)
-    result = run_scenario(scenario, controller=controller, perception=config)
-    files: dict[str, str] = {}
-    if out is not None:
-        from makeway.eval.closed_loop_report import write_closed_loop_report
-
-        files = write_closed_loop_report(result, scenario, out)
+    result, scenario, files = run(
+        name,
+        controller=controller,
+        perception=perception,
+        seed=seed,
+        siren=siren,
+        noise=noise,
+        path=path,
+        out=out,
+    )
     if as_json:
         print_json_line(result.metrics)
         return

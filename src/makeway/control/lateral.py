@@ -10,7 +10,7 @@ vehicle are fitted by a line or an arc (:mod:`makeway.plan.curvefit`), which giv
     δ    = δ_ff + δ_fb + δ_β
 
 ``δ_ff`` is the steady-state steering of the linear bicycle model on a circle of radius ``R`` (``C_f``,
-``C_r`` per axle, as in :mod:`makeway.sim.vehicle`). ``δ_β`` is not in seed 003: cornering steadily,
+``C_r`` per axle, as in :mod:`makeway.vehicle`). ``δ_β`` is not in seed 003: cornering steadily,
 the car's heading differs from the path tangent by its sideslip angle, so ``θ̃`` settles at
 ``θ̃_ss ≠ 0`` and seed 003's ``−k_θ·θ̃`` then holds a lateral error ``k_θ θ̃_ss / k_e`` (about 4 cm on
 R = 100 m at 15 m/s with the default gains). Feeding back ``θ̃ − θ̃_ss`` instead (Rajamani, *Vehicle
@@ -67,7 +67,8 @@ from scipy.optimize import minimize
 
 from makeway.messages import ReferencePath, TrackingErrors, VehicleState
 from makeway.plan.curvefit import ArcFit, LineFit, fit_local, tracking_errors, window
-from makeway.sim.vehicle import VehicleParams, lateral_dynamics_matrices
+from makeway.registry import Registry
+from makeway.vehicle import VehicleParams, lateral_dynamics_matrices
 
 __all__ = [
     "DEFAULT_DESIGN_SPEEDS_MPS",
@@ -436,8 +437,7 @@ class PurePursuit(_LocalFitController):
         return float(px[-1] + extra * math.cos(heading)), float(py[-1] + extra * math.sin(heading))
 
 
-LATERAL_CONTROLLERS: dict[str, type] = {
-    "ffb": FeedforwardFeedback,
-    "stanley": Stanley,
-    "pure_pursuit": PurePursuit,
-}
+LATERAL_CONTROLLERS: Registry[type] = Registry(
+    "lateral controller", {"ffb": FeedforwardFeedback, "stanley": Stanley, "pure_pursuit": PurePursuit}
+)
+"""Lateral controllers by name: ``LATERAL_CONTROLLERS[name](params)``."""

@@ -1,8 +1,9 @@
 """Per-actor EV metrics on real videos and the smoother-threshold sweep (SPEC §1, seed 000 Table 3).
 
 Framework B (detector → SORT → per-track crop classifier) runs over a clip once and every per-frame
-probability of every track is **recorded** (:func:`record_clip`, cached as ``.npz`` by
-:func:`cached_clip`), so that the smoother can then be replayed for any setting at no cost.
+probability of every track is **recorded** (:func:`makeway.pipeline.clip_record.record_clip`,
+cached as ``.npz`` by :func:`makeway.pipeline.clip_record.cached_clip`) as a :class:`ClipRecord`,
+so that the smoother can then be replayed for any setting at no cost.
 
 *Actors* are SORT tracks. Each track of a clip gets a label from a committed file
 (:data:`TRACK_LABELS`, see :func:`read_track_labels`): 1 when the box follows an emergency vehicle
@@ -25,7 +26,6 @@ figures seed 000 reports (relative to the ``T = 0`` row).
 from __future__ import annotations
 
 import csv
-import hashlib
 import io
 import json
 import math
@@ -39,7 +39,7 @@ import numpy as np
 from makeway.atomic import atomic_path
 from makeway.errors import InputError
 from makeway.eval.classification import precision_recall_f1, threshold_metrics
-from makeway.messages import EVObservation, EVState, Track
+from makeway.messages import EVObservation, EVState
 from makeway.track.smoother import TrackSmoother
 
 __all__ = [
@@ -52,9 +52,7 @@ __all__ = [
     "SweepRow",
     "TrackLabels",
     "actor_predictions",
-    "cached_clip",
     "read_track_labels",
-    "record_clip",
     "relative_change",
     "sweep",
 ]
@@ -160,132 +158,6 @@ class ClipRecord:
         if not (len(rec.frame) == len(rec.track_id) == len(rec.boxes) == len(rec.probability)):
             raise InputError(path, "track probability record with arrays of different lengths")
         return rec
-
-
-class _Recorder:
-    """A :class:`~makeway.pipeline.video.TrackClassifier` that remembers what the wrapped one said."""
-
-    def __init__(self, inner: Any) -> None:
-        self.inner = inner
-        self.rows: list[tuple[int, int, float, float, float, float, float]] = []
-
-    def classify(
-        self, image_bgr: np.ndarray, tracks: Sequence[Track], frame_index: int, time_s: float
-    ) -> list[EVObservation]:
-        obs: list[EVObservation] = self.inner.classify(image_bgr, tracks, frame_index, time_s)
-        for t, o in zip(tracks, obs, strict=True):
-            p = float("nan") if o.probability is None else float(o.probability)
-            self.rows.append((frame_index, t.track_id, t.box.x1, t.box.y1, t.box.x2, t.box.y2, p))
-        return obs
-
-
-def record_clip(
-    video: str | Path,
-    classifier: Any,
-    *,
-    model_path: str | Path | None = None,
-    max_frames: int | None = None,
-    progress: bool = False,
-) -> ClipRecord:
-    """Run Framework B over ``video`` with :data:`RECORD_CONFIG`; record every track's probability.
-
-    Args:
-        video: the clip.
-        classifier: a :class:`~makeway.pipeline.video.TrackClassifier` (e.g.
-            :class:`~makeway.perceive.vision.ev_classifier.EVTrackClassifier`).
-        model_path: detector ONNX file (default: searched).
-        max_frames: stop after this many frames.
-        progress: show a progress bar.
-    """
-    from makeway.perceive.vision.detectors import create_detector
-    from makeway.pipeline.video import run_video
-    from makeway.track.sort import Sort
-
-    cfg = RECORD_CONFIG
-    det = create_detector(
-        cfg["detector"],
-        model_path,
-        score_threshold=cfg["score_threshold"],
-        class_agnostic=cfg["class_agnostic"],
-        num_threads=cfg["detector_threads"],
-    )
-    recorder = _Recorder(classifier)
-    summary = run_video(
-        video,
-        None,
-        detector=det,
-        stride=cfg["stride"],
-        max_frames=max_frames,
-        write_video=False,
-        classifier=recorder,
-        tracker=Sort(**cfg["sort"]),
-        progress=progress,
-    )
-    rows = recorder.rows
-    arr = np.asarray(rows, dtype=np.float64).reshape(-1, 7)
-    return ClipRecord(
-        clip=Path(video).stem,
-        fps=float(summary.fps),
-        frames=int(summary.frames),
-        frame=arr[:, 0].astype(np.int64),
-        track_id=arr[:, 1].astype(np.int64),
-        boxes=arr[:, 2:6].copy(),
-        probability=arr[:, 6].copy(),
-        meta={"config": cfg, "max_frames": max_frames},
-    )
-
-
-def _sha256(path: Path) -> str:
-    h = hashlib.sha256()
-    with path.open("rb") as fh:
-        for chunk in iter(lambda: fh.read(1 << 20), b""):
-            h.update(chunk)
-    return h.hexdigest()
-
-
-def cached_clip(
-    video: str | Path,
-    cache_dir: str | Path,
-    head: str | Path,
-    *,
-    max_frames: int | None = None,
-    progress: bool = False,
-    single_view: bool = False,
-) -> tuple[ClipRecord, bool]:
-    """:func:`record_clip` with the crop classifier file ``head`` (``.npz`` head or ``.onnx`` CNN),
-    cached in ``cache_dir``; ``single_view`` judges each crop without its mirror image (heads only).
-
-    The cache key covers the clip (name and size), the head file's contents, :data:`RECORD_CONFIG`,
-    ``max_frames`` and ``single_view``; returns ``(record, from_cache)``.
-    """
-    from makeway.perceive.vision.ev_classifier import EVTrackClassifier, named_crop_classifier
-
-    video, head = Path(video), Path(head)
-    if not video.is_file():
-        raise InputError(video, "video not found")
-    key_src = json.dumps(
-        {
-            "clip": video.name,
-            "size": video.stat().st_size,
-            "head": _sha256(head) if head.is_file() else str(head),
-            "config": RECORD_CONFIG,
-            "max_frames": max_frames,
-            **({"single_view": True} if single_view else {}),
-        },
-        sort_keys=True,
-    )
-    key = hashlib.sha256(key_src.encode()).hexdigest()[:16]
-    target = Path(cache_dir) / f"{video.stem}.{key}.npz"
-    if target.is_file():
-        return ClipRecord.load(target), True
-    clf = EVTrackClassifier(
-        named_crop_classifier(head, single_view=single_view, num_threads=1),
-        margin=RECORD_CONFIG["crop_margin"],
-        min_width=RECORD_CONFIG["min_width_px"],
-    )
-    rec = record_clip(video, clf, max_frames=max_frames, progress=progress)
-    rec.save(target)
-    return rec, False
 
 
 # --------------------------------------------------------------------------------------- labels

@@ -2,42 +2,54 @@
 
 :func:`run_scenario` steps a built-in :class:`~makeway.sim.scenarios.Scenario` at 100 Hz:
 
-1. the EV moves along its own path (keeping a gap behind a vehicle in its lane);
-2. perception publishes an :class:`~makeway.messages.EVBelief`: simulated
-   (:class:`~makeway.sim.perception.SimulatedPerception`: latency, dropouts, noise; the default), or
-   the siren stack itself (:class:`~makeway.pipeline.siren_perception.SirenPerception`, with a
-   :class:`~makeway.pipeline.siren_perception.SirenPerceptionConfig`): the array's audio rendered
-   as the car drives, the shipped siren networks, and the fused EV track;
+1. the EV (:class:`~makeway.sim.ev_actor.EVActor`) moves along its own path, keeping a gap behind a
+   vehicle in its lane, and the simulated world (:class:`~makeway.sim.world.SimWorld`) shows it;
+2. a belief source (:class:`~makeway.fuse.source.BeliefSource`) publishes an
+   :class:`~makeway.messages.EVBelief`. ``perception`` picks it: any object with
+   ``build(scenario, world) -> BeliefSource``, e.g. a
+   :class:`~makeway.sim.perception.PerceptionConfig` (a model of perception: latency, dropouts,
+   noise; the default) or a :class:`~makeway.pipeline.siren_perception.SirenPerceptionConfig` (the
+   siren stack itself on the array's audio rendered as the car drives). :data:`PERCEPTIONS` names
+   them for the command line;
 3. the yield state machine decides at 20 Hz; the planner replans the reference path on a new
    manoeuvre;
 4. the lateral controller (feed-forward + feedback by default, or a baseline) and the longitudinal
    controller command the single-track vehicle model.
 
-Every step is logged; :class:`ClosedLoopResult` holds the log and the metrics the issue names
-(``max_abs_e_lat_m``, ``settled_abs_e_lat_m``, error ranges, comfort, timing, clearance, action).
+Every step is logged; :class:`ClosedLoopResult` holds the log and the metrics of
+:func:`makeway.eval.closed_loop.compute_metrics`.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 
 from makeway.control import LATERAL_CONTROLLERS, LongitudinalController
 from makeway.decide import YieldConfig, YieldStateMachine
+from makeway.eval.closed_loop import compute_metrics
 from makeway.frames import to_vehicle_frame
+from makeway.fuse.source import BeliefSource
+from makeway.geometry import rect_distance, rectangle_corners
 from makeway.messages import ControlCommand, EVBelief, RoadContext, SirenObservation, VehicleState, YieldState
-from makeway.perceive.audio.siren_model import SirenModel
-from makeway.pipeline.siren_perception import SirenPerception, SirenPerceptionConfig
-from makeway.plan.path import lateral_offsets, nearest_index, point_at
+from makeway.pipeline.siren_perception import SirenPerceptionConfig
+from makeway.plan.path import nearest_index, point_at
 from makeway.plan.planner import YieldPlanner
-from makeway.sim.perception import EVTruth, PerceptionConfig, SimulatedPerception
+from makeway.registry import Registry
+from makeway.sim.ev_actor import EVActor
+from makeway.sim.live_array import LiveAudioConfig
+from makeway.sim.perception import PerceptionConfig
 from makeway.sim.scenarios import EVPlan, Scenario
-from makeway.sim.vehicle import SingleTrackModel, VehicleParams
+from makeway.sim.vehicle import SingleTrackModel
+from makeway.sim.world import EVTruth, SimWorld
+from makeway.vehicle import VehicleParams
 
-EGO_LENGTH_M, EGO_WIDTH_M = 4.8, 1.85
+__all__ = ["DT_S", "PERCEPTIONS", "ClosedLoopResult", "PerceptionSpec", "run_scenario"]
+
 DT_S = 0.01
 DECIDE_EVERY = 5  # decisions at 20 Hz
 LOG_COLUMNS = [
@@ -87,77 +99,29 @@ class ClosedLoopResult:
     """With siren perception: every listener observation and the belief it gave."""
 
 
-# ----------------------------------------------------------------------------------------- geometry
+class PerceptionSpec(Protocol):
+    """Settings of one kind of perception that can build its belief source for a run."""
+
+    def build(self, scenario: Scenario, world: SimWorld) -> BeliefSource: ...
 
 
-def _corners(x: float, y: float, yaw: float, length: float, width: float) -> np.ndarray:
-    c, s = math.cos(yaw), math.sin(yaw)
-    hl, hw = 0.5 * length, 0.5 * width
-    local = np.array([[hl, hw], [hl, -hw], [-hl, -hw], [-hl, hw]])
-    return local @ np.array([[c, s], [-s, c]]) + np.array([x, y])
+def simulated_perception(seed: int = 0, **_: Any) -> PerceptionSpec:
+    """A model of perception (latency, dropouts, noise), seeded."""
+    return PerceptionConfig(seed=seed)
 
 
-def _overlap(a: np.ndarray, b: np.ndarray) -> bool:
-    """Separating-axis test for two convex quadrilaterals."""
-    for poly in (a, b):
-        for i in range(4):
-            edge = poly[(i + 1) % 4] - poly[i]
-            axis = np.array([-edge[1], edge[0]])
-            pa, pb = a @ axis, b @ axis
-            if pa.max() < pb.min() or pb.max() < pa.min():
-                return False
-    return True
+def siren_perception(
+    seed: int = 0, siren: str = "synth", noise: str = "generated", **_: Any
+) -> PerceptionSpec:
+    """The siren stack on the roof array's audio: ``siren`` synth|real, street ``noise`` generated|real."""
+    return SirenPerceptionConfig(audio=LiveAudioConfig(seed=seed, siren=siren, noise=noise))
 
 
-def _points_to_edges(p: np.ndarray, q: np.ndarray) -> float:
-    """Smallest distance from the corners ``p (4, 2)`` to the edges of rectangle ``q``."""
-    a = q
-    ab = np.roll(q, -1, axis=0) - q  # (4, 2) edges
-    ap = p[:, None, :] - a[None, :, :]  # (4 points, 4 edges, 2)
-    t = np.clip((ap * ab).sum(-1) / np.maximum((ab * ab).sum(-1), 1e-12), 0.0, 1.0)
-    d = ap - t[..., None] * ab
-    return float(np.sqrt((d * d).sum(-1)).min())
-
-
-def rect_distance(a: np.ndarray, b: np.ndarray) -> float:
-    """Gap between two rectangles (0 when they touch or overlap)."""
-    reach = float(np.ptp(a, axis=0).max() + np.ptp(b, axis=0).max())
-    centre_gap = float(np.linalg.norm(a.mean(axis=0) - b.mean(axis=0)))
-    if centre_gap > reach:  # far apart: the gap is at least this (exact enough for metrics)
-        return centre_gap - 0.5 * reach
-    if _overlap(a, b):
-        return 0.0
-    return min(_points_to_edges(a, b), _points_to_edges(b, a))
-
-
-# -------------------------------------------------------------------------------------------- the EV
-
-
-class _EVAgent:
-    """Moves an :class:`EVPlan` along its path, keeping a gap behind the ego when in its lane."""
-
-    def __init__(self, plan: EVPlan) -> None:
-        self.plan = plan
-        self.s = plan.start_s_m
-        self.v = plan.speed_mps(0.0)
-
-    def step(self, t: float, dt: float, ego_x: float, ego_y: float) -> EVTruth:
-        p = self.plan
-        want = p.speed_mps(t)
-        x, y, h = point_at(p.path, self.s)
-        # the ego in the EV's lane ahead of it: keep the gap (a simple car-following rule)
-        dx, dy = ego_x - x, ego_y - y
-        along = dx * math.cos(h) + dy * math.sin(h)
-        across = -dx * math.sin(h) + dy * math.cos(h)
-        if along > 0.0 and abs(across) < 0.5 * (p.width_m + EGO_WIDTH_M) + 0.3:
-            gap = along - 0.5 * (p.length_m + EGO_LENGTH_M)
-            want = min(want, max(0.0, (gap - p.min_gap_m) / 1.5))
-        accel = float(np.clip((want - self.v) / 1.0, -6.0, 3.0))
-        self.v = max(0.0, self.v + accel * dt)
-        self.s = min(self.s + self.v * dt, float(p.path.s_m[-1]))
-        x, y, h = point_at(p.path, self.s)
-        on = p.signals_on_s <= t < p.signals_off_s
-        return EVTruth(t, x, y, h, self.v, lights=on and p.lights, siren=on and p.siren)
+PERCEPTIONS: Registry[Callable[..., PerceptionSpec]] = Registry(
+    "perception", {"simulated": simulated_perception, "siren": siren_perception}
+)
+"""Kinds of perception by name: ``PERCEPTIONS[name](seed=..., **options)`` gives a spec for
+:func:`run_scenario` (``makeway simulate --perception NAME``)."""
 
 
 # ----------------------------------------------------------------------------------------- the loop
@@ -167,42 +131,31 @@ def run_scenario(
     scenario: Scenario,
     *,
     controller: str = "ffb",
-    perception: PerceptionConfig | SirenPerceptionConfig | None = None,
+    perception: PerceptionSpec | None = None,
     params: VehicleParams | None = None,
     yield_config: YieldConfig | None = None,
-    siren_model: SirenModel | None = None,
 ) -> ClosedLoopResult:
-    """Run ``scenario`` in closed loop with the lateral controller ``controller`` (registry name).
-
-    ``perception``: a :class:`~makeway.sim.perception.PerceptionConfig` (or ``None``) simulates
-    perception; a :class:`~makeway.pipeline.siren_perception.SirenPerceptionConfig` runs the siren
-    stack on simulated array audio, with ``siren_model`` (default: the shipped networks; pass one to
-    share it between runs)."""
-    if controller not in LATERAL_CONTROLLERS:
-        raise ValueError(f"unknown controller {controller!r}; available: {', '.join(LATERAL_CONTROLLERS)}")
+    """Run ``scenario`` in closed loop with the lateral controller ``controller`` (a name of
+    :data:`~makeway.control.LATERAL_CONTROLLERS`) and the belief source ``perception`` builds
+    (default: :class:`~makeway.sim.perception.PerceptionConfig`, the model of perception)."""
     params = params if params is not None else VehicleParams()
-    model = SingleTrackModel(params)
     lateral = LATERAL_CONTROLLERS[controller](params)
+    model = SingleTrackModel(params)
     longitudinal = LongitudinalController()
     fsm = YieldStateMachine(yield_config)
-    sensing: SimulatedPerception | SirenPerception
-    if isinstance(perception, SirenPerceptionConfig):
-        sensing = SirenPerception(
-            scenario.duration_s, perception, model=siren_model, initial_speed_mps=scenario.ego_speed_mps
-        )
-    else:
-        sensing = SimulatedPerception(perception)
+    world = SimWorld()
+    sensing = (perception if perception is not None else PerceptionConfig()).build(scenario, world)
     planner = YieldPlanner(
         scenario.lane, right_edge_offset_m=scenario.right_edge_offset_m, intersections=scenario.intersections
     )
     x0, y0, h0 = point_at(scenario.lane, scenario.ego_start_s_m)
     ego = VehicleState(0.0, x0, y0, h0, scenario.ego_speed_mps)
-    ev_agent = _EVAgent(scenario.ev) if scenario.ev is not None else None
+    ev_actor = EVActor(scenario.ev, params.length_m, params.width_m) if scenario.ev is not None else None
 
     n = int(round(scenario.duration_s / DT_S))
     log: dict[str, list[float]] = {k: [] for k in LOG_COLUMNS}
     states = list(YieldState)
-    decision = fsm.update(sensing.update(0.0, x0, y0, h0, None), ego, _road(scenario, 0.0))
+    decision = fsm.update(sensing.update(0.0, ego), ego, _road(scenario, 0.0))
     path = planner.path
     hint: int | None = None
     lane_hint: int | None = None
@@ -211,9 +164,9 @@ def run_scenario(
     actions: list[tuple[float, str, str]] = []  # (time, state, action) whenever the action changes
     for i in range(n):
         t = i * DT_S
-        if ev_agent is not None:
-            ev_truth = ev_agent.step(t, DT_S, ego.x_m, ego.y_m)
-        belief = sensing.update(t, ego.x_m, ego.y_m, ego.yaw_rad, ev_truth)
+        if ev_actor is not None:
+            ev_truth = world.ev = ev_actor.step(t, DT_S, ego.x_m, ego.y_m)
+        belief = sensing.update(t, ego)
         lane_k = nearest_index(scenario.lane, ego.x_m, ego.y_m, lane_hint)
         lane_hint = lane_k
         lane_s = float(scenario.lane.s_m[lane_k])
@@ -230,13 +183,13 @@ def run_scenario(
         stop_d = planner.distance_to_stop(ego.x_m, ego.y_m, hint) if decision.stop_s_m is not None else None
         target = decision.target_speed_mps
         if ev_truth is not None and scenario.ev is not None:
-            target = min(target, _follow_speed(ego, ev_truth, scenario.ev))
+            target = min(target, _follow_speed(ego, ev_truth, scenario.ev, params))
         accel_cmd = longitudinal.accel(ego, target, stop_d)
         gap = math.nan
         if ev_truth is not None and scenario.ev is not None:
             gap = rect_distance(
-                _corners(ego.x_m, ego.y_m, ego.yaw_rad, EGO_LENGTH_M, EGO_WIDTH_M),
-                _corners(
+                rectangle_corners(ego.x_m, ego.y_m, ego.yaw_rad, params.length_m, params.width_m),
+                rectangle_corners(
                     ev_truth.x_m,
                     ev_truth.y_m,
                     ev_truth.heading_rad,
@@ -279,19 +232,21 @@ def run_scenario(
 
     arrays = {k: np.asarray(v) for k, v in log.items()}
     transitions = [(t, a.value, b.value, why) for t, a, b, why in fsm.history]
-    metrics = compute_metrics(scenario, arrays, transitions, planner.replans, actions)
-    siren = sensing.observations if isinstance(sensing, SirenPerception) else []
+    metrics = compute_metrics(scenario, arrays, transitions, planner.replans, actions, params.length_m)
+    siren = list(getattr(sensing, "observations", []))
     return ClosedLoopResult(
         scenario.name, controller, metrics, arrays, transitions, planner.replans, paths, actions, siren
     )
 
 
-def _follow_speed(ego: VehicleState, ev: EVTruth, plan: EVPlan, time_gap_s: float = 1.5) -> float:
+def _follow_speed(
+    ego: VehicleState, ev: EVTruth, plan: EVPlan, params: VehicleParams, time_gap_s: float = 1.5
+) -> float:
     """Speed that keeps a 1.5 s gap (+ 2 m) behind the EV when it is ahead in the ego's lane (ACC)."""
     along, across = (float(v) for v in to_vehicle_frame(ev.x_m - ego.x_m, ev.y_m - ego.y_m, ego.yaw_rad))
-    if along <= 0.0 or abs(across) > 0.5 * (plan.width_m + EGO_WIDTH_M) + 0.3:
+    if along <= 0.0 or abs(across) > 0.5 * (plan.width_m + params.width_m) + 0.3:
         return math.inf
-    gap = along - 0.5 * (plan.length_m + EGO_LENGTH_M)
+    gap = along - 0.5 * (plan.length_m + params.length_m)
     desired = 2.0 + time_gap_s * ego.vx_mps
     return max(0.0, ev.speed_mps + (gap - desired) / 2.0)
 
@@ -304,96 +259,3 @@ def _road(scenario: Scenario, lane_s: float) -> RoadContext:
         intersections=scenario.intersections,
         speed_limit_mps=scenario.speed_limit_mps,
     )
-
-
-# ------------------------------------------------------------------------------------------ metrics
-
-
-def _first_time(transitions: list[tuple[float, str, str, str]], state: YieldState) -> float | None:
-    for t, _, to, _ in transitions:
-        if to == state.value:
-            return t
-    return None
-
-
-def compute_metrics(
-    scenario: Scenario,
-    log: dict[str, np.ndarray],
-    transitions: list[tuple[float, str, str, str]],
-    replans: list[tuple[float, str]],
-    actions: list[tuple[float, str, str]],
-) -> dict[str, Any]:
-    """The issue's closed-loop metrics from a run's log (definitions in the docstring lines below).
-
-    * manoeuvre: from the first replan (pull-over or stop in lane) until the vehicle is stopped
-      (or the run ends);
-    * ``max_abs_e_lat_m``, ``yaw_error_range_rad``, ``yaw_rate_error_range_rad_s``: over the manoeuvre
-      (the whole run when there is none);
-    * ``settled_abs_e_lat_m``: the largest |e_lat| in the last second before the vehicle stopped
-      (the last 2 s of the run if it never stopped);
-    * ``max_lat_accel_mps2`` = max |v_x·ψ̇|, ``max_jerk_mps3`` = max |d a_x / dt| (0.1 s smoothing);
-    * times from the EV's signals switching on to EV_CONFIRMED and to STOPPED_WAITING;
-    * ``min_distance_to_ev_m``: the smallest gap between the two vehicles' rectangles.
-    """
-    t = log["t"]
-    speeds = log["vx"]
-    on = np.flatnonzero(log["ev_on"] > 0.5)
-    t_on = float(t[on[0]]) if on.size else None
-    t_conf = _first_time(transitions, YieldState.EV_CONFIRMED)
-    t_stop = _first_time(transitions, YieldState.STOPPED_WAITING)
-    start = replans[0][0] if replans and replans[0][1] != "resume" else None
-    end = t_stop if t_stop is not None else float(t[-1])
-    man = (t >= start) & (t <= end) if start is not None else np.ones_like(t, dtype=bool)
-    if t_stop is not None:
-        settled = (t >= t_stop - 1.0) & (t <= t_stop)
-    else:
-        settled = t >= t[-1] - 2.0
-    ax = log["ax"]
-    k = max(1, int(round(0.1 / DT_S)))
-    ax_s = np.convolve(ax, np.ones(k) / k, mode="same")
-    jerk = np.abs(np.diff(ax_s)) / DT_S if len(ax_s) > 1 else np.zeros(1)
-    jerk = jerk[k:-k] if len(jerk) > 2 * k else jerk
-
-    gap = log["gap_to_ev"]
-    stopped = t_stop is not None
-    action = _action(actions)
-    rest = speeds < 0.2
-    front, rear = log["lane_s"] + 0.5 * EGO_LENGTH_M, log["lane_s"] - 0.5 * EGO_LENGTH_M
-    inter_ok = not any(np.any(rest & (front > s0) & (rear < s1)) for s0, s1 in scenario.intersections)
-    return {
-        "scenario": scenario.name,
-        "max_abs_e_lat_m": float(np.max(np.abs(log["e_lat"][man]))),
-        "settled_abs_e_lat_m": float(np.max(np.abs(log["e_lat"][settled]))),
-        "yaw_error_range_rad": [float(log["yaw_error"][man].min()), float(log["yaw_error"][man].max())],
-        "yaw_rate_error_range_rad_s": [
-            float(log["yaw_rate_error"][man].min()),
-            float(log["yaw_rate_error"][man].max()),
-        ],
-        "max_lat_accel_mps2": float(np.max(np.abs(log["vx"] * log["yaw_rate"]))),
-        "max_jerk_mps3": float(np.max(jerk)) if jerk.size else 0.0,
-        "time_active_to_detected_s": (t_conf - t_on) if (t_conf is not None and t_on is not None) else None,
-        "time_active_to_stopped_s": (t_stop - t_on) if (t_stop is not None and t_on is not None) else None,
-        "min_distance_to_ev_m": float(np.nanmin(gap)) if np.isfinite(gap).any() else None,
-        "collision": bool(np.isfinite(gap).any() and np.nanmin(gap) <= 0.0),
-        "stopped": stopped,
-        "stopped_clear_of_intersections": inter_ok,
-        "action": action,
-        "expected_action": scenario.expected_action,
-        "action_ok": action == scenario.expected_action,
-        "final_state": transitions[-1][2] if transitions else YieldState.NO_EV.value,
-        "final_speed_mps": float(speeds[-1]),
-        "max_offset_from_lane_m": float(
-            np.max(np.abs(lateral_offsets(scenario.lane, log["x"][::20], log["y"][::20])))
-        ),
-        "transitions": len(transitions),
-    }
-
-
-def _action(actions: list[tuple[float, str, str]]) -> str:
-    """What the decision did: its action when the ego came to a stop for the EV, else the first
-    action other than driving on (``"continue"`` when there was none)."""
-    moving = [a for _, st, a in actions if st == YieldState.MOVING_OVER.value and a != "clear_intersection"]
-    if moving:
-        return moving[-1]
-    others = [a for _, _, a in actions if a not in ("continue", "resume", "wait")]
-    return others[0] if others else "continue"

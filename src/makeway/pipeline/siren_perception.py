@@ -1,9 +1,9 @@
 """Siren perception inside the closed loop (SPEC §7): simulated array audio → the siren listener →
 the fused EV track → the :class:`~makeway.messages.EVBelief` the yield decision reads.
 
-:class:`SirenPerception` has the same ``update`` as the simulated perception
-(:class:`~makeway.sim.perception.SimulatedPerception`), so :func:`~makeway.pipeline.closed_loop.run_scenario`
-takes either. Per simulation step it
+:class:`SirenPerception` is a :class:`~makeway.fuse.source.BeliefSource`, as the simulated
+perception (:class:`~makeway.sim.perception.SimulatedPerception`) is, so
+:func:`~makeway.pipeline.closed_loop.run_scenario` takes either. Per simulation step it
 
 1. tells the array simulator (:class:`~makeway.sim.live_array.LiveArraySimulator`) where the ego
    and the EV are and whether the siren sounds;
@@ -27,33 +27,42 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from makeway.fuse.siren_track import SOURCE, SirenTrackFusion
-from makeway.messages import EVBelief, SirenObservation
+from makeway.messages import EVBelief, SirenObservation, VehicleState
 from makeway.perceive.audio.labels import HOP_S
 from makeway.perceive.audio.siren_model import SirenModel
 from makeway.perceive.audio.stream import SirenListener
 from makeway.sim.live_array import LiveArraySimulator, LiveAudioConfig
-from makeway.sim.perception import EVTruth
+from makeway.sim.scenarios import Scenario
+from makeway.sim.world import SimWorld
 
 
 @dataclass(frozen=True)
 class SirenPerceptionConfig:
-    """Settings of :class:`SirenPerception`: the simulated scene (``audio``), the hop, and the
-    compute latency added to each window's end."""
+    """Settings of :class:`SirenPerception`: the simulated scene (``audio``), the hop, the compute
+    latency added to each window's end, and the siren networks (``model``; default: the shipped
+    ones, loaded per run — pass one to share it between runs)."""
 
     audio: LiveAudioConfig = field(default_factory=LiveAudioConfig)
     hop_s: float = HOP_S
     latency_s: float = 0.02
+    model: SirenModel | None = field(default=None, compare=False, repr=False)
 
     def __post_init__(self) -> None:
         if self.hop_s <= 0 or self.latency_s < 0:
             raise ValueError("hop_s must be > 0 and latency_s >= 0")
 
+    def build(self, scenario: Scenario, world: SimWorld) -> SirenPerception:
+        """The siren stack for a closed-loop run of ``scenario`` in ``world``."""
+        return SirenPerception(
+            scenario.duration_s, self, world=world, initial_speed_mps=scenario.ego_speed_mps
+        )
+
 
 class SirenPerception:
     """Array audio → siren listener → EV track → belief, hop by hop (module docstring).
 
-    ``duration_s`` bounds the run; ``model`` is the siren network set (default: the shipped one);
-    ``initial_speed_mps`` the ego's speed at the start (the wind noise's reference).
+    ``duration_s`` bounds the run; ``world`` shows the EV's truth (where it is, whether its siren
+    sounds); ``initial_speed_mps`` is the ego's speed at the start (the wind noise's reference).
     """
 
     def __init__(
@@ -61,11 +70,13 @@ class SirenPerception:
         duration_s: float,
         config: SirenPerceptionConfig | None = None,
         *,
-        model: SirenModel | None = None,
+        world: SimWorld | None = None,
         initial_speed_mps: float = 0.0,
     ) -> None:
         self.config = config if config is not None else SirenPerceptionConfig()
+        self.world = world if world is not None else SimWorld()
         cfg = self.config
+        model = cfg.model
         self.array = LiveArraySimulator(duration_s, cfg.audio, initial_speed_mps=initial_speed_mps)
         sr = self.array.sample_rate
         self.model = model if model is not None else SirenModel()
@@ -86,11 +97,10 @@ class SirenPerception:
         self._last = EVBelief.nothing(0.0, source=SOURCE)
         self.observations: list[tuple[SirenObservation, EVBelief]] = []
 
-    def update(
-        self, time_s: float, ego_x: float, ego_y: float, ego_yaw: float, ev: EVTruth | None
-    ) -> EVBelief:
-        """Advance to ``time_s`` with the ego pose and the EV's truth; return the belief published
+    def update(self, time_s: float, ego: VehicleState) -> EVBelief:
+        """Advance to ``time_s`` (s) with the ego's state (world frame); return the belief published
         by then."""
+        ego_x, ego_y, ego_yaw, ev = ego.x_m, ego.y_m, ego.yaw_rad, self.world.ev
         self.array.observe(time_s, ego_x, ego_y, ego_yaw, None if ev is None else (ev.x_m, ev.y_m, ev.siren))
         sr = self.array.sample_rate
         while self._next_end / sr <= time_s + 1e-9:

@@ -32,7 +32,7 @@ import numpy as np
 
 from makeway.atomic import atomic_path, write_text_atomic
 from makeway.messages import Box, Detection, EVObservation, EVTrackState, PerceptionFrame, Track
-from makeway.perceive.vision.detectors import COCO_CLASSES, Detector, create_detector
+from makeway.perceive.vision.detectors import COCO_CLASSES, DETECTORS, Detector
 from makeway.progress import progress_bar
 from makeway.sense.video import VideoReader
 from makeway.track.smoother import TrackSmoother
@@ -59,7 +59,7 @@ class VisionPipeline:
     """One frame in, one :class:`PerceptionFrame` out (Framework B, SPEC §2).
 
     Args:
-        detector: a registered vehicle detector (see :func:`create_detector`).
+        detector: a registered vehicle detector (see :func:`DETECTORS`).
         tracker: the SORT tracker (default ``Sort()`` with the paper's 1 / 3 / 0.3).
         classifier: per-track EV classifier; without one, tracks carry no EV state.
         smoother: the per-track output smoother used with the classifier (default ``TrackSmoother()``).
@@ -333,8 +333,8 @@ def run_video(
             raise ValueError(f"detector_workers must be >= 1, got {workers}")
         threads = None if workers == 1 else 1
         detectors = [
-            create_detector(
-                detector, model, score_threshold=score_threshold, class_agnostic=True, num_threads=threads
+            DETECTORS[detector](
+                model, score_threshold=score_threshold, class_agnostic=True, num_threads=threads
             )
             for _ in range(workers)
         ]

@@ -62,12 +62,11 @@ from pathlib import Path
 
 import numpy as np
 
+from makeway.physics import P_REF_PA, SPEED_OF_SOUND
 from makeway.sense.recording import REFERENCE_FULL_SCALE_DB_SPL, Trajectory
 from makeway.sim.siren import AudioSource
 
-SPEED_OF_SOUND = 343.2
-"""m/s in air at 20 °C (331.3·√(1 + 20/273.15))."""
-P_REF = 20e-6
+P_REF = P_REF_PA
 FULL_SCALE_DB_SPL = REFERENCE_FULL_SCALE_DB_SPL
 FULL_SCALE_PA = P_REF * 10 ** (FULL_SCALE_DB_SPL / 20)
 MIN_DISTANCE_M = 1.0

@@ -26,12 +26,17 @@ from __future__ import annotations
 import math
 from collections import deque
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from makeway.frames import to_vehicle_frame
 from makeway.fuse.relation import classify_relation
-from makeway.messages import EVBelief
+from makeway.messages import EVBelief, VehicleState
+from makeway.sim.world import EVTruth, SimWorld
+
+if TYPE_CHECKING:
+    from makeway.sim.scenarios import Scenario
 
 
 @dataclass(frozen=True)
@@ -55,29 +60,22 @@ class PerceptionConfig:
         if not (0.0 <= self.dropout_prob < 1.0 and self.burst_prob_per_s >= 0.0):
             raise ValueError("dropout_prob must lie in [0, 1) and burst_prob_per_s be >= 0")
 
-
-@dataclass(frozen=True)
-class EVTruth:
-    """The true state of one EV at one instant (world frame)."""
-
-    time_s: float
-    x_m: float
-    y_m: float
-    heading_rad: float
-    speed_mps: float
-    lights: bool
-    siren: bool
+    def build(self, scenario: Scenario, world: SimWorld) -> SimulatedPerception:
+        """The belief source of these settings for a closed-loop run in ``world``."""
+        return SimulatedPerception(self, world)
 
 
 class SimulatedPerception:
     """Turns true states into delayed, noisy, dropped-out :class:`EVBelief` messages.
 
-    Call :meth:`update` every simulation step with the current time, the ego pose and the EV truth
-    (or ``None`` when the scenario has no EV); it returns the belief published at that time.
+    A :class:`~makeway.fuse.source.BeliefSource`: call :meth:`update` every simulation step with the
+    current time and the ego's state; it reads the EV's truth from ``world`` (``world.ev`` is
+    ``None`` when there is no EV) and returns the belief published at that time.
     """
 
-    def __init__(self, config: PerceptionConfig | None = None) -> None:
+    def __init__(self, config: PerceptionConfig | None = None, world: SimWorld | None = None) -> None:
         self.config = config if config is not None else PerceptionConfig()
+        self.world = world if world is not None else SimWorld()
         self._rng = np.random.default_rng(self.config.seed)
         self._pending: deque[tuple[float, EVBelief]] = deque()
         self._next_sample_s = 0.0
@@ -85,10 +83,10 @@ class SimulatedPerception:
         self._last: EVBelief | None = None
         self._prev_distance: tuple[float, float] | None = None
 
-    def update(
-        self, time_s: float, ego_x: float, ego_y: float, ego_yaw: float, ev: EVTruth | None
-    ) -> EVBelief:
+    def update(self, time_s: float, ego: VehicleState) -> EVBelief:
+        """The belief published by ``time_s`` (s) for the ego at ``ego`` (world frame)."""
         cfg = self.config
+        ego_x, ego_y, ego_yaw, ev = ego.x_m, ego.y_m, ego.yaw_rad, self.world.ev
         while time_s + 1e-9 >= self._next_sample_s:
             sample_t = self._next_sample_s
             self._next_sample_s += 1.0 / cfg.rate_hz

@@ -30,6 +30,7 @@ import numpy as np
 
 from makeway.messages import ReferencePath
 from makeway.plan.path import curved_road, make_path, offset_path, straight_road
+from makeway.registry import Registry
 
 LANE_WIDTH_M = 3.5
 
@@ -248,20 +249,15 @@ def on_recorded_path(lane: ReferencePath, *, ego_speed_mps: float = 13.4, ev_gap
     )
 
 
-#: Built-in scenarios by name (``makeway simulate NAME``).
-SCENARIOS: dict[str, Callable[[], Scenario]] = {
-    "seed003": seed003,
-    "curve_behind": curve_behind,
-    "oncoming": oncoming,
-    "crossing": crossing,
-    "signals_off": signals_off,
-    "no_ev": no_ev,
-}
-
-
-def get_scenario(name: str) -> Scenario:
-    """The built-in scenario ``name``; ``ValueError`` lists the names when unknown."""
-    try:
-        return SCENARIOS[name]()
-    except KeyError:
-        raise ValueError(f"unknown scenario {name!r}; built-in: {', '.join(SCENARIOS)}") from None
+SCENARIOS: Registry[Callable[[], Scenario]] = Registry(
+    "scenario",
+    {
+        "seed003": seed003,
+        "curve_behind": curve_behind,
+        "oncoming": oncoming,
+        "crossing": crossing,
+        "signals_off": signals_off,
+        "no_ev": no_ev,
+    },
+)
+"""Built-in scenarios by name: ``SCENARIOS[name]()`` builds one (``makeway simulate NAME``)."""

@@ -342,13 +342,11 @@ def fit_box_jitter(
     """
     import cv2
 
-    from makeway.perceive.vision.detectors import create_detector
+    from makeway.perceive.vision.detectors import DETECTORS
     from makeway.sense.crops import read_yolo_set
     from makeway.track.sort import iou_matrix
 
-    det = create_detector(
-        detector, model_path, score_threshold=0.3, class_agnostic=True, num_threads=num_threads
-    )
+    det = DETECTORS[detector](model_path, score_threshold=0.3, class_agnostic=True, num_threads=num_threads)
     rows: list[list[float]] = []
     for item in read_yolo_set(yolo_root):
         truth = np.array([[b.x1, b.y1, b.x2, b.y2] for b in item.boxes_of(class_id)], dtype=np.float64)

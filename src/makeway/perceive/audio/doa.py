@@ -36,7 +36,9 @@ from scipy.fft import irfft, next_fast_len, rfft
 from scipy.optimize import minimize
 
 from makeway.perceive.audio.features import BAND_HZ, frame_params, power_spectrogram
-from makeway.sim.acoustics import SPEED_OF_SOUND
+from makeway.perceive.audio.geometry import capsule_pairs, pair_delays
+from makeway.physics import SPEED_OF_SOUND
+from makeway.registry import Registry
 
 DoaMethod = Callable[[np.ndarray, np.ndarray, int], float]
 
@@ -120,13 +122,10 @@ def gcc_phat_delays(
 @functools.lru_cache(maxsize=8)
 def _gcc_geometry(mics_key: bytes, n_ch: int, sample_rate: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     mics = np.frombuffer(mics_key, dtype=np.float64).reshape(n_ch, 3)
-    pairs = np.array([(i, j) for i in range(n_ch) for j in range(i + 1, n_ch)], dtype=np.int64)
+    pairs = capsule_pairs(n_ch)
     d = mics[pairs[:, 0], :2] - mics[pairs[:, 1], :2]
     max_lags = np.ceil(np.hypot(d[:, 0], d[:, 1]) / SPEED_OF_SOUND * sample_rate).astype(np.int64) + 2
-    az = _azimuth_grid()
-    u = np.stack([np.cos(az), np.sin(az)], axis=1)
-    # far field: the capsule nearer the source hears it first, delay_i − delay_j = −(m_i − m_j)·u / c
-    expected = -(u @ d.T) / SPEED_OF_SOUND * sample_rate  # (grid, pairs) in samples
+    expected = pair_delays(mics, pairs, _azimuth_grid()).T * sample_rate  # (grid, pairs) in samples
     return pairs, max_lags, expected
 
 
@@ -188,20 +187,10 @@ def normmusic_bearing(window: np.ndarray, mics: np.ndarray, sample_rate: int) ->
     return _pra_bearing("NormMUSIC", window, mics, sample_rate)
 
 
-DOA_METHODS: dict[str, DoaMethod] = {
-    "gccphat": gccphat_bearing,
-    "srp": srp_bearing,
-    "normmusic": normmusic_bearing,
-}
+DOA_METHODS: Registry[DoaMethod] = Registry(
+    "bearing estimator", {"gccphat": gccphat_bearing, "srp": srp_bearing, "normmusic": normmusic_bearing}
+)
 """The classical bearing estimators by name (``makeway audio eval --baseline NAME``)."""
-
-
-def get_doa_method(name: str) -> DoaMethod:
-    """The estimator called ``name``; a ValueError naming the choices otherwise."""
-    try:
-        return DOA_METHODS[name]
-    except KeyError:
-        raise ValueError(f"unknown DOA method {name!r}; choose from {', '.join(DOA_METHODS)}") from None
 
 
 # ---------------------------------------------------------------------------------- siren detector

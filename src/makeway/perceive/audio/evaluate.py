@@ -46,7 +46,7 @@ from typing import Any
 
 import numpy as np
 
-from makeway.perceive.audio.doa import SirenEnergyDetector, get_doa_method, wrap_angle
+from makeway.perceive.audio.doa import DOA_METHODS, SirenEnergyDetector, wrap_angle
 from makeway.perceive.audio.features import window_batch
 from makeway.perceive.audio.labels import SMOOTH_AVERAGE, label_recording
 from makeway.sense.recording import Recording, assume_calibration, read_recording
@@ -159,7 +159,7 @@ WindowEstimator = Callable[[Recording, np.ndarray], tuple[np.ndarray, np.ndarray
 def baseline_estimator(method: str, detector: SirenEnergyDetector | None = None) -> WindowEstimator:
     """A classical method (:data:`~makeway.perceive.audio.doa.DOA_METHODS` name) with ``detector``
     (default: :class:`SirenEnergyDetector` with its shipped constants); no distance (NaN)."""
-    bearing = get_doa_method(method)
+    bearing = DOA_METHODS[method]
 
     def estimate(rec: Recording, windows: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         det = detector if detector is not None else SirenEnergyDetector(rec.sample_rate)

@@ -61,6 +61,7 @@ import numpy as np
 from makeway.errors import InputError
 from makeway.onnx_models import open_makeway_onnx
 from makeway.perceive.audio.features import BAND_HZ, frame_params, power_spectrogram
+from makeway.registry import Registry
 
 DB_PER_NEPER_RANGE = 20.0 / math.log(10.0)
 """Level slope (dB/s) per unit of relative range rate ṙ/r (1/s), with the sign flipped."""
@@ -389,16 +390,8 @@ class TrendApproach:
         return self.state_, hint
 
 
-APPROACH_METHODS = {"level": ApproachEstimator, "trend": TrendApproach}
+APPROACH_METHODS: Registry[type[ApproachEstimator] | type[TrendApproach]] = Registry(
+    "approach method", {"level": ApproachEstimator, "trend": TrendApproach}
+)
 """Approaching/receding estimators by name: ``level`` (level slope and Doppler; needs no network)
 and ``trend`` (the network's distance trend and those cues, through a trained classifier)."""
-
-
-def get_approach_method(name: str) -> type[ApproachEstimator] | type[TrendApproach]:
-    """The estimator class registered as ``name`` (:data:`APPROACH_METHODS`)."""
-    try:
-        return APPROACH_METHODS[name]
-    except KeyError:
-        raise ValueError(
-            f"unknown approach method {name!r}; choose from {', '.join(APPROACH_METHODS)}"
-        ) from None

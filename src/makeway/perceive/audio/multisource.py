@@ -45,7 +45,7 @@ import numpy as np
 from scipy.fft import rfft
 
 from makeway.perceive.audio.features import BAND_HZ
-from makeway.sim.acoustics import SPEED_OF_SOUND
+from makeway.perceive.audio.geometry import capsule_pairs, pair_delays
 
 __all__ = ["SourceSeparator"]
 
@@ -69,13 +69,11 @@ def _plan(
     """``(pairs, bins, steer_re, steer_im, window)``: ``steer (bins, pairs, azimuths)`` is
     ``exp(jωτ)`` for each in-band bin, pair and bearing."""
     mics = np.frombuffer(mics_key, dtype=np.float64).reshape(n_ch, 3)
-    pairs = np.array([(i, j) for i in range(n_ch) for j in range(i + 1, n_ch)], dtype=np.int64)
+    pairs = capsule_pairs(n_ch)
     f = np.fft.rfftfreq(NFFT, 1.0 / sample_rate)
     bins = np.flatnonzero((f >= BAND_HZ[0]) & (f <= BAND_HZ[1]))
     az = np.arange(n_azimuth) * (2.0 * math.pi / n_azimuth)
-    u = np.stack([np.cos(az), np.sin(az)], axis=1)
-    d = mics[pairs[:, 0], :2] - mics[pairs[:, 1], :2]
-    tau = -(d @ u.T) / SPEED_OF_SOUND  # (pairs, azimuths), as in doa._gcc_geometry
+    tau = pair_delays(mics, pairs, az)  # (pairs, azimuths)
     phase = 2.0 * math.pi * f[bins][:, None, None] * tau[None]  # (bins, pairs, azimuths)
     win = np.hanning(NFFT + 1)[:-1]
     return pairs, bins, np.cos(phase), np.sin(phase), win

@@ -44,8 +44,8 @@ from scipy.signal import sosfreqz
 
 from makeway.perceive.audio.doa import GCC_SELECT_DB
 from makeway.perceive.audio.features import BAND_HZ, LOG_FLOOR, _band_sos, frame_params, mel_filterbank
+from makeway.perceive.audio.geometry import capsule_pairs, pair_delays
 from makeway.sense.recording import REFERENCE_SAMPLE_RATE, reference_mics
-from makeway.sim.acoustics import SPEED_OF_SOUND
 
 __all__ = ["LEVEL_OFFSET_DB", "MIRROR_CHANNELS", "STREAMS", "SirenFeatureConfig", "SirenFeatures"]
 
@@ -87,7 +87,7 @@ class SirenFeatureConfig:
     @property
     def pairs(self) -> np.ndarray:
         n = self.n_channels
-        return np.array([(i, j) for i in range(n) for j in range(i + 1, n)], dtype=np.int64)
+        return capsule_pairs(n)
 
     def azimuths(self) -> np.ndarray:
         """The bearing grid (rad), ``n_azimuth`` points from 0, counter-clockwise."""
@@ -134,9 +134,7 @@ def _gcc_plan(config: SirenFeatureConfig, n_fft: int) -> tuple[int, int, int, np
     mics = np.asarray(config.mics, dtype=np.float64)
     pairs = config.pairs
     az = config.azimuths()
-    u = np.stack([np.cos(az), np.sin(az)], axis=1)
-    d = mics[pairs[:, 0], :2] - mics[pairs[:, 1], :2]
-    tau = -(d @ u.T) / SPEED_OF_SOUND  # (pairs, azimuths) seconds, as in doa._gcc_geometry
+    tau = pair_delays(mics, pairs, az)  # (pairs, azimuths) seconds
     steer = np.exp(1j * 2.0 * math.pi * tau[:, :, None] * centres[None, None, :]).astype(np.complex64)
     steer = np.concatenate([steer, steer], axis=0)  # the all-bin rows, then the selected-bin rows
     steer.setflags(write=False)

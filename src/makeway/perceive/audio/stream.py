@@ -46,7 +46,7 @@ from typing import Any
 import numpy as np
 
 from makeway.messages import SirenObservation, SirenSource
-from makeway.perceive.audio.doa import SirenEnergyDetector, detector_score, get_doa_method
+from makeway.perceive.audio.doa import DOA_METHODS, SirenEnergyDetector, detector_score
 from makeway.perceive.audio.features import band_level_db
 from makeway.perceive.audio.labels import HOP_S, LISTEN_SMOOTH, SMOOTH_AVERAGE, WINDOW_S, window_starts
 from makeway.perceive.audio.motion import DEFAULT_APPROACH_MODEL, ApproachEstimator, TrendApproach
@@ -83,7 +83,7 @@ class SirenListener:
         source: str | Path = "recording",
     ) -> None:
         self.smoother = StreamSmoother(smooth, average)
-        self.doa = get_doa_method(method)
+        self.doa = DOA_METHODS[method]
         self.mics = np.asarray(mics, dtype=np.float64)
         self.sample_rate = int(sample_rate)
         if model is not None:

@@ -9,7 +9,6 @@ from makeway.perceive.vision.detectors import (
     Detector,
     NanoDetM,
     YoloxNano,
-    create_detector,
     nms,
     resolve_model_path,
 )
@@ -22,7 +21,6 @@ __all__ = [
     "NanoDetM",
     "OnnxCropClassifier",
     "YoloxNano",
-    "create_detector",
     "nms",
     "resolve_model_path",
 ]

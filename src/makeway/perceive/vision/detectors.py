@@ -5,7 +5,7 @@ detector; only the vehicle classes (car 2, motorcycle 3, bus 5, truck 7, 0-based
 and the boxes feed the SORT tracker. Two interchangeable models are registered in :data:`DETECTORS`
 (in the style of ``pyroomacoustics.doa.algorithms``)::
 
-    det = create_detector("yolox_nano")          # or DETECTORS["nanodet_m"](model_path)
+    det = DETECTORS["yolox_nano"]()              # or DETECTORS["nanodet_m"](model_path)
     boxes, scores, class_ids = det.detect_arrays(frame_bgr)   # the fast path of the pipeline
     detections = det.detect(frame_bgr)                        # list[Detection] for everyone else
 
@@ -34,6 +34,7 @@ import numpy as np
 from makeway.errors import InputError
 from makeway.messages import Box, Detection
 from makeway.paths import models_candidates
+from makeway.registry import Registry
 
 __all__ = [
     "COCO_CLASSES",
@@ -42,7 +43,6 @@ __all__ = [
     "Detector",
     "NanoDetM",
     "YoloxNano",
-    "create_detector",
     "nms",
     "resolve_model_path",
 ]
@@ -669,22 +669,7 @@ class NanoDetM(Detector):
         return boxes, scores, class_ids
 
 
-#: The registered detectors by name (``create_detector(name)`` / ``DETECTORS[name](...)``).
-DETECTORS: dict[str, type[Detector]] = {YoloxNano.name: YoloxNano, NanoDetM.name: NanoDetM}
-
-
-def create_detector(
-    name: str = "yolox_nano", model_path: str | Path | None = None, **kwargs: Any
-) -> Detector:
-    """Build the registered detector ``name`` (see :data:`DETECTORS`); ``kwargs`` go to its constructor.
-
-    Raises:
-        ValueError: ``name`` is not registered (the message lists the names that are).
-        InputError: the model is missing or wrong (see :class:`Detector`).
-    """
-    try:
-        cls = DETECTORS[name]
-    except KeyError:
-        known = ", ".join(sorted(DETECTORS))
-        raise ValueError(f"unknown detector {name!r}; registered detectors: {known}") from None
-    return cls(model_path, **kwargs)
+DETECTORS: Registry[type[Detector]] = Registry(
+    "detector", {YoloxNano.name: YoloxNano, NanoDetM.name: NanoDetM}
+)
+"""The vehicle detectors by name: ``DETECTORS[name](model_path=None, **kwargs)``."""

@@ -34,6 +34,7 @@ from makeway.errors import InputError
 from makeway.messages import EVObservation, Track
 from makeway.perceive.vision.backbone import BACKBONES, DEFAULT_BLOCKS, BackboneFeatures, FeatureBlock
 from makeway.perceive.vision.crops import MIN_CROP_WIDTH_PX, crops_for_tracks
+from makeway.registry import Registry
 
 __all__ = [
     "DEFAULT_MODEL",
@@ -46,7 +47,6 @@ __all__ = [
     "EVCropClassifier",
     "EVTrackClassifier",
     "load_crop_classifier",
-    "named_crop_classifier",
     "shrink_copies",
 ]
 
@@ -61,12 +61,11 @@ FASTEST_MODEL = Path(__file__).resolve().parents[2] / "models" / "ev_cnn_small32
 #: The head on EfficientNet-Lite0 ImageNet features: the most accurate on still crops (0.940 held
 #: out), but far worse than the default on the real road videos (``docs/model_card_ev_head.md``).
 IMAGENET_MODEL = Path(__file__).resolve().parents[2] / "models" / "ev_head_imagenet.npz"
-SHIPPED_MODELS = {
-    "default": DEFAULT_MODEL,
-    "fast": FAST_MODEL,
-    "fastest": FASTEST_MODEL,
-    "imagenet": IMAGENET_MODEL,
-}
+SHIPPED_MODELS: Registry[Path] = Registry(
+    "crop classifier",
+    {"default": DEFAULT_MODEL, "fast": FAST_MODEL, "fastest": FASTEST_MODEL, "imagenet": IMAGENET_MODEL},
+)
+"""The shipped crop classifiers' files by name (:func:`load_crop_classifier` takes a name or a file)."""
 
 #: Version of the ``.npz`` layout written by :meth:`EVCropClassifier.save` (1: one YOLOX-nano block,
 #: no mirroring — still read).
@@ -440,39 +439,37 @@ class CropClassifier(Protocol):
     def predict_proba(self, images: np.ndarray) -> np.ndarray: ...
 
 
-def load_crop_classifier(path: str | Path = DEFAULT_MODEL, **kwargs: Any) -> CropClassifier:
-    """Load a crop classifier by file suffix — the one place the CLI and tools load models from.
+def load_crop_classifier(
+    model: str | Path = "default", *, single_view: bool = False, **kwargs: Any
+) -> CropClassifier:
+    """Load a crop classifier: a shipped one by name (:data:`SHIPPED_MODELS`: ``default``, the head on
+    detector-backbone features; ``fast``, the 64 px CNN; ``fastest``, the 32 px CNN; ``imagenet``, the
+    head on EfficientNet-Lite0 features) or a model file by suffix — ``.npz``: :meth:`EVCropClassifier.load`;
+    ``.onnx``: :class:`~makeway.perceive.vision.cnn_classifier.OnnxCropClassifier`.
 
-    ``.npz``: :meth:`EVCropClassifier.load` (YOLOX features + logistic head); ``.onnx``:
-    :class:`~makeway.perceive.vision.cnn_classifier.OnnxCropClassifier` (a CNN exported by
-    ``makeway classify export``). ``kwargs`` (e.g. ``num_threads``) go to the loader.
+    ``single_view`` makes a head judge each crop without its mirror image
+    (:attr:`EVCropClassifier.mirror_at_test`; CNNs have none). ``kwargs`` (e.g. ``num_threads``) go
+    to the loader.
 
     Raises:
-        InputError: the file is missing, has another suffix, or cannot be loaded (names the file).
+        InputError: the file is missing, has another suffix, or cannot be loaded (names the file; a
+            name that is neither shipped nor a file lists the shipped names).
     """
-    path = Path(path)
+    key = str(model).strip().lower()
+    path = SHIPPED_MODELS[key] if key in SHIPPED_MODELS else Path(model)
     suffix = path.suffix.lower()
     if suffix == ".npz":
-        return EVCropClassifier.load(path, **kwargs)
-    if suffix == ".onnx":
+        clf: CropClassifier = EVCropClassifier.load(path, **kwargs)
+    elif suffix == ".onnx":
         from makeway.perceive.vision.cnn_classifier import OnnxCropClassifier
 
-        return OnnxCropClassifier(path, **kwargs)
-    raise InputError(path, "unknown crop classifier format: expected a head .npz or a CNN .onnx")
-
-
-def named_crop_classifier(name: str | Path, *, single_view: bool = False, **kwargs: Any) -> CropClassifier:
-    """A shipped classifier by name — ``default`` (the head), ``fast`` (64 px CNN), ``fastest``
-    (32 px CNN), ``imagenet`` (the EfficientNet-Lite0 head) — or a model file
-    (:func:`load_crop_classifier`). ``single_view`` makes a head judge
-    each crop without its mirror image (:attr:`EVCropClassifier.mirror_at_test`; CNNs have none).
-    ``kwargs`` (e.g. ``num_threads``) go to the loader.
-
-    Raises:
-        InputError: a file that is missing or cannot be loaded (names it).
-    """
-    key = str(name).strip().lower()
-    clf = load_crop_classifier(SHIPPED_MODELS[key] if key in SHIPPED_MODELS else Path(name), **kwargs)
+        clf = OnnxCropClassifier(path, **kwargs)
+    elif not suffix and not path.exists():
+        raise InputError(
+            path, f"no such crop classifier; shipped: {', '.join(SHIPPED_MODELS)}, or a .npz/.onnx file"
+        )
+    else:
+        raise InputError(path, "unknown crop classifier format: expected a head .npz or a CNN .onnx")
     if single_view and isinstance(clf, EVCropClassifier):
         clf.mirror_at_test = False
     return clf

@@ -11,7 +11,7 @@
 2. **Every built-in scenario** (EV from behind on a curve, oncoming, crossing, signals switched off,
    no EV): the action taken, collisions, timing.
 3. **Tracking and smoothing** (SPEC §1–2): SORT and the per-track output smoother on a simulated
-   roadside camera (:mod:`makeway.pipeline.tracking_demo`), with an annotated video.
+   roadside camera (:mod:`makeway.apps.tracking_demo`), with an annotated video.
 
 Writes ``report.md`` and ``summary.json`` at the top of ``out_dir`` with sub-folders per part; the
 folder appears complete or not at all.
@@ -25,14 +25,14 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from makeway.apps.closed_loop_report import FIELD_TEST, write_closed_loop_report
+from makeway.apps.tracking_demo import run_tracking_demo
 from makeway.atomic import atomic_dir
-from makeway.eval.closed_loop_report import FIELD_TEST, write_closed_loop_report
 from makeway.jsonable import to_jsonable
 from makeway.pipeline.closed_loop import ClosedLoopResult, run_scenario
 from makeway.pipeline.siren_perception import SirenPerceptionConfig
-from makeway.pipeline.tracking_demo import run_tracking_demo
 from makeway.progress import progress_bar
-from makeway.sim.scenarios import SCENARIOS, get_scenario
+from makeway.sim.scenarios import SCENARIOS
 
 CONTROLLERS = ("ffb", "stanley", "pure_pursuit")
 
@@ -76,7 +76,7 @@ def run_demo(
         with progress_bar(
             "closed-loop scenarios", len(names) + len(CONTROLLERS), enabled=progress, unit="runs"
         ) as step:
-            seed = get_scenario("seed003")
+            seed = SCENARIOS["seed003"]()
             for ctrl in CONTROLLERS:
                 res = run_scenario(seed, controller=ctrl)
                 baselines[ctrl] = res.metrics
@@ -90,7 +90,7 @@ def run_demo(
             for name in names:
                 if name == "seed003":
                     continue
-                sc = get_scenario(name)
+                sc = SCENARIOS[name]()
                 res = run_scenario(sc)
                 runs[name] = res
                 write_closed_loop_report(res, sc, stage / "closed_loop" / name)

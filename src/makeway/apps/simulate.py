@@ -1,0 +1,48 @@
+"""``makeway simulate``: one closed-loop scenario run with its report."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from makeway.apps.closed_loop_report import write_closed_loop_report
+from makeway.errors import InputError
+from makeway.pipeline.closed_loop import PERCEPTIONS, ClosedLoopResult, run_scenario
+from makeway.plan.path import load_path_csv
+from makeway.sim.scenarios import SCENARIOS, Scenario, on_recorded_path
+
+__all__ = ["simulate"]
+
+
+def simulate(
+    name: str = "seed003",
+    *,
+    controller: str = "ffb",
+    perception: str = "simulated",
+    seed: int = 0,
+    siren: str = "synth",
+    noise: str = "generated",
+    path: str | Path | None = None,
+    out: str | Path | None = None,
+) -> tuple[ClosedLoopResult, Scenario, dict[str, str]]:
+    """Run the built-in scenario ``name`` (or seed 003's situation on the recorded x,y ``path``, a
+    CSV in metres) in closed loop and, with ``out``, write its plots and metrics there.
+
+    ``perception`` names a kind of :data:`~makeway.pipeline.closed_loop.PERCEPTIONS` (``simulated``
+    or ``siren``); ``seed`` seeds its noise (the siren's scene too); ``siren`` and ``noise`` choose
+    the siren stack's sources. Returns the run, the scenario and the files written (name → path).
+
+    Raises:
+        InputError: the recorded path cannot be read.
+        UnknownNameError: an unknown scenario, controller or perception (lists the known ones).
+    """
+    spec = PERCEPTIONS[perception](seed=seed, siren=siren, noise=noise)
+    if path is not None:
+        try:
+            scenario = on_recorded_path(load_path_csv(path))
+        except ValueError as exc:
+            raise InputError(path, str(exc)) from None
+    else:
+        scenario = SCENARIOS[name]()
+    result = run_scenario(scenario, controller=controller, perception=spec)
+    files = write_closed_loop_report(result, scenario, out) if out is not None else {}
+    return result, scenario, files
