@@ -34,8 +34,8 @@ from pathlib import Path
 from typing import Any
 
 from makeway.eval.siren_approach import approach_recordings, approach_scores
+from makeway.eval.siren_labels import label_recording
 from makeway.perceive.audio.features import window_batch
-from makeway.perceive.audio.labels import label_recording
 from makeway.perceive.audio.motion import APPROACH_METHODS, DEFAULT_APPROACH_MODEL, TrendApproach
 from makeway.perceive.audio.siren_model import SirenModel
 from makeway.progress import progress_bar

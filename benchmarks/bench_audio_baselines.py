@@ -22,10 +22,10 @@ from pathlib import Path
 
 import numpy as np
 
+from makeway.eval.siren import evaluate
+from makeway.eval.siren_labels import label_recording
 from makeway.perceive.audio.doa import DOA_METHODS, SirenEnergyDetector
-from makeway.perceive.audio.evaluate import evaluate
 from makeway.perceive.audio.features import window_batch
-from makeway.perceive.audio.labels import label_recording
 from makeway.sense.recording import read_recording
 from makeway.sim.audio_scenarios import generate_recordings
 

@@ -33,7 +33,7 @@ from typing import Any
 
 import numpy as np
 
-from makeway.perceive.audio.evaluate import evaluate, model_estimator
+from makeway.eval.siren import evaluate, model_estimator
 from makeway.perceive.audio.siren_model import DEFAULT_SIREN_LOCALIZER, DEFAULT_SIREN_RANGERS, SirenModel
 from makeway.progress import progress_bar
 from makeway.sense.recording import REFERENCE_FULL_SCALE_DB_SPL, Recording, read_recording

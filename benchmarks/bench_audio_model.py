@@ -35,9 +35,9 @@ from typing import Any
 
 import numpy as np
 
-from makeway.perceive.audio.evaluate import calibrate_threshold, evaluate, model_estimator
+from makeway.eval.siren import calibrate_threshold, evaluate, model_estimator
+from makeway.eval.siren_labels import label_recording
 from makeway.perceive.audio.features import window_batch
-from makeway.perceive.audio.labels import label_recording
 from makeway.perceive.audio.siren_model import DEFAULT_SIREN_MODEL, SirenModel
 from makeway.progress import progress_bar
 from makeway.sense.recording import read_recording

@@ -32,8 +32,8 @@ from pathlib import Path
 
 import numpy as np
 
+from makeway.eval.siren_labels import label_recording
 from makeway.perceive.audio.features import window_batch
-from makeway.perceive.audio.labels import label_recording
 from makeway.perceive.audio.multisource import SourceSeparator
 from makeway.perceive.audio.siren_model import MAX_SOURCES, NEAR_ALONE_M, SirenModel
 from makeway.progress import progress_bar

@@ -39,8 +39,8 @@ from typing import Any
 import numpy as np
 
 from makeway.errors import InputError
+from makeway.eval.siren_labels import label_recording
 from makeway.perceive.audio.features import window_batch
-from makeway.perceive.audio.labels import label_recording
 from makeway.perceive.audio.siren_model import SirenModel
 from makeway.progress import progress_bar
 from makeway.sense.recording import Recording, read_recording

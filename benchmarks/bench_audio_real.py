@@ -26,8 +26,8 @@ from pathlib import Path
 
 from makeway.eval.siren_mono import LEVEL_DBA, mono_check, mono_files
 from makeway.paths import data_dir
-from makeway.perceive.audio.labels import SMOOTH_AVERAGE
 from makeway.perceive.audio.siren_model import DEFAULT_SIREN_MODEL, SirenModel
+from makeway.perceive.audio.windows import SMOOTH_AVERAGE
 from makeway.progress import progress_bar
 
 

@@ -17,7 +17,7 @@ For every rule it prints, in 10–50 m, the recall and the false alarms per wind
 stored threshold, and the recall with the threshold set for ≤ ``--max-false-alarm`` false alarms
 on these windows. The rule picked is the one with the highest recall whose false alarms at the
 stored threshold are within the target; the listener's default
-(:data:`~makeway.perceive.audio.labels.LISTEN_SMOOTH`) was picked this way on 560 recordings
+(:data:`~makeway.eval.siren_labels.LISTEN_SMOOTH`) was picked this way on 560 recordings
 (``--data`` with seeds 301–306 and 77–78, see docs/benchmarks.md, twelfth session) and checked
 against the real mono material (``bench_audio_real.py --smooth K``).
 
@@ -36,15 +36,11 @@ from typing import Any
 
 import numpy as np
 
-from makeway.perceive.audio.evaluate import (
-    RANGE_10_50,
-    calibrate_threshold,
-    model_estimator,
-    smoothed_probability,
-)
+from makeway.eval.siren import RANGE_10_50, calibrate_threshold, model_estimator
+from makeway.eval.siren_labels import label_recording
 from makeway.perceive.audio.features import window_batch
-from makeway.perceive.audio.labels import LISTEN_SMOOTH, SMOOTH_AVERAGE, label_recording
 from makeway.perceive.audio.siren_model import DEFAULT_SIREN_MODEL, SirenModel
+from makeway.perceive.audio.windows import LISTEN_SMOOTH, SMOOTH_AVERAGE, smoothed_probability
 from makeway.progress import progress_bar
 from makeway.sense.recording import read_recording
 from makeway.sim.audio_scenarios import held_out_folders

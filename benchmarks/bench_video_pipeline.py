@@ -23,8 +23,8 @@ from pathlib import Path
 
 from makeway.paths import data_dir
 from makeway.perceive.vision.detectors import DETECTORS
-from makeway.perceive.vision.ev_classifier import EVTrackClassifier, load_crop_classifier
-from makeway.pipeline.video import TrackClassifier, VideoRunSummary, run_video
+from makeway.perceive.vision.ev_classifier import EVTrackClassifier, TrackClassifier, load_crop_classifier
+from makeway.pipeline.video import VideoRunSummary, run_video
 from makeway.sense.video import VideoReader
 
 TARGET = 2.0

@@ -14,8 +14,8 @@ from typer.testing import CliRunner
 from makeway.cli.audio import audio_app
 from makeway.errors import InputError
 from makeway.eval.siren_approach import MIN_RANGE_RATE_MPS, approach_report, approach_windows
+from makeway.eval.siren_labels import label_recording
 from makeway.perceive.audio.features import window_batch
-from makeway.perceive.audio.labels import label_recording
 from makeway.perceive.audio.motion import (
     APPROACH_METHODS,
     DEFAULT_APPROACH_MODEL,

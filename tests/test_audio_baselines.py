@@ -10,16 +10,17 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from makeway.eval.siren import METRIC_KEYS as EVAL_METRIC_KEYS
+from makeway.eval.siren import evaluate
+from makeway.eval.siren_labels import label_recording
 from makeway.perceive.audio.doa import (
     DOA_METHODS,
     SirenEnergyDetector,
     siren_energy_detector,
     wrap_angle,
 )
-from makeway.perceive.audio.evaluate import METRIC_KEYS as EVAL_METRIC_KEYS
-from makeway.perceive.audio.evaluate import evaluate, smoothed_probability
 from makeway.perceive.audio.features import bandpass, log_mel, mfcc, window_batch
-from makeway.perceive.audio.labels import label_recording
+from makeway.perceive.audio.windows import smoothed_probability
 from makeway.sense.recording import REFERENCE_SAMPLE_RATE, Trajectory, reference_mics, write_recording
 from makeway.sim.acoustics import (
     PointSource,

@@ -15,8 +15,8 @@ from typer.testing import CliRunner
 
 from makeway.cli.audio import audio_app
 from makeway.errors import InputError
+from makeway.eval.siren_labels import label_recording
 from makeway.perceive.audio.features import window_batch
-from makeway.perceive.audio.labels import label_recording
 from makeway.perceive.audio.siren_model import SirenModel
 from makeway.sense.calibration import measure_full_scale, write_full_scale
 from makeway.sense.recording import read_recording, write_recording

@@ -11,13 +11,15 @@ import pytest
 from typer.testing import CliRunner
 
 from makeway.cli.audio import audio_app
+from makeway.eval.siren_labels import label_recording
 from makeway.perceive.audio.doa import wrap_angle
 from makeway.perceive.audio.features import window_batch
-from makeway.perceive.audio.labels import LISTEN_SMOOTH, label_recording
 from makeway.perceive.audio.motion import ApproachEstimator
-from makeway.perceive.audio.stream import listen, plot_listen
+from makeway.perceive.audio.stream import listen
+from makeway.perceive.audio.windows import LISTEN_SMOOTH
 from makeway.sense.recording import Recording, write_recording
 from makeway.sim.audio_scenarios import simulate_recording
+from makeway.viz.listen_plot import plot_listen
 
 MESSAGE_KEYS = {"t_end", "is_siren", "probability", "smoothed_probability", "level_db_spl", "sources"}
 SOURCE_KEYS = {"bearing_rad", "bearing_deg", "distance_m", "approaching", "approach_probability"}

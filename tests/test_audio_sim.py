@@ -13,7 +13,8 @@ import soundfile as sf
 import yaml
 
 from makeway.errors import InputError
-from makeway.perceive.audio.labels import label_recording, window_starts
+from makeway.eval.siren_labels import label_recording
+from makeway.perceive.audio.windows import window_starts
 from makeway.sense.recording import (
     REFERENCE_FULL_SCALE_DB_SPL,
     REFERENCE_SAMPLE_RATE,

@@ -15,8 +15,8 @@ from typer.testing import CliRunner
 from makeway.cli.main import app
 from makeway.errors import InputError
 from makeway.perceive.vision.ev_classifier import DEFAULT_MODEL, load_crop_classifier
-from makeway.perceive.vision.mining import list_pool, mine
 from makeway.sense.crops import read_crop_folder
+from makeway.train.mining import list_pool, mine
 
 
 @pytest.fixture(scope="module")

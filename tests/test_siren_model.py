@@ -13,10 +13,10 @@ from typer.testing import CliRunner
 
 from makeway.cli.audio import audio_app
 from makeway.errors import InputError
+from makeway.eval.siren import METRIC_KEYS as EVAL_METRIC_KEYS
+from makeway.eval.siren_labels import label_recording
 from makeway.perceive.audio.doa import wrap_angle
-from makeway.perceive.audio.evaluate import METRIC_KEYS as EVAL_METRIC_KEYS
 from makeway.perceive.audio.features import bandpass, window_batch
-from makeway.perceive.audio.labels import label_recording
 from makeway.perceive.audio.siren_features import MIRROR_CHANNELS, SirenFeatureConfig, SirenFeatures
 from makeway.perceive.audio.siren_model import (
     DEFAULT_SIREN_LOCALIZER,

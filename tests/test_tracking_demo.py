@@ -9,10 +9,10 @@ import av
 import numpy as np
 import pytest
 
+from makeway.apps.tracking_demo import THRESHOLDS, TrackingDemoSummary, run_tracking_demo
 from makeway.errors import InputError
 from makeway.eval.mot import evaluate_mot
 from makeway.pipeline.mot import track_mot
-from makeway.apps.tracking_demo import THRESHOLDS, TrackingDemoSummary, run_tracking_demo
 from makeway.sense.motfile import MotData
 from makeway.sim.traffic import COCO_IDS, Scene, SceneRenderer, TrafficConfig, simulate_scene
 

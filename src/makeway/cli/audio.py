@@ -16,7 +16,7 @@ import typer
 
 from makeway.cli.common import err_console, friendly_errors, new_app, print_json_line
 from makeway.errors import InputError
-from makeway.perceive.audio.labels import LISTEN_SMOOTH, SMOOTH_AVERAGE
+from makeway.perceive.audio.windows import LISTEN_SMOOTH, SMOOTH_AVERAGE
 from makeway.sense.recording import FULL_SCALE_RANGE_DB, REFERENCE_FULL_SCALE_DB_SPL, recording_folders
 
 if TYPE_CHECKING:
@@ -188,7 +188,7 @@ def label(
     theta (vehicle frame, 0 ahead, positive left), distance and range rate at the window end.
     """
     from makeway.atomic import write_text_atomic
-    from makeway.perceive.audio.labels import label_recording
+    from makeway.eval.siren_labels import label_recording
     from makeway.sense.recording import read_recording
 
     recs = recording_folders(folder)
@@ -389,10 +389,10 @@ def eval_cmd(
         raise ValueError(
             "--approach scores the network's approaching/receding call; it needs the network, not --baseline"
         )
+    from makeway.eval.siren import evaluate, model_estimator
+    from makeway.eval.siren_labels import label_recording
     from makeway.perceive.audio.doa import SirenEnergyDetector
-    from makeway.perceive.audio.evaluate import evaluate, model_estimator
     from makeway.perceive.audio.features import window_batch
-    from makeway.perceive.audio.labels import label_recording
     from makeway.progress import progress_bar
     from makeway.sense.recording import read_recording
 
@@ -663,7 +663,7 @@ def train(
     err_console.print(f"model → {target} ({target.stat().st_size / 1e6:.2f} MB)", highlight=False)
     summary: dict[str, Any] = {"model": str(target), **training}
     if test_folders:
-        from makeway.perceive.audio.evaluate import evaluate, model_estimator
+        from makeway.eval.siren import evaluate, model_estimator
         from makeway.perceive.audio.siren_model import SirenModel
 
         with progress_bar("test", len(test_folders), unit="rec") as advance:
@@ -823,11 +823,11 @@ def listen(
     is_siren is decided on the mean logit of the last --smooth windows (default 8, 1.36 s of audio:
     more recall at fewer false alarms than one window alone; --average probability averages the
     probabilities instead)."""
-    from makeway.perceive.audio.labels import window_starts
     from makeway.perceive.audio.stream import listen as listen_stream
-    from makeway.perceive.audio.stream import plot_listen
+    from makeway.perceive.audio.windows import window_starts
     from makeway.progress import progress_bar
     from makeway.sense.recording import assume_calibration, read_recording
+    from makeway.viz.listen_plot import plot_listen
 
     _check_baseline(baseline, model, localizer, ranger)
     if not path.exists():

@@ -38,7 +38,7 @@ Commands:
   :class:`~makeway.perceive.vision.cnn_classifier.OnnxCropClassifier`.
 * ``mine POOL [--model FILE] [--out DIR] [--top N] [--threshold T]`` — data engine: score an
   unlabelled pool, write the predicted EVs ranked for review (``candidates.csv``,
-  ``contact_sheet.png``, ``labels_template.csv``; see :mod:`makeway.perceive.vision.mining`).
+  ``contact_sheet.png``, ``labels_template.csv``; see :mod:`makeway.train.mining`).
 * ``eval --data DIR [--model FILE] [--plot FILE.png]`` — score a head ``.npz`` or a CNN ``.onnx``
   (default: the shipped head) on a crop folder; on ev_crops only the committed held-out part.
   ``--plot`` writes the precision–recall curve with the operating point and max-F1 marked. Prints
@@ -364,9 +364,9 @@ def _teacher_targets(
     held-out crop (they would leak the test set into training). Returns ``(images, probabilities,
     labels, description)``."""
     from makeway.perceive.vision.ev_classifier import load_crop_classifier
-    from makeway.perceive.vision.mining import list_pool, score_pool
     from makeway.progress import progress_bar
     from makeway.sense.crops import CropSet, near_duplicates_of
+    from makeway.train.mining import list_pool, score_pool
 
     files = [f for pool in pools for f in list_pool(pool)]  # every pool checked before any work
     model = load_crop_classifier(teacher)
@@ -752,7 +752,7 @@ def mine(
     emergency), OUT/contact_sheet.png (top N) and OUT/labels_template.csv (image,emergency, ready to
     fill and append to a crop folder). Unreadable files are skipped and counted. One JSON line last."""
     from makeway.perceive.vision.ev_classifier import load_crop_classifier
-    from makeway.perceive.vision.mining import mine as mine_pool
+    from makeway.train.mining import mine as mine_pool
 
     clf = load_crop_classifier(model)
     result = mine_pool(pool, clf, out, top=top, threshold=threshold, progress=not quiet)

@@ -2,7 +2,7 @@
 
 :func:`approach_windows` runs one recording the way ``makeway audio listen`` does — the siren
 network on every 0.5 s window (hop 0.17 s), the listener's decision rule
-(:data:`~makeway.perceive.audio.labels.LISTEN_SMOOTH` windows, stored threshold) and a
+(:data:`~makeway.eval.siren_labels.LISTEN_SMOOTH` windows, stored threshold) and a
 :class:`~makeway.perceive.audio.motion.TrendApproach` fed each window with the network's distance
 and that decision — and returns per window:
 
@@ -34,11 +34,12 @@ from typing import Any
 
 import numpy as np
 
-from makeway.perceive.audio.evaluate import model_estimator, smoothed_probability
+from makeway.eval.siren import model_estimator
+from makeway.eval.siren_labels import label_recording
 from makeway.perceive.audio.features import window_batch
-from makeway.perceive.audio.labels import LISTEN_SMOOTH, SMOOTH_AVERAGE, label_recording
 from makeway.perceive.audio.motion import TrendApproach
 from makeway.perceive.audio.siren_model import SirenModel
+from makeway.perceive.audio.windows import LISTEN_SMOOTH, SMOOTH_AVERAGE, smoothed_probability
 from makeway.sense.recording import Recording, assume_calibration, read_recording
 
 MIN_RANGE_RATE_MPS = 1.0

@@ -8,7 +8,7 @@ A-weighted level at the array (70 dB(A) by default: a busy street, or a siren so
 cut into 0.5 s windows every 0.5 s, and scored by the model. With ``smooth`` = K > 1 the windows
 come every 0.17 s instead, as ``makeway audio listen`` cuts them, and each is decided on the
 smoothed probability of it and the K − 1 before it
-(:func:`~makeway.perceive.audio.evaluate.smoothed_probability`): the check then scores the
+(:func:`~makeway.eval.siren.smoothed_probability`): the check then scores the
 listener's decision rule, not the single window. Only the *content* is tested here —
 real traffic, real sirens heard in real traffic — not the bearing or distance heads.
 
@@ -39,9 +39,8 @@ from typing import Any
 
 import numpy as np
 
-from makeway.perceive.audio.evaluate import smoothed_probability
-from makeway.perceive.audio.labels import HOP_S, SMOOTH_AVERAGE, window_starts
 from makeway.perceive.audio.siren_model import SirenModel
+from makeway.perceive.audio.windows import HOP_S, SMOOTH_AVERAGE, smoothed_probability, window_starts
 from makeway.sim.acoustics import (
     FULL_SCALE_PA,
     a_weighted_level_db,

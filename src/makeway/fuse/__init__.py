@@ -1,7 +1,13 @@
-"""Fusion stage: observations of an emergency vehicle → one EV track and the belief the yield
-decision reads (SPEC §7)."""
+"""Fusion stage: observations of an emergency vehicle → EV track → the belief the yield decision
+reads (SPEC §7).
+
+* :class:`BeliefSource` — the one interface every source of the belief implements;
+* :class:`SirenTrackFusion` — the EV track from what the siren listener hears;
+* :func:`classify_relation` — behind / ahead / oncoming / crossing from position and heading.
+"""
 
 from makeway.fuse.relation import classify_relation
 from makeway.fuse.siren_track import SirenTrackFusion
+from makeway.fuse.source import BeliefSource
 
-__all__ = ["SirenTrackFusion", "classify_relation"]
+__all__ = ["BeliefSource", "SirenTrackFusion", "classify_relation"]

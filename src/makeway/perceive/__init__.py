@@ -1,5 +1,6 @@
-"""Perception (SPEC §7: sense → **perceive** → track): per-frame judgements.
+"""Perception (sense → **perceive** → track): per-frame and per-window judgements.
 
-``makeway.perceive.vision`` holds the COCO vehicle detectors (SPEC §2); audio perception joins it
-as ``makeway.perceive.audio``.
+* :mod:`makeway.perceive.vision` — COCO vehicle detectors (:data:`~makeway.perceive.vision.DETECTORS`)
+  and the emergency-vehicle crop classifiers;
+* :mod:`makeway.perceive.audio` — siren detection, bearing and distance from the roof array.
 """

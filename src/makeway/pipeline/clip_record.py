@@ -25,7 +25,8 @@ __all__ = ["cached_clip", "record_clip"]
 
 
 class _Recorder:
-    """A :class:`~makeway.pipeline.video.TrackClassifier` that remembers what the wrapped one said."""
+    """A :class:`~makeway.perceive.vision.ev_classifier.TrackClassifier` that remembers what the
+    inner one said."""
 
     def __init__(self, inner: Any) -> None:
         self.inner = inner
@@ -53,7 +54,7 @@ def record_clip(
 
     Args:
         video: the clip.
-        classifier: a :class:`~makeway.pipeline.video.TrackClassifier` (e.g.
+        classifier: a :class:`~makeway.perceive.vision.ev_classifier.TrackClassifier` (e.g.
             :class:`~makeway.perceive.vision.ev_classifier.EVTrackClassifier`).
         model_path: detector ONNX file (default: searched).
         max_frames: stop after this many frames.

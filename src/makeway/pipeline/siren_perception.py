@@ -28,9 +28,9 @@ import numpy as np
 
 from makeway.fuse.siren_track import SOURCE, SirenTrackFusion
 from makeway.messages import EVBelief, SirenObservation, VehicleState
-from makeway.perceive.audio.labels import HOP_S
 from makeway.perceive.audio.siren_model import SirenModel
 from makeway.perceive.audio.stream import SirenListener
+from makeway.perceive.audio.windows import HOP_S
 from makeway.sim.live_array import LiveArraySimulator, LiveAudioConfig
 from makeway.sim.scenarios import Scenario
 from makeway.sim.world import SimWorld

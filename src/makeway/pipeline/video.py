@@ -26,13 +26,14 @@ from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any, Protocol
+from typing import Any
 
 import numpy as np
 
 from makeway.atomic import atomic_path, write_text_atomic
-from makeway.messages import Box, Detection, EVObservation, EVTrackState, PerceptionFrame, Track
-from makeway.perceive.vision.detectors import COCO_CLASSES, DETECTORS, Detector
+from makeway.messages import EVTrackState, PerceptionFrame
+from makeway.perceive.vision.detectors import DETECTORS, Detector
+from makeway.perceive.vision.ev_classifier import TrackClassifier
 from makeway.progress import progress_bar
 from makeway.sense.video import VideoReader
 from makeway.track.smoother import TrackSmoother
@@ -41,18 +42,6 @@ from makeway.viz.annotate import draw_frame
 from makeway.viz.video_writer import H264Writer
 
 STAGES = ("read", "detect", "track", "classify", "annotate", "encode")
-
-
-class TrackClassifier(Protocol):
-    """Per-frame EV judgement for every track of a frame, batched (SPEC §1).
-
-    The crop classifier plugs in here: it receives the whole frame and the confirmed tracks and
-    returns one :class:`EVObservation` per track (``probability=None`` when it cannot judge).
-    """
-
-    def classify(
-        self, image_bgr: np.ndarray, tracks: Sequence[Track], frame_index: int, time_s: float
-    ) -> list[EVObservation]: ...
 
 
 class VisionPipeline:
@@ -99,11 +88,7 @@ class VisionPipeline:
         """
         t1 = time.perf_counter()
         boxes, scores, class_ids = arrays
-        names = COCO_CLASSES
-        detections = [
-            Detection(box=Box(b[0], b[1], b[2], b[3]), score=float(s), class_id=int(c), label=names[int(c)])
-            for b, s, c in zip(boxes.tolist(), scores.tolist(), class_ids.tolist(), strict=True)
-        ]
+        detections = Detector.to_detections((boxes, scores, class_ids))
         tracks = self.tracker.update(detections)
         t2 = time.perf_counter()
         states: tuple[EVTrackState, ...] = ()

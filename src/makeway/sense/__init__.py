@@ -1,5 +1,20 @@
-"""Sensor input: video files, MOTChallenge files (`sense.motfile`), array recordings (`sense.recording`)."""
+"""Sensor input: video files, MOTChallenge files, crop folders and YOLO sets, microphone-array
+recordings and their calibration.
 
+* :class:`VideoReader` — frames of a video file with their timestamps (:mod:`~makeway.sense.video`);
+* :func:`read_recording` — an array recording folder (audio, geometry, logged trajectories);
+* :mod:`~makeway.sense.motfile`, :mod:`~makeway.sense.crops`, :mod:`~makeway.sense.calibration`.
+"""
+
+from makeway.sense.recording import Recording, read_recording, recording_folders
 from makeway.sense.video import DEFAULT_FPS, VideoInfo, VideoReader, probe_video
 
-__all__ = ["DEFAULT_FPS", "VideoInfo", "VideoReader", "probe_video"]
+__all__ = [
+    "DEFAULT_FPS",
+    "Recording",
+    "VideoInfo",
+    "VideoReader",
+    "probe_video",
+    "read_recording",
+    "recording_folders",
+]

@@ -1,7 +1,7 @@
 """Training of the siren network (issue 4, SPEC §3) — torch lives here only.
 
 **Data.** :func:`build_dataset` auto-labels folders of recordings (0.5 s windows every 0.17 s,
-sources beyond 100 m dropped, :func:`~makeway.perceive.audio.labels.label_recording`) and turns
+sources beyond 100 m dropped, :func:`~makeway.eval.siren_labels.label_recording`) and turns
 every window into the features of :class:`~makeway.perceive.audio.siren_features.SirenFeatures`.
 With ``mirror=True`` each window is added a second time mirrored left↔right: the reference array is
 symmetric about the vehicle's x axis, so swapping the two units (and each unit's left and right
@@ -47,9 +47,9 @@ import numpy as np
 import torch
 from torch import nn
 
-from makeway.perceive.audio.evaluate import calibrate_threshold
+from makeway.eval.siren import calibrate_threshold
+from makeway.eval.siren_labels import label_recording
 from makeway.perceive.audio.features import window_batch
-from makeway.perceive.audio.labels import label_recording
 from makeway.perceive.audio.siren_features import MIRROR_CHANNELS, SirenFeatureConfig, SirenFeatures
 from makeway.sense.recording import REFERENCE_FULL_SCALE_DB_SPL, calibration_gain, read_recording
 

@@ -16,7 +16,7 @@ import numpy as np
 from scipy.fft import dct, rfft
 from scipy.signal import butter, sosfiltfilt
 
-from makeway.perceive.audio.labels import Labels
+from makeway.perceive.audio.windows import WindowGrid
 from makeway.sense.recording import Recording
 
 BAND_HZ = (500.0, 1800.0)
@@ -137,7 +137,7 @@ def mfcc(x: np.ndarray, sample_rate: int, n_mfcc: int = 20, n_mels: int = 64) ->
     return np.asarray(dct(lm, type=2, axis=-2, norm="ortho"))[..., :n_mfcc, :]
 
 
-def window_batch(rec: Recording, labels: Labels) -> np.ndarray:
+def window_batch(rec: Recording, labels: WindowGrid) -> np.ndarray:
     """The labelled windows of ``rec``: ``(n_windows, channels, window)`` float32 (a copy)."""
     if labels.sample_rate != rec.sample_rate:
         raise ValueError("labels and recording have different sample rates")

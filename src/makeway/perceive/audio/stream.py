@@ -1,7 +1,7 @@
 """Streaming siren perception over a long recording (issue 4, item 6): ``makeway audio listen``.
 
 :func:`listen` slides a window of ``window_s`` every ``hop_s`` over the recording (the windows of
-:func:`~makeway.perceive.audio.labels.window_starts`, so message ``i`` matches label window ``i``)
+:func:`~makeway.perceive.audio.windows.window_starts`, so message ``i`` matches label window ``i``)
 and yields one message per hop::
 
     {"t_end": 1.17, "is_siren": true, "probability": 0.93, "smoothed_probability": 0.88,
@@ -31,15 +31,14 @@ before it, taken over their logits unless ``average="probability"``
 ``probability``). The default, the logit mean of 8 windows (1.36 s of audio), raised the recall at
 ≤ 1 % false alarms on 500 validation recordings from 97.3 % (mean of 3 probabilities) to 98.2 %, and
 detected more real siren material without more false alarms on real traffic
-(:data:`~makeway.perceive.audio.labels.LISTEN_SMOOTH`; docs/benchmarks.md, twelfth session).
+(:data:`~makeway.perceive.audio.windows.LISTEN_SMOOTH`).
 
-:func:`plot_listen` draws the messages: a spectrogram of channel 0 (0–4 kHz) with the siren windows
-shaded, and a polar plot of the bearing track coloured by time.
+:func:`makeway.viz.listen_plot.plot_listen` draws the messages.
 """
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -48,13 +47,11 @@ import numpy as np
 from makeway.messages import SirenObservation, SirenSource
 from makeway.perceive.audio.doa import DOA_METHODS, SirenEnergyDetector, detector_score
 from makeway.perceive.audio.features import band_level_db
-from makeway.perceive.audio.labels import HOP_S, LISTEN_SMOOTH, SMOOTH_AVERAGE, WINDOW_S, window_starts
 from makeway.perceive.audio.motion import DEFAULT_APPROACH_MODEL, ApproachEstimator, TrendApproach
 from makeway.perceive.audio.siren_model import SirenModel
+from makeway.perceive.audio.windows import HOP_S, LISTEN_SMOOTH, SMOOTH_AVERAGE, WINDOW_S, window_starts
 from makeway.sense.recording import REFERENCE_FULL_SCALE_DB_SPL, Recording
 from makeway.track.smoother import StreamSmoother
-
-PLOT_MAX_HZ = 4000.0
 
 
 class SirenListener:
@@ -166,7 +163,7 @@ def listen(
 ) -> Iterator[dict[str, Any]]:
     """One JSON message per hop over ``recording`` (see the module docstring): a
     :class:`SirenListener` stepped over the windows of
-    :func:`~makeway.perceive.audio.labels.window_starts`.
+    :func:`~makeway.perceive.audio.windows.window_starts`.
 
     With ``model`` (a :class:`~makeway.perceive.audio.siren_model.SirenModel`) the network gives
     the probability, the nearest siren's bearing and distance, and further sirens by time–frequency
@@ -201,95 +198,3 @@ def default_approach(model: SirenModel | None) -> ApproachEstimator | TrendAppro
     if model is not None and DEFAULT_APPROACH_MODEL.is_file():
         return TrendApproach()
     return ApproachEstimator()
-
-
-def plot_listen(
-    messages: Iterable[dict[str, Any]],
-    recording: Recording,
-    out_png: str | Path,
-    *,
-    window_s: float = WINDOW_S,
-) -> Path:
-    """Spectrogram with the siren windows shaded (the strip on top coloured by approaching/receding),
-    and the polar bearing track; written atomically."""
-    from matplotlib.figure import Figure
-
-    from makeway.atomic import atomic_path
-
-    msgs = list(messages)
-    sr = int(recording.sample_rate)
-    x = np.asarray(recording.audio[:, 0], dtype=np.float64)
-    nfft, hop = 1024, 512
-    n_frames = max(1, 1 + (len(x) - nfft) // hop) if len(x) >= nfft else 0
-    fig = Figure(figsize=(12, 4.5), dpi=100, layout="constrained")
-    gs = fig.add_gridspec(1, 3)
-    ax = fig.add_subplot(gs[0, :2])
-    if n_frames:
-        frames = np.lib.stride_tricks.sliding_window_view(x, nfft)[::hop][:n_frames]
-        spec = np.abs(np.fft.rfft(frames * np.hanning(nfft), axis=1)) ** 2
-        f = np.fft.rfftfreq(nfft, 1.0 / sr)
-        keep = f <= PLOT_MAX_HZ
-        db = 10.0 * np.log10(np.maximum(spec[:, keep].T, 1e-20))
-        t_edges = (np.arange(n_frames + 1) * hop + nfft / 2 - hop / 2) / sr
-        f_k = f[keep]
-        f_edges = np.concatenate([f_k - (f_k[1] - f_k[0]) / 2, [f_k[-1] + (f_k[1] - f_k[0]) / 2]])
-        vmax = float(np.max(db))
-        ax.pcolormesh(t_edges, f_edges, db, shading="flat", cmap="magma", vmin=vmax - 80.0, vmax=vmax)
-    strip = {True: "tab:red", False: "tab:blue", None: "cyan"}  # approaching, receding, undecided
-    for m in msgs:
-        if m["is_siren"]:
-            approaching = m["sources"][0]["approaching"] if m["sources"] else None
-            ax.axvspan(m["t_end"] - window_s, m["t_end"], color="cyan", alpha=0.08, lw=0)
-            ax.axvspan(m["t_end"] - window_s, m["t_end"], ymin=0.97, color=strip[approaching], lw=0)
-    ax.set_xlim(0.0, recording.duration_s)
-    ax.set_ylim(0.0, PLOT_MAX_HZ)
-    ax.set_xlabel("time (s)")
-    ax.set_ylabel("frequency (Hz), channel 0")
-    ax.set_title(
-        "spectrogram; shaded: siren detected\ntop strip: approaching (red), receding (blue), undecided (cyan)"
-    )
-
-    pax: Any = fig.add_subplot(gs[0, 2], projection="polar")  # a PolarAxes
-    pax.set_theta_zero_location("N")  # 0 = straight ahead, up; positive = left, counter-clockwise
-    ranged = any(s["distance_m"] is not None for m in msgs for s in m["sources"])
-    if ranged:  # the network's bearing and distance: a map around the car, truth in grey when logged
-        r_max = 100.0
-        if recording.sources:
-            from makeway.perceive.audio.labels import label_recording
-
-            lab = label_recording(recording, window_s=window_s)
-            th, dist = lab.nearest()
-            pax.plot(th, dist, color="0.6", lw=1.0, label="true nearest siren")
-        first = [(m["t_end"], s["bearing_rad"], s["distance_m"]) for m in msgs for s in m["sources"][:1]]
-        more = [s["bearing_rad"] for m in msgs for s in m["sources"][1:]]
-        if first:
-            tt, bb, rr = (np.array(v, dtype=np.float64) for v in zip(*first, strict=True))
-            sc = pax.scatter(
-                bb, np.minimum(rr, r_max), c=tt, cmap="viridis", s=12, vmin=0.0, vmax=recording.duration_s
-            )
-            fig.colorbar(sc, ax=pax, label="time (s)", shrink=0.7)
-        if more:
-            pax.scatter(
-                more,
-                np.full(len(more), 0.95 * r_max),
-                marker="x",
-                color="tab:red",
-                s=14,
-                label="other sirens",
-            )
-        pax.set_rlim(0.0, r_max)
-        pax.set_title("sirens: bearing and distance (m); up = ahead")
-        if recording.sources or more:
-            pax.legend(loc="lower left", fontsize=7, bbox_to_anchor=(-0.15, -0.15))
-    else:
-        pts = [(m["t_end"], s["bearing_rad"]) for m in msgs for s in m["sources"]]
-        if pts:
-            tt, bb = (np.array(v) for v in zip(*pts, strict=True))
-            sc = pax.scatter(bb, tt, c=tt, cmap="viridis", s=12, vmin=0.0, vmax=recording.duration_s)
-            fig.colorbar(sc, ax=pax, label="time (s)", shrink=0.7)
-        pax.set_rlim(0.0, max(recording.duration_s, 1e-3))
-        pax.set_title("bearing track (up = ahead, left = left)")
-    target = Path(out_png)
-    with atomic_path(target) as tmp:
-        fig.savefig(tmp, format="png")
-    return target

@@ -518,15 +518,18 @@ class Detector:
 
     def detect(self, image_bgr: np.ndarray) -> list[Detection]:
         """Detect in one frame; :class:`~makeway.messages.Detection` objects, highest score first."""
-        boxes, scores, class_ids = self.detect_arrays(image_bgr)
+        return self.to_detections(self.detect_arrays(image_bgr))
+
+    @staticmethod
+    def to_detections(arrays: tuple[np.ndarray, np.ndarray, np.ndarray]) -> list[Detection]:
+        """:meth:`detect_arrays`' ``(boxes, scores, class_ids)`` as :class:`~makeway.messages.Detection`
+        objects labelled with their COCO class names."""
+        boxes, scores, class_ids = arrays
         return [
             Detection(
-                box=Box(float(b[0]), float(b[1]), float(b[2]), float(b[3])),
-                score=float(s),
-                class_id=int(c),
-                label=COCO_CLASSES[int(c)],
+                box=Box(b[0], b[1], b[2], b[3]), score=float(s), class_id=int(c), label=COCO_CLASSES[int(c)]
             )
-            for b, s, c in zip(boxes, scores, class_ids, strict=True)
+            for b, s, c in zip(boxes.tolist(), scores.tolist(), class_ids.tolist(), strict=True)
         ]
 
 

@@ -13,7 +13,7 @@ description of the training data, format version).
 ``makeway classify train`` (see ``docs/model_card_ev_head.md``). The label it learnt is "this crop
 shows an emergency vehicle", not "its lights are on".
 
-:class:`EVTrackClassifier` adapts it to :class:`~makeway.pipeline.video.TrackClassifier`: square
+:class:`EVTrackClassifier` adapts it to :class:`TrackClassifier`: square
 crops of every track of a frame (10 % context per side), one batch, one
 :class:`~makeway.messages.EVObservation` per track (``probability=None`` for tracks under 18 px
 wide or outside the image).
@@ -46,6 +46,7 @@ __all__ = [
     "CropClassifier",
     "EVCropClassifier",
     "EVTrackClassifier",
+    "TrackClassifier",
     "load_crop_classifier",
     "shrink_copies",
 ]
@@ -475,8 +476,20 @@ def load_crop_classifier(
     return clf
 
 
+class TrackClassifier(Protocol):
+    """Per-frame EV judgement for every track of a frame, batched (SPEC §1).
+
+    The crop classifier plugs in here: it receives the whole frame and the confirmed tracks and
+    returns one :class:`EVObservation` per track (``probability=None`` when it cannot judge).
+    """
+
+    def classify(
+        self, image_bgr: np.ndarray, tracks: Sequence[Track], frame_index: int, time_s: float
+    ) -> list[EVObservation]: ...
+
+
 class EVTrackClassifier:
-    """:class:`~makeway.pipeline.video.TrackClassifier` over an :class:`EVCropClassifier`.
+    """:class:`TrackClassifier` over an :class:`EVCropClassifier`.
 
     Every track of a frame gets a square crop of its box with ``margin`` context per side; all
     crops go through the classifier in one batch. Tracks narrower than ``min_width`` pixels (SPEC

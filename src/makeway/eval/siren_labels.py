@@ -28,21 +28,9 @@ from typing import Any
 import numpy as np
 
 from makeway.frames import to_vehicle_frame
+from makeway.perceive.audio.windows import HOP_S, WINDOW_S, window_starts
 from makeway.sense.recording import Recording, Trajectory
 
-WINDOW_S = 0.5
-HOP_S = 0.17
-LISTEN_SMOOTH = 8
-"""Windows whose probabilities a live listener averages for its decision by default (``makeway
-audio listen``, :func:`~makeway.perceive.audio.stream.listen`), as the mean of their logits
-(:data:`SMOOTH_AVERAGE`). Chosen on 500 fresh training-split recordings never trained on (12,960
-no-siren windows): the count with the highest recall at ≤ 1 % false alarms per window at the
-detector's stored threshold, whose recall and false alarms on the real mono check were no worse than
-those of the rule it replaced, the mean of 3 probabilities (docs/benchmarks.md, twelfth session)."""
-SMOOTH_AVERAGE = "logit"
-"""How the smoothed windows are averaged by default: the mean of their logits
-(:class:`~makeway.track.smoother.StreamSmoother`; the eighth to eleventh sessions averaged
-probabilities)."""
 MAX_DISTANCE_M = 100.0
 RATE_DT_S = 0.1
 
@@ -148,19 +136,6 @@ class Labels:
             )
             out.append(row)
         return out
-
-
-def window_starts(
-    n_samples: int, sample_rate: int, window_s: float = WINDOW_S, hop_s: float = HOP_S
-) -> np.ndarray:
-    """First sample of every full window of ``window_s`` every ``hop_s`` in ``n_samples`` samples."""
-    if window_s <= 0 or hop_s <= 0:
-        raise ValueError("window_s and hop_s must be positive")
-    win = round(window_s * sample_rate)
-    if n_samples < win:
-        return np.zeros(0, dtype=np.int64)
-    count = int(math.floor((n_samples - win) / (hop_s * sample_rate) + 1e-9)) + 1
-    return np.round(np.arange(count) * hop_s * sample_rate).astype(np.int64)
 
 
 def relative_position(

@@ -2,7 +2,7 @@
 
 :func:`evaluate` auto-labels each recording (0.5 s windows every 0.17 s, sources beyond 100 m
 dropped, and windows whose every siren lies beyond 100 m skipped, see
-:mod:`~makeway.perceive.audio.labels`), runs a method on every window and returns the JSON keys
+:mod:`~makeway.eval.siren_labels`), runs a method on every window and returns the JSON keys
 of ``makeway audio eval``:
 
 * ``recall`` — detected share of the windows with a siren within 100 m; ``false_alarm_rate`` —
@@ -46,9 +46,10 @@ from typing import Any
 
 import numpy as np
 
+from makeway.eval.siren_labels import label_recording
 from makeway.perceive.audio.doa import DOA_METHODS, SirenEnergyDetector, wrap_angle
 from makeway.perceive.audio.features import window_batch
-from makeway.perceive.audio.labels import SMOOTH_AVERAGE, label_recording
+from makeway.perceive.audio.windows import SMOOTH_AVERAGE, smoothed_probability
 from makeway.sense.recording import Recording, assume_calibration, read_recording
 from makeway.track.smoother import StreamSmoother
 
@@ -188,17 +189,6 @@ def model_estimator(model: Any, source: str | Path | None = None) -> WindowEstim
         )
 
     return estimate
-
-
-def smoothed_probability(prob: np.ndarray, smooth: int, average: str = SMOOTH_AVERAGE) -> np.ndarray:
-    """The causal smoothed probability of each window over consecutive windows of one recording:
-    a :class:`~makeway.track.smoother.StreamSmoother` of ``smooth`` windows (``average``: the mean
-    of their logits, the default, or of their probabilities) run over ``prob``."""
-    smoother = StreamSmoother(smooth, average)
-    p = np.asarray(prob, dtype=np.float64)
-    if smooth == 1:
-        return p.copy()
-    return np.array([smoother.update(float(v)) for v in p], dtype=np.float64)
 
 
 def evaluate(
