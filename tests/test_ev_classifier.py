@@ -22,7 +22,7 @@ from makeway.perceive.vision.ev_classifier import DEFAULT_MODEL, EVCropClassifie
 from makeway.sense.crops import EV_CROPS_HOLDOUT, CropSet, holdout_split, read_crop_folder, read_holdout
 
 runner = CliRunner()
-_KEYS = {"accuracy", "precision", "recall", "f1", "max_f1", "p_at_r80", "n"}
+_KEYS = {"accuracy", "precision", "recall", "f1", "max_f1", "p_at_r80", "n", "skipped"}
 
 
 @pytest.fixture(scope="module")

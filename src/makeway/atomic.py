@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+import itertools
 import os
 import shutil
 import tempfile
@@ -60,6 +61,53 @@ def check_replaceable(path: str | Path, marker: str) -> None:
         raise InputError(
             out, f"is a non-empty folder that is not a makeway output (no {marker}); choose another"
         )
+
+
+def check_writable(path: str | Path, *, folder: bool) -> Path:
+    """Check, before any work starts, that the output ``path`` can be created; return it absolute.
+
+    ``folder`` says whether ``path`` is an output folder (it may exist as a folder) or an output
+    file (it may exist as a file). Folders missing on the way are not created: the nearest existing
+    one must be a folder in which a file can be made (probed with a temporary file that is removed
+    at once, so read-only file systems and ``/proc`` are caught even when running as root).
+
+    Raises:
+        InputError: ``path`` is a file where a folder is needed (or the reverse), a part of its
+            parent chain is a file, or the nearest existing folder cannot be written.
+    """
+    target = Path(path).expanduser().absolute()
+    if folder and target.exists() and not target.is_dir():
+        raise InputError(target, "exists and is a file; an output folder is needed here")
+    if not folder and target.is_dir():
+        raise InputError(target, "is a folder; an output file is needed here")
+    start = target if folder else target.parent
+    existing = next(p for p in (start, *start.parents) if p.exists())
+    if not existing.is_dir():
+        raise InputError(target, f"cannot be created: {existing} is a file, not a folder")
+    try:
+        fd, probe = tempfile.mkstemp(prefix=".makeway-probe.", dir=existing)
+        os.close(fd)
+        os.unlink(probe)
+    except OSError as exc:
+        raise InputError(target, f"cannot be written: {existing}: {exc.strerror or exc}") from None
+    return target
+
+
+@contextlib.contextmanager
+def removed_on_error(folder: str | Path) -> Iterator[None]:
+    """Run a block that creates ``folder``; if the block fails, remove the folders of ``folder``'s
+    chain that did not exist before it, where they are empty again, and re-raise."""
+    target = Path(folder).expanduser().absolute()
+    missing = list(itertools.takewhile(lambda p: not p.exists(), (target, *target.parents)))
+    try:
+        yield
+    except BaseException:
+        for made in missing:  # deepest first
+            try:
+                made.rmdir()
+            except OSError:
+                break
+        raise
 
 
 @contextlib.contextmanager

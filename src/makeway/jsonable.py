@@ -9,14 +9,16 @@ from typing import Any
 import numpy as np
 
 
-def to_jsonable(value: Any, digits: int = 6) -> Any:
-    """NaN/inf → ``None``, floats rounded to ``digits``, numpy scalars → Python, tuples → lists,
-    paths → strings; recursive over dicts and sequences."""
+def to_jsonable(value: Any, digits: int | None = 6) -> Any:
+    """NaN/inf → ``None``, floats rounded to ``digits`` (``None``: kept as they are), numpy scalars →
+    Python, tuples → lists, paths → strings; recursive over dicts and sequences."""
     if isinstance(value, bool | np.bool_):
         return bool(value)
     if isinstance(value, float | np.floating):
         v = float(value)
-        return round(v, digits) if math.isfinite(v) else None
+        if not math.isfinite(v):
+            return None
+        return v if digits is None else round(v, digits)
     if isinstance(value, np.integer):
         return int(value)
     if isinstance(value, dict):

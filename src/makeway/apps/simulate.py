@@ -5,6 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from makeway.apps.closed_loop_report import write_closed_loop_report
+from makeway.atomic import check_writable
 from makeway.errors import InputError
 from makeway.pipeline.closed_loop import PERCEPTIONS, ClosedLoopResult, run_scenario
 from makeway.plan.path import load_path_csv
@@ -32,9 +33,11 @@ def simulate(
     the siren stack's sources. Returns the run, the scenario and the files written (name → path).
 
     Raises:
-        InputError: the recorded path cannot be read.
+        InputError: the recorded path cannot be read, or ``out`` cannot be written (checked first).
         UnknownNameError: an unknown scenario, controller or perception (lists the known ones).
     """
+    if out is not None:
+        check_writable(out, folder=True)
     spec = PERCEPTIONS[perception](seed=seed, siren=siren, noise=noise)
     if path is not None:
         try:

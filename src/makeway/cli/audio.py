@@ -14,6 +14,7 @@ from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 
+from makeway.atomic import check_writable
 from makeway.cli.common import err_console, friendly_errors, new_app, print_json_line
 from makeway.errors import InputError
 from makeway.perceive.audio.windows import LISTEN_SMOOTH, SMOOTH_AVERAGE
@@ -123,6 +124,7 @@ def simulate(
     """
     from makeway.sim.audio_scenarios import AUDIO_SCENARIOS, generate_recordings, source_pools
 
+    check_writable(out, folder=True)
     scenarios = tuple(scenario) if scenario else AUDIO_SCENARIOS
     if siren not in ("auto", "synth", "real"):
         raise ValueError(f"--siren must be auto, synth or real, not {siren!r}")
@@ -824,7 +826,7 @@ def listen(
     more recall at fewer false alarms than one window alone; --average probability averages the
     probabilities instead)."""
     from makeway.perceive.audio.stream import listen as listen_stream
-    from makeway.perceive.audio.windows import window_starts
+    from makeway.perceive.audio.stream import listen_windows
     from makeway.progress import progress_bar
     from makeway.sense.recording import assume_calibration, read_recording
     from makeway.viz.listen_plot import plot_listen
@@ -832,6 +834,8 @@ def listen(
     _check_baseline(baseline, model, localizer, ranger)
     if not path.exists():
         raise InputError(path, "no such folder")
+    for target in (t for t in (plot, jsonl) if t is not None):
+        check_writable(target, folder=False)
     net = _siren_networks(model, localizer, ranger, 1) if baseline is None else None
     estimator = _approach_estimator(approach, net)
     rec = assume_calibration(read_recording(path), full_scale_db_spl)
@@ -839,7 +843,7 @@ def listen(
     t0 = time.perf_counter()
     messages = []
     method = baseline or "gccphat"
-    hops = len(window_starts(rec.n_samples, rec.sample_rate, window, hop))
+    hops = len(listen_windows(rec, window, hop))  # raises when shorter than one window
     # with --jsonl the messages go to a file: a progress bar on stderr instead (stdout stays JSON)
     with progress_bar("listening", hops, enabled=jsonl is not None, unit="hop") as advance:
         for msg in listen_stream(

@@ -696,10 +696,15 @@ def eval_cmd(
     """Score an EV crop classifier (a head .npz or a CNN .onnx) on a crop folder; prints one JSON
     line last.
 
-    On ev_crops only the committed held-out part is scored."""
+    On ev_crops only the committed held-out part is scored. A crop that cannot be read (corrupt,
+    truncated) is named on stderr ("skipped: FILE: problem"), left out and listed under "skipped";
+    the rest is scored."""
+    from makeway.atomic import check_writable
     from makeway.perceive.vision.ev_classifier import SHIPPED_MODELS, load_crop_classifier
     from makeway.sense.crops import read_crop_folder
 
+    if plot is not None:
+        check_writable(plot, folder=False)
     clf = load_crop_classifier(model)
     crops = read_crop_folder(data)
     split = _ev_crops_split(crops)
@@ -710,7 +715,9 @@ def eval_cmd(
         )
     else:
         err_console.print(f"scoring all {len(crops)} crops of {data}", highlight=False)
-    probs = clf.predict_proba(crops.load_images(clf.input_size, cache=False))
+    skipped: list[str] = []  # a bad crop is named and left out; the rest is scored
+    crops, images = crops.load_readable(clf.input_size, on_bad=lambda e: skipped.append(_skip_line(e)))
+    probs = clf.predict_proba(images)
     if plot is not None:
         from makeway.viz.pr_plot import plot_pr_curve
 
@@ -720,7 +727,13 @@ def eval_cmd(
             probs, crops.labels, plot, threshold=clf.threshold, title=f"{name} on {data.name} ({what})"
         )
         err_console.print(f"PR curve → {plot}", highlight=False)
-    print_json_line(_metrics(probs, crops.labels, clf.threshold))
+    print_json_line({**_metrics(probs, crops.labels, clf.threshold), "skipped": skipped})
+
+
+def _skip_line(exc: InputError) -> str:
+    """Print ``skipped: FILE: problem`` (one line on stderr); return the file."""
+    err_console.print(f"[yellow]skipped:[/] {exc}", highlight=False, soft_wrap=True)
+    return str(exc.path)
 
 
 # -------------------------------------------------------------------------------------------- mine

@@ -12,6 +12,7 @@ import typer
 from rich.console import Console
 
 from makeway.errors import MakewayError
+from makeway.jsonable import to_jsonable
 
 console = Console()
 err_console = Console(stderr=True)
@@ -34,8 +35,11 @@ def friendly_errors(func: F) -> F:
 
 
 def print_json_line(obj: Any) -> None:
-    """One JSON object on one line of stdout (for machines; printed last)."""
-    sys.stdout.write(json.dumps(obj, separators=(", ", ": ")) + "\n")
+    """One strict-JSON object on one line of stdout (for machines; printed last): NaN and infinities
+    become ``null``, numpy scalars plain numbers (:func:`makeway.jsonable.to_jsonable`, unrounded)."""
+    sys.stdout.write(
+        json.dumps(to_jsonable(obj, digits=None), separators=(", ", ": "), allow_nan=False) + "\n"
+    )
     sys.stdout.flush()
 
 

@@ -16,6 +16,7 @@ import typer
 from rich.table import Table
 
 from makeway import __version__
+from makeway.atomic import check_writable
 from makeway.cli.common import console, err_console, friendly_errors, new_app, print_json_line
 from makeway.errors import MakewayError
 
@@ -150,6 +151,7 @@ def track(
     from makeway.pipeline.mot import track_mot
     from makeway.sense.motfile import read_mot, write_mot_tracks
 
+    check_writable(out, folder=False)
     dets = read_mot(mot_det, kind="detection")
     truth = read_mot(gt, kind="gt") if gt is not None else None  # read before writing anything
     tracks = track_mot(

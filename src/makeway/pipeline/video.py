@@ -9,8 +9,9 @@
 * ``summary.json`` — frames, wall time, real-time factor and per-stage milliseconds per frame.
 
 Decoding and encoding run on their own threads (both release the GIL in FFmpeg), so they overlap
-with detection on the main thread. Outputs appear only when the run completes: an error midway
-leaves nothing half-written.
+with detection on the main thread. Outputs appear only when the run completes: an error midway (a
+video that ends before its container's frame count included) leaves nothing half-written, and no
+output folder that the run created.
 """
 
 from __future__ import annotations
@@ -30,7 +31,7 @@ from typing import Any
 
 import numpy as np
 
-from makeway.atomic import atomic_path, write_text_atomic
+from makeway.atomic import atomic_path, check_writable, removed_on_error, write_text_atomic
 from makeway.messages import EVTrackState, PerceptionFrame
 from makeway.perceive.vision.detectors import DETECTORS, Detector
 from makeway.perceive.vision.ev_classifier import TrackClassifier
@@ -306,8 +307,13 @@ def run_video(
         progress: show a rich progress bar.
 
     Raises:
-        InputError: the video or the model is missing or unreadable (before anything is written).
+        InputError: the video or the model is missing or unreadable, or ``out_dir`` cannot be
+            written (before anything is written); the video ends well before its container's frame
+            count (truncated or damaged: nothing is left behind, see
+            :meth:`~makeway.sense.video.VideoReader.check_complete`).
     """
+    if out_dir is not None:
+        check_writable(out_dir, folder=True)
     reader = VideoReader(video, stride=stride, max_frames=max_frames)
     info = reader.info
     if isinstance(detector, Detector):
@@ -341,7 +347,8 @@ def run_video(
     annotate_s = 0.0
     recent: deque[float] = deque(maxlen=26)  # completion times of the last frames, for the FPS overlay
 
-    with progress_bar(f"detect {Path(video).name}", total, enabled=progress) as advance:
+    guard = removed_on_error(out) if out is not None else contextlib.nullcontext()
+    with guard, progress_bar(f"detect {Path(video).name}", total, enabled=progress) as advance:
         jsonl_ctx = atomic_path(out / "tracks.jsonl") if out is not None else contextlib.nullcontext()
         with jsonl_ctx as jsonl_tmp:
             jsonl = jsonl_tmp.open("w", encoding="utf-8") if jsonl_tmp is not None else None
@@ -375,6 +382,7 @@ def run_video(
                         annotate_s += time.perf_counter() - ta
                         bg.write(annotated)
                     advance(1)
+                reader.check_complete()
                 advance.finish()
                 wall = time.perf_counter() - wall0
                 if bg is not None:

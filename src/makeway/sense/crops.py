@@ -157,9 +157,78 @@ class CropSet:
             self._cache[size] = out
         return out
 
+    def load_readable(
+        self, size: int = 224, *, on_bad: Callable[[InputError], Any]
+    ) -> tuple[CropSet, np.ndarray]:
+        """The crops that decode, and their images as :meth:`load_images` gives them (not cached).
+
+        For a batch that goes on past a bad file: each crop that cannot be read (corrupt, truncated)
+        is handed to ``on_bad`` as the :class:`InputError` naming it, and left out of both results.
+
+        Raises:
+            InputError: no crop decodes (names the folder).
+        """
+        keep: list[int] = []
+        images: list[np.ndarray] = []
+        for i, path in enumerate(self.paths):
+            try:
+                images.append(_read_resized(path, size))
+            except InputError as exc:
+                on_bad(exc)
+                continue
+            keep.append(i)
+        if not keep:
+            raise InputError(self.root or Path("."), f"none of its {len(self)} crops can be read")
+        return self.subset(keep), np.stack(images)
+
+
+def _jpeg_problem(data: bytes) -> str | None:
+    """What is structurally wrong with JPEG ``data``, or ``None``.
+
+    Walks the marker segments and the entropy-coded scans (ITU-T T.81, B.1) up to the end-of-image
+    marker: libjpeg decodes a file cut short without an error (the missing rows grey, a warning on
+    stderr), so a truncated crop would otherwise be scored as a real one.
+    """
+    n = len(data)
+    pos = 2  # after the start-of-image marker
+    while pos + 1 < n:
+        if data[pos] != 0xFF:
+            return f"damaged JPEG (no marker at byte {pos})"
+        marker = data[pos + 1]
+        if marker == 0xFF:  # fill byte
+            pos += 1
+            continue
+        if marker == 0xD9:  # end of image
+            return None
+        if marker == 0x01 or 0xD0 <= marker <= 0xD7:  # markers without a length
+            pos += 2
+            continue
+        if pos + 4 > n:
+            break
+        pos += 2 + int.from_bytes(data[pos + 2 : pos + 4], "big")
+        if marker == 0xDA:  # start of scan: entropy-coded data up to the next real marker
+            while True:
+                pos = data.find(b"\xff", pos)
+                if pos < 0 or pos + 1 >= n:
+                    return "truncated JPEG (the file ends inside the image data, before its end marker)"
+                following = data[pos + 1]
+                if following == 0x00 or 0xD0 <= following <= 0xD7:  # stuffed 0xFF or restart marker
+                    pos += 2
+                elif following == 0xFF:
+                    pos += 1
+                else:
+                    break
+    return "truncated JPEG (the file ends before its end-of-image marker)"
+
 
 def _read_resized(path: Path, size: int) -> np.ndarray:
-    image = cv2.imread(str(path), cv2.IMREAD_COLOR)
+    try:
+        data = path.read_bytes()
+    except OSError as exc:
+        raise InputError(path, f"cannot be read ({exc.strerror or exc})") from None
+    if data[:2] == b"\xff\xd8" and (problem := _jpeg_problem(data)) is not None:
+        raise InputError(path, problem)
+    image = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_COLOR)
     if image is None or image.size == 0:
         raise InputError(path, "OpenCV could not decode this image (corrupt or not an image)")
     h, w = image.shape[:2]

@@ -188,11 +188,13 @@ def recording_folders(folder: str | Path) -> list[Path]:
     ``array.yaml``), sorted.
 
     Raises:
-        InputError: the folder does not exist or holds no recording.
+        InputError: the folder does not exist, is a file, or holds no recording.
     """
     root = Path(folder)
     if not root.exists():
         raise InputError(root, "no such folder")
+    if not root.is_dir():
+        raise InputError(root, "is a file; expected a recording folder or a folder of recording folders")
     if (root / AUDIO_FILE).exists() or (root / ARRAY_FILE).exists():
         return [root]
     subs = sorted(p for p in root.iterdir() if p.is_dir() and (p / ARRAY_FILE).exists())

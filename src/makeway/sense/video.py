@@ -82,8 +82,14 @@ class VideoReader:
     Attributes:
         info: the :class:`VideoInfo` of the file.
         frames_read: source frames decoded in the latest pass (grabbed ones included). When decoding
-            fails part-way, iteration stops quietly and this tells how far it got.
+            fails part-way, iteration stops quietly and this tells how far it got;
+            :meth:`check_complete` turns a pass that ended well short of the container's count into
+            an :class:`~makeway.errors.InputError`.
         frames_yielded: frames handed out in the latest pass.
+        reached_end: the latest pass ran until the decoder gave no more frames (not stopped by
+            ``max_frames`` or by the caller).
+        last_time_s: the container's timestamp of the last frame decoded in the latest pass
+            (seconds from the first frame).
 
     Each ``for`` loop over the reader starts again from the first frame (the file is reopened for a
     second pass); two loops over one reader at the same time are not supported.
@@ -101,6 +107,8 @@ class VideoReader:
         self.max_frames = max_frames
         self.frames_read = 0
         self.frames_yielded = 0
+        self.reached_end = False
+        self.last_time_s = 0.0
         self._cap: cv2.VideoCapture | None = None
         self._first: np.ndarray | None = None
         self._closed = False
@@ -164,7 +172,10 @@ class VideoReader:
     ) -> Iterator[tuple[int, float, np.ndarray]]:
         self.frames_read = 0
         self.frames_yielded = 0
+        self.reached_end = False
+        self.last_time_s = 0.0
         if first is None:
+            self.reached_end = True
             return
         fps, stride, limit = self.info.fps, self.stride, self.max_frames
         self.frames_read = 1
@@ -174,15 +185,47 @@ class VideoReader:
         while limit is None or self.frames_yielded < limit:
             for _ in range(stride - 1):
                 if not cap.grab():
+                    self.reached_end = True
                     return
                 self.frames_read += 1
+                self.last_time_s = cap.get(cv2.CAP_PROP_POS_MSEC) / 1000.0
             ok, frame = cap.read()
             if not ok or frame is None:
+                self.reached_end = True
                 return
             self.frames_read += 1
+            self.last_time_s = cap.get(cv2.CAP_PROP_POS_MSEC) / 1000.0
             index += stride
             self.frames_yielded += 1
             yield index, index / fps, frame
+
+    def check_complete(self) -> None:
+        """Raise when the latest pass ran out of frames well before the end the container states.
+
+        The expected count M is ``CAP_PROP_FRAME_COUNT``: the container's own number of frames (mp4,
+        mov) or FFmpeg's estimate from duration × frame rate. A clean file can decode a few frames
+        fewer than it lists (``night_ambulance_lights.mp4``: 282 of 288, its last one still at
+        11.48 s = (288 - 1) / 25 s), so the pass is reported only when it is short both in frames
+        (more than ``max(2, 1 %)`` of M) and in time: the last decoded frame's timestamp lies more
+        than ``max(2 frames, 1 %)`` of the duration before the last listed frame's,
+        ``(M - 1) / fps``. A pass stopped by ``max_frames`` or by the caller, or a file whose count
+        is unknown, passes.
+
+        Raises:
+            InputError: "truncated or damaged after frame N of M" (N frames decoded).
+        """
+        expected, fps = self.info.frame_count, self.info.fps
+        if not self.reached_end or expected <= 0:
+            return
+        end_s = (expected - 1) / fps
+        short_frames = expected - self.frames_read > max(2, expected // 100)
+        short_time = end_s - self.last_time_s > max(2.0 / fps, 0.01 * expected / fps)
+        if short_frames and short_time:
+            raise InputError(
+                self.path,
+                f"truncated or damaged after frame {self.frames_read} of {expected} (decoding stopped at "
+                f"{self.last_time_s:.2f} s of {end_s + 1.0 / fps:.2f} s)",
+            )
 
     # ---------------------------------------------------------------------------------- life cycle
 

@@ -44,13 +44,14 @@ from typing import Any
 
 import numpy as np
 
+from makeway.errors import InputError
 from makeway.messages import SirenObservation, SirenSource
 from makeway.perceive.audio.doa import DOA_METHODS, SirenEnergyDetector, detector_score
 from makeway.perceive.audio.features import band_level_db
 from makeway.perceive.audio.motion import DEFAULT_APPROACH_MODEL, ApproachEstimator, TrendApproach
 from makeway.perceive.audio.siren_model import SirenModel
 from makeway.perceive.audio.windows import HOP_S, LISTEN_SMOOTH, SMOOTH_AVERAGE, WINDOW_S, window_starts
-from makeway.sense.recording import REFERENCE_FULL_SCALE_DB_SPL, Recording
+from makeway.sense.recording import AUDIO_FILE, REFERENCE_FULL_SCALE_DB_SPL, Recording
 from makeway.track.smoother import StreamSmoother
 
 
@@ -187,8 +188,23 @@ def listen(
     )
     audio = np.asarray(recording.audio)
     win = listener.window_samples
-    for start in window_starts(recording.n_samples, sr, window_s, hop_s):
+    for start in listen_windows(recording, window_s, hop_s):
         yield listener.step(audio[start : start + win].T, (int(start) + win) / sr).to_json()
+
+
+def listen_windows(recording: Recording, window_s: float = WINDOW_S, hop_s: float = HOP_S) -> np.ndarray:
+    """The first sample of every window :func:`listen` steps over (``window_starts``).
+
+    Raises:
+        InputError: the recording is shorter than one window (names its audio file).
+    """
+    starts = window_starts(recording.n_samples, int(recording.sample_rate), window_s, hop_s)
+    if len(starts) == 0:
+        where = recording.path / AUDIO_FILE if recording.path is not None else Path("recording")
+        raise InputError(
+            where, f"is {recording.duration_s:.3g} s long, shorter than one {window_s:g} s listening window"
+        )
+    return starts
 
 
 def default_approach(model: SirenModel | None) -> ApproachEstimator | TrendApproach:
