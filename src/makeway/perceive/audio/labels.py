@@ -38,7 +38,7 @@ audio listen``, :func:`~makeway.perceive.audio.stream.listen`), as the mean of t
 (:data:`SMOOTH_AVERAGE`). Chosen on 500 fresh training-split recordings never trained on (12,960
 no-siren windows): the count with the highest recall at ≤ 1 % false alarms per window at the
 detector's stored threshold, whose recall and false alarms on the real mono check were no worse than
-those of the rule it replaced, the mean of 3 probabilities (docs/benchmarks.md, twelfth session)."""
+those of the rule it replaced, the mean of 3 probabilities (docs/journal.md, twelfth session)."""
 SMOOTH_AVERAGE = "logit"
 """How the smoothed windows are averaged by default: the mean of their logits
 (:class:`~makeway.track.smoother.StreamSmoother`; the eighth to eleventh sessions averaged

@@ -31,7 +31,7 @@ before it, taken over their logits unless ``average="probability"``
 ``probability``). The default, the logit mean of 8 windows (1.36 s of audio), raised the recall at
 ≤ 1 % false alarms on 500 validation recordings from 97.3 % (mean of 3 probabilities) to 98.2 %, and
 detected more real siren material without more false alarms on real traffic
-(:data:`~makeway.perceive.audio.labels.LISTEN_SMOOTH`; docs/benchmarks.md, twelfth session).
+(:data:`~makeway.perceive.audio.labels.LISTEN_SMOOTH`; docs/journal.md, twelfth session).
 
 :func:`plot_listen` draws the messages: a spectrogram of channel 0 (0–4 kHz) with the siren windows
 shaded, and a polar plot of the bearing track coloured by time.
