@@ -17,8 +17,8 @@ For every rule it prints, in 10–50 m, the recall and the false alarms per wind
 stored threshold, and the recall with the threshold set for ≤ ``--max-false-alarm`` false alarms
 on these windows. The rule picked is the one with the highest recall whose false alarms at the
 stored threshold are within the target; the listener's default
-(:data:`~makeway.eval.siren_labels.LISTEN_SMOOTH`) was picked this way on 560 recordings
-(``--data`` with seeds 301–306 and 77–78, see docs/benchmarks.md, twelfth session) and checked
+(:data:`~makeway.perceive.audio.windows.LISTEN_SMOOTH`) was picked this way on 560 recordings
+(``--data`` with seeds 301–306 and 77–78, see docs/journal.md, twelfth session) and checked
 against the real mono material (``bench_audio_real.py --smooth K``).
 
 Without ``--data`` it simulates ``--n`` recordings per seed of ``--seeds`` (training-split

@@ -31,7 +31,7 @@ SPL (AES17: a full-scale sine is 0 dBFS) has ``full_scale_db_spl = 97 − S``. T
 recording without the key has ``full_scale_db_spl = None`` and is taken to be at the model's
 scale (the tools say so). A wrong calibration costs: 6 dB off moves the given distances by a third
 or more and raises the median distance error from 6.3 to 9.4–10 m; 12 dB too quiet loses 12 points
-of recall (``benchmarks/bench_audio_calibration.py``, ``docs/benchmarks.md``).
+of recall (``benchmarks/bench_audio_calibration.py``, ``docs/results.md``).
 
 **Coverage.** Every trajectory must span the audio: first timestamp ≤ ``COVER_TOLERANCE_S`` (50 ms)
 after 0 and last timestamp ≥ duration − 50 ms (a 10 Hz log may stop just short of the last sample;

@@ -44,7 +44,7 @@ slope (``−s / 8.69``, negative when approaching). Without a distance estimate 
 the network's distance in every window, the slope of ln distance over a few seconds *is* ``ṙ/r``.
 Those slopes and the two cues above go through a small trained classifier. Measured on held-out
 simulated recordings (``benchmarks/bench_audio_approach.py``), it is right in 84 % of the windows
-with a moving siren, against 63 % for the level/Doppler rule alone (docs/benchmarks.md,
+with a moving siren, against 63 % for the level/Doppler rule alone (docs/journal.md,
 thirteenth session). :data:`APPROACH_METHODS` names both.
 """
 

@@ -33,7 +33,7 @@ and reporting it beside the network's (correct) bearing was the commonest spurio
 
 The constants (and that rule) were chosen on training-split recordings
 (``benchmarks/bench_audio_multisource.py --data`` on a ``--split train`` set); the held-out figures
-are in ``docs/benchmarks.md``.
+are in ``docs/results.md``.
 """
 
 from __future__ import annotations

@@ -31,7 +31,7 @@ the error. The shipped rangers are :data:`DEFAULT_SIREN_RANGERS`: a network trai
 variety on 120 more no-siren recordings (eighth session; median distance error at 10–50 m on a
 validation set of training-split recordings 5.50 m with it, 5.79 m without) and two trained on
 500 other recordings each (twelfth session; 5.17 m with all three, on validation seeds 77 + 78;
-docs/benchmarks.md).
+docs/journal.md).
 
 **Calibration.** The networks read absolute levels at the scale they were trained at
 (:attr:`SirenModel.full_scale_db_spl`, from the ONNX metadata; 135 dB SPL for every shipped one and

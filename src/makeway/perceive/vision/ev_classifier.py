@@ -136,7 +136,7 @@ class EVCropClassifier:
 
     :attr:`mirror_at_test` (default ``True``) can be set ``False`` on a fitted ``flip`` head to
     judge each crop by itself only: half the cost per crop, for video (``makeway detect
-    --single-view``), at a small loss (docs/benchmarks.md).
+    --single-view``), at a small loss (docs/results.md).
     """
 
     def __init__(
@@ -498,7 +498,7 @@ class EVTrackClassifier:
     ``every = k > 1`` judges each track only on frames where ``(frame_index + track_id) % k == 0``
     (staggered, so each frame classifies about 1/k of the tracks) and returns ``probability=None``
     otherwise; the smoother skips those frames, so its 25-judgement window then spans 25·k frames.
-    This divides the classification cost by k (see docs/benchmarks.md for the accuracy effect).
+    This divides the classification cost by k (see docs/results.md for the accuracy effect).
     """
 
     def __init__(
