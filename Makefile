@@ -2,20 +2,27 @@
 PYTHON ?= python3
 VENV   := .venv
 BIN    := $(VENV)/bin
-STAMP  := $(VENV)/.installed
+RUNTIME := $(VENV)/.runtime
+DEV    := $(VENV)/.dev
 OUT    ?= reports/demo
 
 .PHONY: venv demo test lint typecheck bench bench-sort bench-video bench-pull-over bench-siren-loop bench-audio clean
 
-venv: $(STAMP)
+# `make demo` installs the runtime only; `make test` and the benchmarks add the dev extra (linters,
+# scikit-learn, XGBoost, torch for the training tests).
+venv: $(DEV)
 
-$(STAMP): pyproject.toml
+$(RUNTIME): pyproject.toml
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install -q --upgrade pip
-	$(BIN)/python -m pip install -q -e ".[dev]"
-	touch $(STAMP)
+	$(BIN)/python -m pip install -q -e .
+	touch $(RUNTIME)
 
-demo: venv
+$(DEV): $(RUNTIME)
+	$(BIN)/python -m pip install -q -e ".[dev]"
+	touch $(DEV)
+
+demo: $(RUNTIME)
 	$(BIN)/makeway demo --out $(OUT)
 
 lint: venv
@@ -29,7 +36,7 @@ test: lint typecheck
 	$(BIN)/python -m pytest -q
 
 # Benchmarks: the reference SORT (GPL, installed only here, never vendored) is the anchor.
-$(VENV)/.bench: $(STAMP)
+$(VENV)/.bench: $(DEV)
 	$(BIN)/python -m pip install -q --no-deps "sort-track==0.0.8" "filterpy==1.4.5"
 	touch $(VENV)/.bench
 

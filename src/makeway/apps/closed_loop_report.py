@@ -42,13 +42,34 @@ def _save(fig: Any, path: Path) -> None:
     _plt().close(fig)
 
 
+_EVENTS = {
+    YieldState.EV_CONFIRMED.value: ("EV confirmed", "tab:green", "--"),
+    YieldState.STOPPED_WAITING.value: ("stopped, waiting", "0.3", "-."),
+}
+
+
 def _event_lines(ax: Any, result: ClosedLoopResult) -> None:
+    """Vertical lines, each labelled once for the legend: the EV's signals switching on (red
+    dotted), the decision confirming the EV (green dashed) and the car stopping to wait (grey)."""
     on = np.flatnonzero(result.log["ev_on"] > 0.5)
     if on.size:
         ax.axvline(result.log["t"][on[0]], color="tab:red", ls=":", lw=1, label="EV signals on")
+    labelled: set[str] = set()
     for t, _, to, _ in result.transitions:
-        if to in (YieldState.EV_CONFIRMED.value, YieldState.STOPPED_WAITING.value):
-            ax.axvline(t, color="0.4", ls="--", lw=0.8)
+        if to in _EVENTS:
+            text, colour, style = _EVENTS[to]
+            ax.axvline(t, color=colour, ls=style, lw=0.9, label=None if to in labelled else text)
+            labelled.add(to)
+
+
+def _legend(ax: Any, *more: Any, **kwargs: Any) -> None:
+    """One legend on ``ax`` holding the labelled lines of ``ax`` and of the ``more`` axes (twins)."""
+    handles, labels = ax.get_legend_handles_labels()
+    for other in more:
+        h, lab = other.get_legend_handles_labels()
+        handles, labels = handles + h, labels + lab
+    if handles:
+        ax.legend(handles, labels, fontsize=8, **kwargs)
 
 
 def write_closed_loop_report(
@@ -105,7 +126,7 @@ def write_closed_loop_report(
     _event_lines(ax, result)
     ax.set_xlabel("time (s)")
     ax.set_ylabel("speed (m/s)")
-    ax.legend(fontsize=8)
+    _legend(ax)
     ax.grid(alpha=0.3)
     _save(fig, out / "speed.png")
     files["speed"] = str(out / "speed.png")
@@ -118,13 +139,13 @@ def write_closed_loop_report(
         ("yaw_rate_error", "yaw-rate error (rad/s)", [-0.08, 0.06], "field test range −0.08…+0.06 rad/s"),
     ]
     for ax, (key, label, bounds, note) in zip(axes, specs, strict=True):
-        ax.plot(t, log[key], color="tab:blue", lw=1.2)
-        for b in bounds:
-            ax.axhline(b, color="tab:orange", ls=":", lw=1)
-        ax.text(0.01, 0.92, note, transform=ax.transAxes, fontsize=8, color="tab:orange", va="top")
+        ax.plot(t, log[key], color="tab:blue", lw=1.2, label="makeway")
+        for k, b in enumerate(bounds):
+            ax.axhline(b, color="tab:orange", ls=":", lw=1, label=note if k == 0 else None)
         _event_lines(ax, result)
         ax.set_ylabel(label)
         ax.grid(alpha=0.3)
+        _legend(ax, loc="upper right")
     axes[-1].set_xlabel("time (s)")
     axes[0].set_title(f"{scenario.name}: tracking errors ({result.controller})")
     _save(fig, out / "errors.png")
@@ -143,6 +164,7 @@ def write_closed_loop_report(
     _event_lines(ax, result)
     ax.set_xlabel("time (s)")
     ax.set_title(f"{scenario.name}: decision")
+    _legend(ax, ax2, loc="center right")
     _save(fig, out / "states.png")
     files["states"] = str(out / "states.png")
 
@@ -179,7 +201,9 @@ def _siren_report(result: ClosedLoopResult, out: Path) -> dict[str, str]:
     heard = [(o.t_end, o.sources[0]) for o, _ in result.siren if o.is_siren and o.sources]
     fused = [(b.time_s, b.distance_m, b.bearing_rad) for _, b in result.siren if b.detected]
     fig, axes = plt.subplots(3, 1, figsize=(10, 7.5), sharex=True)
-    axes[0].plot(obs_t, [o.smoothed_probability for o, _ in result.siren], color="tab:red", lw=1)
+    axes[0].plot(
+        obs_t, [o.smoothed_probability for o, _ in result.siren], color="tab:purple", lw=1, label="P(siren)"
+    )
     axes[0].set_ylabel("P(siren), smoothed")
     axes[0].set_ylim(-0.05, 1.05)
     axes[1].plot(t, true_d, color="k", lw=1.2, label="true (siren on)")
@@ -202,7 +226,7 @@ def _siren_report(result: ClosedLoopResult, out: Path) -> dict[str, str]:
     for ax in axes:
         _event_lines(ax, result)
         ax.grid(alpha=0.3)
-    axes[1].legend(fontsize=8, loc="upper right")
+        _legend(ax, loc="upper right")
     axes[2].set_xlabel("time (s)")
     axes[0].set_title(f"{result.scenario}: what the siren stack heard")
     _save(fig, out / "siren.png")
