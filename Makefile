@@ -5,7 +5,8 @@ BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 OUT    ?= reports/demo
 
-.PHONY: venv demo test lint typecheck bench bench-sort bench-video bench-pull-over bench-siren-loop bench-audio clean
+.PHONY: venv demo test lint typecheck bench bench-sort bench-video bench-crops bench-pull-over bench-siren-loop \
+	bench-audio clean
 
 venv: $(STAMP)
 
@@ -39,6 +40,11 @@ bench-sort: $(VENV)/.bench
 bench-video: venv
 	$(BIN)/python benchmarks/bench_video_pipeline.py
 
+# the EV crop CNNs' latency and accuracy beside the shipped head; the per-actor smoother sweep
+bench-crops: venv
+	$(BIN)/python benchmarks/bench_cnn_latency.py
+	$(BIN)/python benchmarks/bench_track_sweep.py
+
 bench-pull-over: venv
 	$(BIN)/python benchmarks/bench_pull_over.py
 
@@ -46,6 +52,7 @@ bench-siren-loop: venv
 	$(BIN)/python benchmarks/bench_closed_loop_siren.py
 
 bench-audio: venv
+	$(BIN)/python benchmarks/bench_audio_baselines.py
 	$(BIN)/python benchmarks/bench_audio_model.py
 	$(BIN)/python benchmarks/bench_audio_real.py --sweep 65,75,80,85
 	$(BIN)/python benchmarks/bench_audio_real.py --sweep 65,75,80,85 --smooth 8
@@ -55,7 +62,7 @@ bench-audio: venv
 	$(BIN)/python benchmarks/bench_audio_calibration.py
 	$(BIN)/python benchmarks/bench_audio_range_bound.py
 
-bench: bench-sort bench-video bench-pull-over bench-siren-loop bench-audio
+bench: bench-sort bench-video bench-crops bench-pull-over bench-siren-loop bench-audio
 
 clean:
 	rm -rf $(VENV) reports .pytest_cache .mypy_cache .ruff_cache
