@@ -181,9 +181,8 @@ def test_detect_with_default_classifier(video_dir: Path, tmp_path: Path) -> None
     assert summary["ms_per_frame"]["classify"] > 0
     assert 13 in summary["active_ev_tracks"]  # the lit ambulance of the label file is flagged
     off = tmp_path / "off"
-    r = runner.invoke(
-        app, ["detect", str(clip), "-o", str(off), "--max-frames", "45", "--classifier", "none"]
-    )
+    none = ["--classifier", "none", "--no-video", "-q"]
+    r = runner.invoke(app, ["detect", str(clip), "-o", str(off), "--max-frames", "45", *none])
     assert r.exit_code == 0, r.output
     states = {
         t["state"]
