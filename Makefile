@@ -6,7 +6,8 @@ RUNTIME := $(VENV)/.runtime
 DEV    := $(VENV)/.dev
 OUT    ?= reports/demo
 
-.PHONY: venv demo test lint typecheck bench bench-sort bench-video bench-pull-over bench-siren-loop bench-audio clean
+.PHONY: venv demo test lint typecheck bench bench-sort bench-video bench-crops bench-pull-over bench-siren-loop \
+	bench-audio clean
 
 # `make demo` installs the runtime only; `make test` and the benchmarks add the dev extra (linters,
 # scikit-learn, XGBoost, torch for the training tests).
@@ -46,6 +47,11 @@ bench-sort: $(VENV)/.bench
 bench-video: venv
 	$(BIN)/python benchmarks/bench_video_pipeline.py
 
+# the EV crop CNNs' latency and accuracy beside the shipped head; the per-actor smoother sweep
+bench-crops: venv
+	$(BIN)/python benchmarks/bench_cnn_latency.py
+	$(BIN)/python benchmarks/bench_track_sweep.py
+
 bench-pull-over: venv
 	$(BIN)/python benchmarks/bench_pull_over.py
 
@@ -53,6 +59,7 @@ bench-siren-loop: venv
 	$(BIN)/python benchmarks/bench_closed_loop_siren.py
 
 bench-audio: venv
+	$(BIN)/python benchmarks/bench_audio_baselines.py
 	$(BIN)/python benchmarks/bench_audio_model.py
 	$(BIN)/python benchmarks/bench_audio_real.py --sweep 65,75,80,85
 	$(BIN)/python benchmarks/bench_audio_real.py --sweep 65,75,80,85 --smooth 8
@@ -62,7 +69,7 @@ bench-audio: venv
 	$(BIN)/python benchmarks/bench_audio_calibration.py
 	$(BIN)/python benchmarks/bench_audio_range_bound.py
 
-bench: bench-sort bench-video bench-pull-over bench-siren-loop bench-audio
+bench: bench-sort bench-video bench-crops bench-pull-over bench-siren-loop bench-audio
 
 clean:
 	rm -rf $(VENV) reports .pytest_cache .mypy_cache .ruff_cache

@@ -31,12 +31,12 @@ import numpy as np
 from makeway.eval.classification import precision_recall_f1, threshold_metrics
 from makeway.paths import data_dir
 from makeway.perceive.vision.cnn_classifier import OnnxCropClassifier
-from makeway.perceive.vision.ev_classifier import DEFAULT_MODEL, EVCropClassifier
+from makeway.perceive.vision.ev_classifier import DEFAULT_MODEL, FAST_MODEL, FASTEST_MODEL, EVCropClassifier
 from makeway.sense.crops import EV_CROPS_HOLDOUT, holdout_split, read_crop_folder, read_holdout
 
 TARGET_MS = 10.0
 TARGET_ACCURACY, TARGET_F1 = 0.97, 0.96
-DEFAULT_CNN = Path(__file__).resolve().parents[1] / "src" / "makeway" / "models" / "ev_cnn.onnx"
+DEFAULT_CNNS = (FAST_MODEL, FASTEST_MODEL)  # the shipped small CNNs: --classifier fast, fastest
 
 
 def _metrics(probs: np.ndarray, labels: np.ndarray, threshold: float) -> dict[str, float]:
@@ -65,8 +65,14 @@ def _times_ms(fn: Any, repeats: int) -> tuple[float, float]:
 
 
 def main() -> int:
+    shipped = ", ".join(p.name for p in DEFAULT_CNNS)
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("models", nargs="*", type=Path, help=f"ONNX crop CNNs (default: {DEFAULT_CNN.name})")
+    ap.add_argument(
+        "models",
+        nargs="*",
+        type=Path,
+        help=f"ONNX crop CNNs (default: the shipped {shipped})",
+    )
     ap.add_argument("--threads", type=int, default=2, help="ONNX Runtime intra-op threads")
     ap.add_argument("--repeats", type=int, default=50, help="timed runs per model (median reported)")
     ap.add_argument("--batch", type=int, default=100, help="crops per batch")
@@ -77,7 +83,7 @@ def main() -> int:
     if root is None:
         print("error: shared data not found (set MAKEWAY_DATA)", file=sys.stderr)
         return 2
-    models = args.models or [DEFAULT_CNN]
+    models = args.models or list(DEFAULT_CNNS)
     missing = [m for m in models if not m.is_file()]
     if missing:
         print(

@@ -1,13 +1,17 @@
 """Shared fixtures. Tests run on the real data in ../shared/data (or $MAKEWAY_DATA).
 
 Without it, data tests are skipped locally with a clear message but FAIL under CI (CI=true), so a
-broken checkout can never pass by skipping everything.
+broken checkout can never pass by skipping everything. The same holds for the pieces the dev extra
+installs (torch): :func:`require_module`. Under CI the session also prints how many tests were
+skipped and fails when any was.
 """
 
 from __future__ import annotations
 
+import importlib
 import os
 from pathlib import Path
+from types import ModuleType
 
 import pytest
 
@@ -15,15 +19,51 @@ from makeway.paths import data_candidates, data_dir
 from makeway.sense.crops import CropSet
 
 
+def under_ci() -> bool:
+    """Whether the suite runs under CI (``CI`` set to anything but empty, 0 or false)."""
+    return os.environ.get("CI", "").strip().lower() not in ("", "0", "false", "no")
+
+
+def skip_or_fail(msg: str) -> None:
+    """Skip locally, fail under CI: CI installs every piece the project needs (``make test``)."""
+    if under_ci():
+        pytest.fail(msg, pytrace=False)
+    pytest.skip(msg, allow_module_level=True)
+
+
+def require_module(name: str) -> ModuleType:
+    """Import ``name`` (a dev-extra package such as torch); skipped locally when missing, a
+    failure under CI. Works at module level as well as inside a test."""
+    try:
+        return importlib.import_module(name)
+    except ImportError as exc:
+        skip_or_fail(f"{name} is not installed ({exc}); `pip install -e '.[dev]'` installs it")
+        raise  # not reached: skip_or_fail raises
+
+
 def _require_data() -> Path:
     found = data_dir()
     if found is not None:
         return found
     where = ", ".join(str(p) for p in data_candidates())
-    msg = f"shared data folder not found (looked in: {where}); set MAKEWAY_DATA"
-    if os.environ.get("CI"):
-        pytest.fail(msg)
-    pytest.skip(msg)
+    skip_or_fail(f"shared data folder not found (looked in: {where}); set MAKEWAY_DATA")
+    raise AssertionError("not reached")
+
+
+def pytest_terminal_summary(terminalreporter: pytest.TerminalReporter) -> None:
+    if under_ci():
+        skipped = len(terminalreporter.stats.get("skipped", []))
+        terminalreporter.write_line(
+            f"CI: {skipped} test(s) skipped" + (" — CI fails on any skip" if skipped else "")
+        )
+
+
+@pytest.hookimpl(trylast=True)
+def pytest_sessionfinish(session: pytest.Session, exitstatus: int) -> None:
+    """Under CI a skipped test fails the run: nothing the project installs may be missing there."""
+    reporter = session.config.pluginmanager.get_plugin("terminalreporter")
+    if under_ci() and reporter is not None and reporter.stats.get("skipped") and exitstatus == 0:
+        session.exitstatus = pytest.ExitCode.TESTS_FAILED
 
 
 @pytest.fixture(scope="session")

@@ -89,10 +89,11 @@ def test_separator_one_siren_gives_one_bearing(one_siren: tuple[np.ndarray, np.n
     model = SirenModel(threads=2)
     pred = model.predict(wins)
     found = [model.sources(pred, i, w) for i, w in enumerate(wins)]
-    # 2 of these 27 windows with the localizer alone, 3 with the ranger too (2026-11-24: its
-    # distance, 10.2 m instead of 9.4 m, opens the NEAR_ALONE_M gate at a siren 17 m away); over
-    # 480 held-out one-siren windows both give 5.8 % (bench_audio_multisource.py)
-    assert sum(len(f) >= 2 for f in found) <= 3
+    # benchmark (bench_audio_multisource.py): a spurious second siren in 5.8 % of 480 held-out
+    # one-siren windows. Bound on these 27 windows: ≤ 4 (15 %, 2.5× that rate); at 5.8 % the chance
+    # of 5 or more is 1.8 % (binomial), so a failure means the rate itself has grown
+    assert len(wins) == 27
+    assert sum(len(f) >= 2 for f in found) <= 4
     assert all(len(f) <= 1 for i, f in enumerate(found) if pred.distance[i] < NEAR_ALONE_M)
 
 

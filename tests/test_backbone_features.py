@@ -118,6 +118,12 @@ def test_tiny_study_beats_hand_made_features(ev_crops: CropSet) -> None:
     rng = np.random.default_rng(0)
     train = ev_crops.subset(np.sort(rng.choice(train_idx, 150, replace=False)))
     test = ev_crops.subset(np.sort(rng.choice(test_idx, 60, replace=False)))
-    rows = run_study(train, test, ["yolox"], ["logreg"], split="tiny", progress=False)
-    assert len(rows) == 1
-    assert rows[0].accuracy > 0.7, rows[0]
+    hand_made = ["hog", "rgb_hist", "hsv8"]
+    rows = run_study(train, test, ["yolox", *hand_made], ["logreg"], split="tiny", progress=False)
+    acc = {r.feature: r.accuracy for r in rows}
+    assert set(acc) == {"yolox", *hand_made}
+    # the full study (docs/study/study.md, 996 / 250 crops): yolox + logreg 0.840, the best hand-made
+    # row of any classifier 0.772; here (150 / 60) measured yolox 0.85, hand-made 0.57–0.68
+    majority = max(np.mean(test.labels), 1 - np.mean(test.labels))  # the one-answer rate, 0.53 here
+    assert acc["yolox"] >= majority + 0.2, acc
+    assert all(acc["yolox"] >= acc[f] + 0.1 for f in hand_made), acc

@@ -12,7 +12,9 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-torch = pytest.importorskip("torch")
+from conftest import require_module
+
+torch = require_module("torch")
 
 from makeway.cli.main import app  # noqa: E402
 from makeway.errors import InputError  # noqa: E402

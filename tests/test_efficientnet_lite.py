@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from conftest import require_module
 from makeway.errors import InputError
 from makeway.perceive.vision import efficientnet_lite as eff
 from makeway.perceive.vision.backbone import BackboneFeatures
@@ -32,7 +33,7 @@ def imagenet() -> BackboneFeatures:
 
 
 def test_reader_equals_torch_load_on_the_shipped_legacy_file(state: dict[str, np.ndarray]) -> None:
-    torch = pytest.importorskip("torch")
+    torch = require_module("torch")
     ref = torch.load(eff.efficientnet_lite0_weights(), map_location="cpu", weights_only=True)
     assert list(state) == list(ref)
     for key, tensor in ref.items():
@@ -41,7 +42,7 @@ def test_reader_equals_torch_load_on_the_shipped_legacy_file(state: dict[str, np
 
 
 def test_reader_takes_the_zip_format_and_strided_views(tmp_path: Path) -> None:
-    torch = pytest.importorskip("torch")
+    torch = require_module("torch")
     base = torch.arange(24, dtype=torch.float32).reshape(4, 6)
     saved = OrderedDict(
         w=base.t(),  # non-contiguous: strides must be honoured

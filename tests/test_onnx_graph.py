@@ -7,7 +7,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-torch = pytest.importorskip("torch")
+from conftest import require_module
+
+torch = require_module("torch")
 
 from makeway.errors import InputError  # noqa: E402
 from makeway.perceive.vision.backbone import BackboneFeatures  # noqa: E402

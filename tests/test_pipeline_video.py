@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-from collections.abc import Sequence
 from pathlib import Path
 
 import av
@@ -11,28 +10,10 @@ import numpy as np
 import pytest
 
 from makeway.errors import InputError
-from makeway.messages import EVObservation, Track
-from makeway.pipeline.video import run_video
+from makeway.perceive.vision.ev_classifier import EVTrackClassifier, load_crop_classifier
+from makeway.pipeline.video import VideoRunSummary, run_video
 
-
-class RedBlueLightScore:
-    """A tiny real classifier for the hook: share of saturated red/blue bright pixels in the box."""
-
-    def classify(
-        self, image_bgr: np.ndarray, tracks: Sequence[Track], frame_index: int, time_s: float
-    ) -> list[EVObservation]:
-        out = []
-        h, w = image_bgr.shape[:2]
-        for t in tracks:
-            b = t.box.clip(w, h)
-            crop = image_bgr[int(b.y1) : int(b.y2), int(b.x1) : int(b.x2)].astype(np.int16)
-            if crop.shape[0] < 4 or crop.shape[1] < 18:
-                out.append(EVObservation(t.track_id, frame_index, time_s, None))
-                continue
-            bgr_b, bgr_g, bgr_r = crop[..., 0], crop[..., 1], crop[..., 2]
-            lit = ((bgr_r > 180) & (bgr_r - bgr_g > 80)) | ((bgr_b > 180) & (bgr_b - bgr_g > 60))
-            out.append(EVObservation(t.track_id, frame_index, time_s, float(min(1.0, 50 * lit.mean()))))
-        return out
+Classified = tuple[VideoRunSummary, list[dict]]
 
 
 def test_outputs_on_real_clip(video_dir: Path, tmp_path: Path) -> None:
@@ -90,25 +71,45 @@ def test_parallel_detection_gives_identical_tracks(video_dir: Path, tmp_path: Pa
     assert [[t["id"] for t in f["tracks"]] for f in a] == [[t["id"] for t in f["tracks"]] for f in b]
 
 
-def test_classifier_hook_and_smoother(video_dir: Path, tmp_path: Path) -> None:
+@pytest.fixture(scope="module")
+def night_classified(video_dir: Path, tmp_path_factory: pytest.TempPathFactory) -> Classified:
+    """The first 60 frames (2.4 s) of the night clip through the shipped EV head (``default``)."""
+    out = tmp_path_factory.mktemp("night_classified")
     s = run_video(
         video_dir / "night_ambulance_lights.mp4",
-        tmp_path / "c",
+        out,
         max_frames=60,
         write_video=False,
-        classifier=RedBlueLightScore(),
+        classifier=EVTrackClassifier(load_crop_classifier("default")),
         progress=False,
     )
-    recs = [json.loads(x) for x in (tmp_path / "c" / "tracks.jsonl").read_text().splitlines()]
+    return s, [json.loads(x) for x in (out / "tracks.jsonl").read_text().splitlines()]
+
+
+def test_classifier_hook_and_smoother(night_classified: Classified) -> None:
+    """With the shipped head the lit ambulance (track 13 from frame 15, label file) becomes an
+    active EV; every active track is one the head called EV on most of its buffered frames."""
+    s, recs = night_classified
     states = {t["state"] for r in recs for t in r["tracks"]}
     assert "unclassified" not in states
     assert states <= {"warming_up", "active", "inactive"}
-    late = [t for r in recs[20:] for t in r["tracks"]]
-    assert any(t["ev_n_valid"] >= 6 for t in late)
-    for t in late:
-        if t["state"] == "active":
-            assert t["ev_positive_fraction"] > 0.5
-    assert set(s.active_ev_tracks) == {t["id"] for r in recs for t in r["tracks"] if t["state"] == "active"}
+    assert 13 in s.active_ev_tracks  # labelled ambulance, lights on (video_track_labels.csv)
+    amb = [t for r in recs for t in r["tracks"] if t["id"] == 13]
+    assert amb[-1]["state"] == "active"  # and it stays so to the end of the stretch
+    active = [t for r in recs for t in r["tracks"] if t["state"] == "active"]
+    assert active and all(t["ev_positive_fraction"] > 0.5 for t in active)
+    assert set(s.active_ev_tracks) == {t["id"] for t in active}
+
+
+@pytest.mark.xfail(
+    strict=True,
+    reason="the shipped head calls the white coach (track 1) an EV: a known false positive of the head "
+    "(video_track_labels.csv, docs/results.md per-actor sweep); waits on a head trained on labelled "
+    "video crops (docs/model_card_ev_head.md)",
+)
+def test_white_coach_is_not_an_active_ev(night_classified: Classified) -> None:
+    s, _ = night_classified
+    assert 1 not in s.active_ev_tracks  # labelled 0: "white coach (classifier false positive)"
 
 
 def test_missing_and_corrupt_video_write_nothing(tmp_path: Path) -> None:

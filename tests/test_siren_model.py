@@ -188,7 +188,7 @@ def test_onnx_export_matches_torch(tiny_model: tuple[Path, Path, dict]) -> None:
     rec = read_recording(folder)
     w = window_batch(rec, label_recording(rec))
     pred = model.predict(w)
-    assert len(pred) == len(w) == 6 and np.all((pred.prob >= 0) & (pred.prob <= 1))
+    assert len(pred) == len(w) == 6
     assert np.allclose(pred.prob, torch_out["prob"], atol=1e-4)
     assert np.allclose(pred.distance, np.maximum(torch_out["distance"], 0.0), atol=1e-2)
     assert np.max(np.abs(wrap_angle(pred.theta - torch_out["theta"]))) < 1e-3
@@ -228,7 +228,7 @@ def test_mono_check_files_and_rows(tiny_model: tuple[Path, Path, dict], data_roo
     picked = [next(f for f in files if f.kind == k) for k in ("street_noise", "street_siren")]
     rows = [check_file(f, model, rng, max_windows=4) for f in picked]
     assert [r["windows"] for r in rows] == [4, 4]
-    assert all(0 <= r["detected"] <= 4 and 0.0 <= r["mean_probability"] <= 1.0 for r in rows)
+    assert all(r["rate"] == round(r["detected"] / 4, 4) for r in rows)
     summary = summarize_rows(rows)
     assert summary["all"]["siren_windows"] == 4 and summary["all"]["no_siren_windows"] == 4
     assert summary["all"]["recall"] == rows[1]["detected"] / 4
@@ -236,7 +236,7 @@ def test_mono_check_files_and_rows(tiny_model: tuple[Path, Path, dict], data_roo
     # the listener's rule: windows every 0.17 s over the same 2 s, each decided on a smoothed probability
     smoothed = check_file(picked[1], model, np.random.default_rng(0), max_windows=4, smooth=3)
     assert smoothed["windows"] == 9  # (2.0 - 0.5) / 0.17 + 1
-    assert 0 <= smoothed["detected"] <= 9 and 0.0 <= smoothed["mean_probability"] <= 1.0
+    assert smoothed["rate"] == round(smoothed["detected"] / 9, 4)
 
 
 def test_cli_train_and_errors(tiny_model: tuple[Path, Path, dict], tmp_path: Path) -> None:
@@ -296,14 +296,19 @@ def test_cli_train_and_errors(tiny_model: tuple[Path, Path, dict], tmp_path: Pat
 
 def test_shipped_model_on_a_held_out_recording(windows: tuple[np.ndarray, ...]) -> None:
     """The default model (trained on the train split) on a recording made of test-split sirens
-    and street noise: detection, bearing and distance in the 20–80 m stretch of an EV passing."""
+    and street noise: detection, bearing and distance in the 20–80 m stretch of an EV passing.
+
+    Every kept window of this pass holds the siren, so detection here is recall only; the false
+    alarms on real street noise without a siren are bounded in test_false_alarms.py."""
     assert DEFAULT_SIREN_MODEL.is_file() and DEFAULT_SIREN_MODEL.stat().st_size <= 5_000_000
     model = SirenModel()
     training = json.loads(model.metadata["training"])
     assert training["n_recordings"] >= 100 and "makeway audio train" in training["command"]
     w, siren, theta, dist = windows
     pred = model.predict(w)
-    assert np.mean((pred.prob >= model.threshold) == siren) >= 0.9
+    assert siren.all()  # the siren sounds throughout the kept windows: nothing here to call negative
+    # recall; the benchmark: 97.8–98.6 % of single windows at 10–50 m, this pass reaches 100 m
+    assert np.mean(pred.prob >= model.threshold) >= 0.9
     sel = siren & (dist > 20) & (dist < 80)
     assert sel.sum() >= 5
     ang = np.degrees(np.abs(wrap_angle(pred.theta[sel] - theta[sel])))

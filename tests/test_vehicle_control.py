@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import time
 
 import numpy as np
 import pytest
@@ -233,12 +232,14 @@ def test_gain_schedule_is_stable_with_margin_everywhere() -> None:
     assert gains.gains(13.5) == pytest.approx(tuple((a + b) / 2 for a, b in zip(k_lo, k_hi, strict=True)))
 
 
-def test_gain_design_is_cheap_and_cached() -> None:
+def test_gain_design_is_cached() -> None:
+    """The design runs once per parameter set: the same parameters give the very same object,
+    other parameters another design (how long a design takes is a benchmark's matter, not a test's)."""
     params = dataclasses.replace(P, mass_kg=1700.0)  # not yet in the cache
-    t0 = time.perf_counter()
     gains = default_gains(params)
-    assert time.perf_counter() - t0 < 2.0
     assert default_gains(params) is gains
+    assert default_gains(dataclasses.replace(params)) is gains  # equal parameters, another instance
+    assert default_gains(P) is not gains and default_gains(P).gains(13.0) != gains.gains(13.0)
     assert gains.max_real_eigenvalue() < -0.5
 
 

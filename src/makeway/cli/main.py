@@ -65,9 +65,9 @@ def detect(
             "shipped 64 px small CNN), 'fastest' (the 32 px small CNN: 100 crops in ~4 ms), "
             "'imagenet' (EfficientNet-Lite0 features: best on still crops, worse on road video), a model "
             "file (.npz head or .onnx CNN) or 'none'. With one, tracks get smoothed EV states (see "
-            "docs/model_card_ev_head.md, docs/model_card_ev_cnn.md)."
+            "docs/model_card_ev_head.md, docs/model_card_ev_cnn.md). Default: 'default'."
         ),
-    ] = "none",
+    ] = "default",
     classify_every: Annotated[
         int,
         typer.Option(
