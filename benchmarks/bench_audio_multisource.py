@@ -12,7 +12,8 @@
    the nearest from the heads, further ones by time–frequency bin assignment,
    :mod:`makeway.perceive.audio.multisource`) against the anchor: further sirens read as peaks of
    the network's bearing map (holding ≥ 50 % of the first peak's mass, ≥ 30° apart — makeway's
-   method until 2026-11-22).
+   method until 2026-11-22), and the separator without its siren checks (``check_siren=False``:
+   every further sound source reported, whether or not its bins carry a siren).
 4. Prints, side by side: two-siren windows where *every* siren lies within 15° of a reported bearing
    (all; sirens ≥ 30° apart; both 10–50 m and ≥ 30° apart), and one-siren windows with a spurious
    second siren. ``--grid`` sweeps the separator's constants (choose them on ``--split train``
@@ -179,7 +180,10 @@ def main() -> int:
             for d in (0.0, 10.0, 15.0)
         }
     else:
-        separators = {"time–frequency bins": (SourceSeparator(mics, sr), NEAR_ALONE_M)}
+        separators = {
+            "time–frequency bins": (SourceSeparator(mics, sr), NEAR_ALONE_M),
+            "… without siren checks": (SourceSeparator(mics, sr, check_siren=False), NEAR_ALONE_M),
+        }
     first = next(iter(separators.values()))
     print(f"model: {model!r}; separator: {first[0]!r}, none while the nearest is < {first[1]:g} m")
     two, t_two = evaluate(model, windows["two"], separators)

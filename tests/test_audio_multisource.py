@@ -89,11 +89,12 @@ def test_separator_one_siren_gives_one_bearing(one_siren: tuple[np.ndarray, np.n
     model = SirenModel(threads=2)
     pred = model.predict(wins)
     found = [model.sources(pred, i, w) for i, w in enumerate(wins)]
-    # benchmark (bench_audio_multisource.py): a spurious second siren in 5.8 % of 480 held-out
-    # one-siren windows. Bound on these 27 windows: ≤ 4 (15 %, 2.5× that rate); at 5.8 % the chance
-    # of 5 or more is 1.8 % (binomial), so a failure means the rate itself has grown
+    # benchmark (bench_audio_multisource.py): a spurious second siren in 1.2 % of 480 held-out
+    # one-siren windows with the siren checks of SourceSeparator.further (5.8 % without them).
+    # Bound on these 27 windows: ≤ 2; at 1.2 % the chance of 3 or more is 0.4 % (binomial), so a
+    # failure means the rate itself has grown (at the unchecked 5.8 % it would be 20 %)
     assert len(wins) == 27
-    assert sum(len(f) >= 2 for f in found) <= 4
+    assert sum(len(f) >= 2 for f in found) <= 2
     assert all(len(f) <= 1 for i, f in enumerate(found) if pred.distance[i] < NEAR_ALONE_M)
 
 
@@ -124,4 +125,55 @@ def test_model_sources_reports_further_sirens(two_sirens: tuple[np.ndarray, np.n
         assert all(s["distance_m"] is None for s in full[1:])
         if len(full) >= 2 and all(any(_near(s["bearing_rad"], t) for s in full) for t in truth[i]):
             n_two += 1
+    # 21 of 33 (22 without the siren checks of SourceSeparator.further, which judge each further
+    # source's own bins with the siren network)
     assert n_two >= 0.4 * len(wins)
+
+
+@pytest.fixture(scope="module")
+def street_noise_rec(data_root: Path, tmp_path_factory: pytest.TempPathFactory) -> Recording:
+    """Issue 21, item 9: recording 0 of ``makeway audio simulate --n 2 --split test`` — one siren
+    closing from behind, and the held-out ``traffic-4`` street recording as a point source 25 m away
+    at −54°, while the siren is 30–80 m off."""
+    from makeway.sense.recording import read_recording
+    from makeway.sim.audio_scenarios import generate_recordings, source_pools
+
+    sirens, noise = source_pools("test", data_root)
+    out = tmp_path_factory.mktemp("street_noise")
+    (folder,) = generate_recordings(out, 1, seed=0, siren_pool=sirens, noise_pool=noise, progress=False)
+    return read_recording(folder)
+
+
+def test_listen_reports_no_street_noise_source_as_a_siren(street_noise_rec: Recording) -> None:
+    from makeway.perceive.audio.stream import SirenListener, listen
+
+    rec = street_noise_rec
+    meta = rec.meta
+    assert len(meta["sirens"]) == 1 and not meta["distractors"]
+    noise_bearings = [math.atan2(p[1], p[0]) for p in meta["street_noise"]["positions_vehicle_m"]]
+    lab = label_recording(rec)
+    model = SirenModel(threads=2)
+    msgs = list(listen(rec, model=model))
+    assert len(msgs) == len(lab)
+    hops = [i for i, m in enumerate(msgs) if m["is_siren"]]
+    assert len(hops) >= 0.9 * len(msgs)  # the siren sounds throughout
+    # the one siren is reported, at its true bearing in most hops (the network's own accuracy: 49
+    # of 56 hops within 15°; most misses are the pass at 5–8 m, where the bearing sweeps)
+    on_target = [_near(msgs[i]["sources"][0]["bearing_rad"], lab.theta[i, 0]) for i in hops]
+    assert np.mean(on_target) >= 0.8
+    # and nothing else: without the siren checks of SourceSeparator.further, 22 of the 56 hops
+    # here report a second siren, 19 of them at the street-noise source at −54°
+    assert all(len(msgs[i]["sources"]) == 1 for i in hops)
+
+    # the recording does provoke it: without the checks the assignment reports the street noise
+    # in 19 hops, within 15° of one of the two noise sources
+    listener = SirenListener(rec.mics, rec.sample_rate, model=model, full_scale_db_spl=rec.full_scale_db_spl)
+    assert listener.separator is not None
+    listener.separator.check_siren = False
+    win = listener.window_samples
+    audio = np.asarray(rec.audio)
+    at_noise = 0
+    for start, t_end in zip(lab.start, lab.t_end, strict=True):
+        obs = listener.step(audio[start : start + win].T, float(t_end)).to_json()
+        at_noise += any(_near(s["bearing_rad"], b) for s in obs["sources"][1:] for b in noise_bearings)
+    assert at_noise >= 10

@@ -13,9 +13,9 @@ With the trained siren network (``model``, :class:`~makeway.perceive.audio.siren
 the CLI's default) ``probability`` is the network's, the first source is the nearest siren with
 the network's bearing (vehicle frame, 0 ahead, positive left) and distance, and further sirens come
 from the window's time–frequency bins (:mod:`~makeway.perceive.audio.multisource`; distance
-``null``). Without a model, the band-energy
-:class:`~makeway.perceive.audio.doa.SirenEnergyDetector` and a classical bearing (``method``) give at
-most one source and no distance. ``approaching`` comes from an approach estimator
+``null``), each only when the network calls that source's own bins a siren. Without a model,
+the band-energy :class:`~makeway.perceive.audio.doa.SirenEnergyDetector` and a classical bearing
+(``method``) give at most one source and no distance. ``approaching`` comes from an approach estimator
 (:data:`~makeway.perceive.audio.motion.APPROACH_METHODS`) that sees every window (so its history is
 continuous) but is reported only in siren windows, for the nearest siren: with the network, by
 default :class:`~makeway.perceive.audio.motion.TrendApproach` (the trend of the network's distance
@@ -49,6 +49,7 @@ from makeway.messages import SirenObservation, SirenSource
 from makeway.perceive.audio.doa import DOA_METHODS, SirenEnergyDetector, detector_score
 from makeway.perceive.audio.features import band_level_db
 from makeway.perceive.audio.motion import DEFAULT_APPROACH_MODEL, ApproachEstimator, TrendApproach
+from makeway.perceive.audio.multisource import SourceSeparator
 from makeway.perceive.audio.siren_model import SirenModel
 from makeway.perceive.audio.windows import HOP_S, LISTEN_SMOOTH, SMOOTH_AVERAGE, WINDOW_S, window_starts
 from makeway.sense.recording import AUDIO_FILE, REFERENCE_FULL_SCALE_DB_SPL, Recording
@@ -99,6 +100,17 @@ class SirenListener:
         :meth:`~makeway.perceive.audio.siren_model.SirenModel.predict` assumes)."""
         self.detector = detector if detector is not None else SirenEnergyDetector(self.sample_rate)
         self.approach = approach if approach is not None else default_approach(model)
+        self.separator: SourceSeparator | None = None
+        """Further sirens (with a network): judged by this listener's network at its calibration
+        (:mod:`~makeway.perceive.audio.multisource`); handed to the network before each window."""
+        if model is not None:
+            gauge = self.full_scale_db_spl
+            self.separator = SourceSeparator(
+                self.mics,
+                self.sample_rate,
+                judge=lambda w: model.predict(w, gauge).prob,
+                judge_threshold=model.threshold,
+            )
         self.reset()
 
     @property
@@ -133,6 +145,7 @@ class SirenListener:
         approaching, _ = self.approach.update(window, sr, t_end, distance_m=distance, is_siren=is_siren)
         p_approach = self.approach.probability_
         if model is not None and pred is not None:
+            model.separator = self.separator
             found = model.sources(pred, 0, window, is_siren=is_siren)
         else:
             bearing = float(self.doa(window, self.mics, sr)) if is_siren else 0.0
