@@ -29,11 +29,10 @@ only through the nearest siren's direction) rarely shows the second siren.
 **Used with the network.** :meth:`SourceSeparator.further` adds the bearings that lie away from
 the network's nearest siren, but only when the assignment itself finds two or more sirens: in
 one-siren windows the first bearing of the assignment is sometimes a lobe 30–40° off the true one,
-and reporting it beside the network's (correct) bearing was the commonest spurious second siren.
+and reporting it beside the network's (correct) bearing would be the commonest spurious second siren.
 
-The constants (and that rule) were chosen on training-split recordings
-(``benchmarks/bench_audio_multisource.py --data`` on a ``--split train`` set); the held-out figures
-are in ``docs/results.md``.
+The constants (and that rule) were chosen on training-split recordings; the figures are in
+docs/results.md, section "Two sirens at once".
 """
 
 from __future__ import annotations
