@@ -18,9 +18,9 @@ Dynamics and Control*, §3.2, the ``e2_ss`` term) removes it; ``sideslip_compens
 seed 003's law exactly.
 
 **Window.** The fit uses ``n_points`` path points about ``point_spacing_m`` apart (a stride over
-denser paths), centred on the nearest one by default — seed 003's "N nearest points", and on the
-quintic lane change of the tests about half the peak error of a window that starts at the nearest
-point, whose arc lies ahead of the car and makes the feed-forward early. The spacing matters because
+denser paths), centred on the nearest one by default — seed 003's "N nearest points" — because a
+window that starts at the nearest point fits an arc that lies ahead of the car and makes the
+feed-forward early (a larger peak error on the quintic lane change of the tests). The spacing matters because
 of the line test: with 10 points 0.5 m apart every arc flatter than R ≈ 125 m is called a line
 (sagitta under 2 cm) and the feed-forward is lost; 1 m apart, that limit is R ≈ 500 m.
 

@@ -118,7 +118,8 @@ class StreamSmoother:
     "no" and 0.9 and 0.9999 as nearly the same "yes". Probabilities are clipped to
     ``[eps, 1 - eps]`` first so that 0 and 1 stay finite. ``average="probability"`` is the plain
     mean, as :class:`TrackSmoother` reports it (``mean_probability``). Used for the siren decision
-    over 0.5 s windows (:mod:`makeway.perceive.audio.stream`; docs/journal.md, twelfth session).
+    over 0.5 s windows (:mod:`makeway.perceive.audio.stream`; the choice of the logit mean: docs/results.md,
+    section "Siren detection, bearing and distance").
     """
 
     def __init__(self, window: int, average: str = "logit", eps: float = 1e-12) -> None:
