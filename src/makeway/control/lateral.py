@@ -1,5 +1,8 @@
 """Lateral control: seed 003's feed-forward + feedback steering, its gain design, and two baselines.
 
+Seed 003 is the project report of seed 001's work, which adds the complete feedback law and the
+field-test figures (``../shared/seeds/003_…``, digested in SPEC §6).
+
 **Feed-forward + feedback** (SPEC §6, seed 003). On every call the ``N`` path points nearest the
 vehicle are fitted by a line or an arc (:mod:`makeway.plan.curvefit`), which gives the errors
 ``e_lat``, ``θ̃`` (yaw error), ``θ̃̇`` (yaw-rate error) and the signed curvature ``κ = 1/R``. Then::

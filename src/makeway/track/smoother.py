@@ -1,5 +1,8 @@
 """Per-track output smoother for per-frame probabilities (SPEC §1, seed 000).
 
+Seed 000 is the Aurora paper on a per-frame EV crop CNN with a per-track output smoother
+(``../shared/seeds/000_…``, digested in SPEC §1).
+
 A per-frame classifier flickers: glare, occlusion and the off phase of a flashing light all produce
 single-frame mistakes. The smoother keeps, per track id, a ring buffer of the last ``window`` valid
 per-frame probabilities. A frame counts as positive when its probability is at least

@@ -1,9 +1,10 @@
 """COCO vehicle detectors on ONNX Runtime: YOLOX-nano and NanoDet-m (SPEC §2).
 
-SPEC §2 (Framework B: detector of class vehicle → SORT): every frame goes through a small COCO
-detector; only the vehicle classes (car 2, motorcycle 3, bus 5, truck 7, 0-based COCO-80) are kept,
-and the boxes feed the SORT tracker. Two interchangeable models are registered in :data:`DETECTORS`
-(in the style of ``pyroomacoustics.doa.algorithms``)::
+SPEC §2 (Framework B, the two-stage vision of seeds 001/003, the thesis on two vision frameworks and
+its project report: detector of class vehicle → SORT → per-track crop classifier): every frame goes
+through a small COCO detector; only the vehicle classes (car 2, motorcycle 3, bus 5, truck 7,
+0-based COCO-80) are kept, and the boxes feed the SORT tracker. Two interchangeable models are
+registered in :data:`DETECTORS` (in the style of ``pyroomacoustics.doa.algorithms``)::
 
     det = DETECTORS["yolox_nano"]()              # or DETECTORS["nanodet_m"](model_path)
     boxes, scores, class_ids = det.detect_arrays(frame_bgr)   # the fast path of the pipeline
