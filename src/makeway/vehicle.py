@@ -1,5 +1,8 @@
 """The car's own model: its parameters and the linear single-track (bicycle) dynamics (SPEC §6, seed 003).
 
+Seed 003 is the project report of seed 001's work, which adds the complete feedback law and the
+field-test figures (``../shared/seeds/003_…``, digested in SPEC §6).
+
 The controllers design their gains against this model, and the simulator's plant
 (:class:`makeway.sim.vehicle.SingleTrackModel`) integrates it, so both import it from here.
 

@@ -1,5 +1,8 @@
 """Lateral control: seed 003's feed-forward + feedback steering, its gain design, and two baselines.
 
+Seed 003 is the project report of seed 001's work, which adds the complete feedback law and the
+field-test figures (``../shared/seeds/003_…``, digested in SPEC §6).
+
 **Feed-forward + feedback** (SPEC §6, seed 003). On every call the ``N`` path points nearest the
 vehicle are fitted by a line or an arc (:mod:`makeway.plan.curvefit`), which gives the errors
 ``e_lat``, ``θ̃`` (yaw error), ``θ̃̇`` (yaw-rate error) and the signed curvature ``κ = 1/R``. Then::
@@ -18,9 +21,9 @@ Dynamics and Control*, §3.2, the ``e2_ss`` term) removes it; ``sideslip_compens
 seed 003's law exactly.
 
 **Window.** The fit uses ``n_points`` path points about ``point_spacing_m`` apart (a stride over
-denser paths), centred on the nearest one by default — seed 003's "N nearest points", and on the
-quintic lane change of the tests about half the peak error of a window that starts at the nearest
-point, whose arc lies ahead of the car and makes the feed-forward early. The spacing matters because
+denser paths), centred on the nearest one by default — seed 003's "N nearest points" — because a
+window that starts at the nearest point fits an arc that lies ahead of the car and makes the
+feed-forward early (a larger peak error on the quintic lane change of the tests). The spacing matters because
 of the line test: with 10 points 0.5 m apart every arc flatter than R ≈ 125 m is called a line
 (sagitta under 2 cm) and the feed-forward is lost; 1 m apart, that limit is R ≈ 500 m.
 

@@ -1,5 +1,8 @@
 """Per-actor EV metrics on real videos and the smoother-threshold sweep (SPEC §1, seed 000 Table 3).
 
+Seed 000 is the Aurora paper on a per-frame EV crop CNN with a per-track output smoother
+(``../shared/seeds/000_…``, digested in SPEC §1).
+
 Framework B (detector → SORT → per-track crop classifier) runs over a clip once and every per-frame
 probability of every track is **recorded** (:func:`makeway.pipeline.clip_record.record_clip`,
 cached as ``.npz`` by :func:`makeway.pipeline.clip_record.cached_clip`) as a :class:`ClipRecord`,

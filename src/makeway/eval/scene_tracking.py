@@ -24,7 +24,8 @@ from makeway.track.sort import iou_matrix
 
 __all__ = ["DISPLAY_T", "THRESHOLDS", "SceneTrackRecord", "score_scene_tracking"]
 
-#: Smoother thresholds T run side by side (seed 000, Table 3); T = 0 is the unsmoothed baseline.
+#: Smoother thresholds T run side by side (seed 000, the Aurora per-frame CNN + smoother paper, Table 3);
+#: T = 0 is the unsmoothed baseline.
 THRESHOLDS: tuple[float, ...] = (0.0, 0.3, 0.5, 0.7)
 #: The threshold whose state is displayed and reported as the headline.
 DISPLAY_T = 0.5

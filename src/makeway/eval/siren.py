@@ -10,7 +10,8 @@ of ``makeway audio eval``:
   fractions in [0, 1]; a detection is a probability ≥ ``threshold`` (0.5).
 * ``angle_median_deg`` / ``angle_mean_deg`` — wrapped bearing error (|Δθ| ≤ 180°) against the
   **nearest** present source (by distance), over every window with a siren (whether detected or
-  not, as in seed 002 Table II, so the detector's misses do not hide localization errors);
+  not, as in Table II of seed 002, the Apollo siren detection and localization paper, so the
+  detector's misses do not hide localization errors);
   ``distance_median_m`` / ``distance_mean_m`` — absolute distance error; ``null`` for the classical
   baselines, which give no distance.
 * ``range_10_50`` — the same keys over the windows whose nearest source lies within 10–50 m (the

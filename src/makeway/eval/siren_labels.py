@@ -1,5 +1,8 @@
 """Auto-labelling of recordings from the logged trajectories (SPEC §3, seed 002 §II-C.1).
 
+Seed 002 is the Apollo paper on siren detection and localization with two 4-channel roof
+microphones (``../shared/seeds/002_…``, digested in SPEC §3).
+
 The audio is cut into windows of ``window_s`` (0.5 s) every ``hop_s`` (0.17 s), starting at the first
 sample; a window that would run past the end is not made. Each window is labelled at its **end**
 time ``t_end``: the ego pose and each siren source's position are linearly interpolated between

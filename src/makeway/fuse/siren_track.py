@@ -18,11 +18,12 @@ decision reads:
   is known to ``max_speed_sigma_mps`` and it moves faster than ``min_speed_mps``; ``UNKNOWN``
   before (the yield decision treats a heard, unplaced siren conservatively). Once told, a relation
   is kept while the heading is uncertain again.
-* **Far sirens.** The networks' distance is informative up to about 50 m and saturates beyond (on
-  held-out recordings a siren 80–100 m away is put at 60 m on median; at 150–300 m it can even
-  read 45–60 m). A fix is *far* when the networks put it at ``far_m`` or more, or when its level in
-  the siren band is so low that even the quietest siren (``quiet_siren_db_1m``, the low end of
-  road sirens' 110–120 dB at 1 m) would be ``far_m`` away. A far fix counts as a bearing with a
+* **Far sirens.** The networks' distance is informative up to about 50 m and saturates beyond: a
+  siren much farther away is put at a few tens of metres (they were trained to 100 m; see
+  docs/results.md, section "Closed loop heard by the siren stack"). A fix is *far* when the
+  networks put it at ``far_m`` or more, or when its level in the siren band is so low that even
+  the quietest siren (``quiet_siren_db_1m``, the low end of road sirens' 110–120 dB at 1 m) would
+  be ``far_m`` away. A far fix counts as a bearing with a
   weak distance (radial sigma = the distance itself), and the belief then gives the bearing with
   distance and position unknown (NaN). Once the track has been in range, the relation and the
   approach call stay those of the last fix in range (an EV that went by stays gone by) until

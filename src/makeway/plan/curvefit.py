@@ -1,5 +1,8 @@
 """Local curve fit of a reference path and the tracking errors against it (SPEC §6, seed 003).
 
+Seed 003 is the project report of seed 001's work, which adds the complete feedback law and the
+field-test figures (``../shared/seeds/003_…``, digested in SPEC §6).
+
 Seed 003's controller does not use the path's stored heading and curvature directly: it takes the
 ``N`` path points nearest the vehicle, decides whether they form a straight line or an arc, fits that
 primitive, and measures the vehicle against it. This module does exactly that:

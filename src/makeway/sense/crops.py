@@ -22,7 +22,7 @@ near-duplicate clusters from :func:`near_duplicate_groups` (grey 32×32 thumbnai
 correlation ≥ 0.85, or an identical 8×8 average hash; connected components). The split is
 stratified by label at group level and seeded. The result for ``ev_crops`` is committed as
 ``makeway/data/ev_crops_holdout.txt`` (:data:`EV_CROPS_HOLDOUT`, written by
-``makeway classify holdout``) so every session trains and evaluates on the same parts; the file
+``makeway classify holdout``) so every training and evaluation run uses the same parts; the file
 carries a fingerprint of the set's image names (:func:`names_fingerprint`) so it is only applied to
 the set it was made from.
 """

@@ -29,9 +29,9 @@ SPL (AES17: a full-scale sine is 0 dBFS) has ``full_scale_db_spl = 97 − S``. T
 :data:`REFERENCE_FULL_SCALE_DB_SPL` (135 dB SPL), the scale every shipped network was trained at;
 :func:`calibration_gain` is the factor that brings a recording's samples to a model's scale. A
 recording without the key has ``full_scale_db_spl = None`` and is taken to be at the model's
-scale (the tools say so). A wrong calibration costs: 6 dB off moves the given distances by a third
-or more and raises the median distance error from 6.3 to 9.4–10 m; 12 dB too quiet loses 12 points
-of recall (``benchmarks/bench_audio_calibration.py``, ``docs/results.md``).
+scale (the tools say so). A wrong calibration costs: a level off by a few dB moves the given
+distances and raises the distance error, and an array much quieter than stated loses recall (see
+docs/results.md, section "Array calibration").
 
 **Coverage.** Every trajectory must span the audio: first timestamp ≤ ``COVER_TOLERANCE_S`` (50 ms)
 after 0 and last timestamp ≥ duration − 50 ms (a 10 Hz log may stop just short of the last sample;

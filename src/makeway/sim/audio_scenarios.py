@@ -1,5 +1,8 @@
 """Simulated siren recordings: seed 002's driving scenarios rendered through the array simulator.
 
+Seed 002 is the Apollo paper on siren detection and localization with two 4-channel roof
+microphones (``../shared/seeds/002_…``, digested in SPEC §3).
+
 Scenarios (seed 002 Fig. 4, plus an emergency vehicle closing from behind), drawn at random per
 recording; the ego drives along its lane at ``v0 + a·t`` (never backwards), everything is then
 rotated and shifted by a random world pose so that world and vehicle frames differ:

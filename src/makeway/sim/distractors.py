@@ -2,8 +2,8 @@
 
 The twelve real no-siren street recordings are the only real negatives in the shared data, so a
 network trained on them alone learns "tonal, frequency-modulated, in the 0.5–2 kHz band ⇒ siren" and
-fires on the first bird or squeaking brake of a street it has not heard (the held-out recording
-``traffic-6`` drew every false alarm of the first shipped model; see ``docs/journal.md``). This
+fires on the first bird or squeaking brake of a street it has not heard (docs/journal.md, "Siren
+network, second model: cleaned negatives, street-sound distractors, loud traffic"). This
 module synthesizes the common urban sounds that share some property of a siren but not its pattern,
 placed by the simulator as extra point sources around the car:
 

@@ -3,6 +3,8 @@
 Each :class:`Scenario` is pure data: the ego lane's centre line, lane geometry, intersections, the
 ego's start speed, and an :class:`EVPlan` (the EV's own path, speed, and when its signals are on).
 :func:`makeway.pipeline.closed_loop.run_scenario` drives them.
+``seed003`` replays the field test of seed 003, the project report on the pull-over system
+(``../shared/seeds/003_…``, digested in SPEC §6).
 
 =================  ============================================================  ======================
 name               situation                                                     right action

@@ -2,9 +2,9 @@
 
 ``makeway demo`` needs something real to track and classify on a fresh clone, with no data and no
 weights. This module simulates it: a straight road with ``lanes_per_direction`` lanes each way, seen
-from a camera on a pole beside the road (a seed 001 roadside unit), vehicles of four COCO classes
-driving through it, and one or two emergency vehicles (EVs) with flashing light bars. Per frame it
-produces three things:
+from a camera on a pole beside the road (a roadside unit of seed 001, the thesis on
+infrastructure-enabled autonomy, SPEC §5), vehicles of four COCO classes driving through it, and one
+or two emergency vehicles (EVs) with flashing light bars. Per frame it produces three things:
 
 * **Ground truth**: every vehicle's box clipped to the image, its id, class, visibility, and whether
   it is an EV whose light is lit this frame (the per-frame label of seed 000).

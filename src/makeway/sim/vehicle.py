@@ -1,5 +1,8 @@
 """The ego vehicle: a linear single-track (bicycle) model with actuator limits (SPEC §6, seed 003).
 
+Seed 003 is the project report of seed 001's work, which adds the complete feedback law and the
+field-test figures (``../shared/seeds/003_…``, digested in SPEC §6).
+
 **State.** A :class:`~makeway.messages.VehicleState`: world position ``(x, y)`` of the centre of
 gravity (CG), heading ``ψ`` (``yaw_rad``), longitudinal and lateral CG velocities ``v_x, v_y`` in the
 vehicle frame, yaw rate ``r``, actual front-wheel angle ``δ`` and longitudinal acceleration ``a_x``.

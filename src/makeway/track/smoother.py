@@ -1,5 +1,8 @@
 """Per-track output smoother for per-frame probabilities (SPEC §1, seed 000).
 
+Seed 000 is the Aurora paper on a per-frame EV crop CNN with a per-track output smoother
+(``../shared/seeds/000_…``, digested in SPEC §1).
+
 A per-frame classifier flickers: glare, occlusion and the off phase of a flashing light all produce
 single-frame mistakes. The smoother keeps, per track id, a ring buffer of the last ``window`` valid
 per-frame probabilities. A frame counts as positive when its probability is at least
@@ -118,7 +121,8 @@ class StreamSmoother:
     "no" and 0.9 and 0.9999 as nearly the same "yes". Probabilities are clipped to
     ``[eps, 1 - eps]`` first so that 0 and 1 stay finite. ``average="probability"`` is the plain
     mean, as :class:`TrackSmoother` reports it (``mean_probability``). Used for the siren decision
-    over 0.5 s windows (:mod:`makeway.perceive.audio.stream`; docs/journal.md, twelfth session).
+    over 0.5 s windows (:mod:`makeway.perceive.audio.stream`; the choice of the logit mean: docs/results.md,
+    section "Siren detection, bearing and distance").
     """
 
     def __init__(self, window: int, average: str = "logit", eps: float = 1e-12) -> None:

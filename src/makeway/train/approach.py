@@ -9,10 +9,10 @@ the car). Target: approaching (the labelled range rate of the nearest siren is n
 
 **Model.** Gradient-boosted trees (:data:`XGB_PARAMS`: 300 trees of depth 4, learning rate 0.05,
 row subsampling 0.8). Trees take the has-slope flags and the saturation of the slopes as they
-come; a logistic regression on the same rows was 6–7 points less accurate on validation recordings
-(docs/journal.md, thirteenth session). :func:`export_approach_onnx` converts the booster to an
-ONNX ``TreeEnsembleClassifier`` (onnxmltools) with the feature names in the metadata, so the
-runtime needs only ONNX Runtime.
+come, and were more accurate on validation recordings than a logistic regression on the same rows
+(docs/journal.md, "Sirens: approaching or receding, from the trend of the network's distance").
+:func:`export_approach_onnx` converts the booster to an ONNX ``TreeEnsembleClassifier``
+(onnxmltools) with the feature names in the metadata, so the runtime needs only ONNX Runtime.
 """
 
 from __future__ import annotations

@@ -1,8 +1,9 @@
 """The classical classifier study (SPEC §2): hand-made features × scikit-learn-style classifiers.
 
-Seeds 001/003 compared raw pixels, HOG, a colour histogram and a custom HSV vector
-(:mod:`makeway.perceive.vision.features`) under six classifiers; this module reruns that grid on
-our crops with an honest held-out split. :data:`CLASSIFIERS` builds each with the seeds' settings:
+Seeds 001/003 (the thesis on two vision frameworks and its project report, SPEC §2) compared raw
+pixels, HOG, a colour histogram and a custom HSV vector (:mod:`makeway.perceive.vision.features`)
+under six classifiers; this module reruns that grid on our crops with an honest held-out split.
+:data:`CLASSIFIERS` builds each with the seeds' settings:
 
 =================  ==============================================================================
 name               estimator

@@ -1,5 +1,8 @@
 """Data engine, step one: mine an unlabelled crop pool for review (SPEC §1 "Data engine", seed 000 §3.3.2).
 
+Seed 000 is the Aurora paper on a per-frame EV crop CNN with a per-track output smoother
+(``../shared/seeds/000_…``, digested in SPEC §1).
+
 Seed 000 runs the EV classifier over new logs and collects *every* active-EV detection — true or
 false positive — as hard samples to label and train on. :func:`mine` does that for a folder of crops
 (e.g. ``<shared data>/vision/ev_crops/unlabelled``):

@@ -26,15 +26,15 @@ import numpy as np
 #: H.264 encoders tried in this order; the first that FFmpeg can open wins.
 ENCODER_PREFERENCE: tuple[str, ...] = ("libx264", "h264", "libopenh264")
 
-#: The default x264 preset. Measured on 2 cores at 1280×720 (noisy night clip / daytime clip):
-#: ``ultrafast`` ≈ 6–8 ms per frame, ``superfast`` ≈ 7–13 ms, ``veryfast`` ≈ 7–26 ms. The pipeline
-#: must run at 2× real time (20 ms per 25 fps frame for everything), so only ``ultrafast`` fits.
+#: The default x264 preset: the video pipeline must run at 2× real time (20 ms per 25 fps frame for
+#: everything), and only ``ultrafast`` encodes a 720p frame fast enough on 2 cores (preset timings:
+#: docs/journal.md, "Video pipeline").
 DEFAULT_PRESET = "ultrafast"
 
 #: Extra x264 options applied on top of the preset (``None``: the preset as it is). Turning CABAC and
-#: the deblocking filter back on (``"cabac=1:deblock=0,0"``) cuts the bit rate by ~20 % but costs
-#: ~3–4 ms of CPU per 720p frame (15 vs 11 ms, measured on 2 cores), which the video pipeline's 2×
-#: real-time budget cannot spare while detection shares the cores; pass it when size matters more.
+#: the deblocking filter back on (``"cabac=1:deblock=0,0"``) makes smaller files but costs CPU per
+#: frame that the video pipeline's 2× real-time budget cannot spare while detection shares the cores
+#: (docs/journal.md, "Video pipeline"); pass it when size matters more.
 DEFAULT_X264_PARAMS: str | None = None
 
 

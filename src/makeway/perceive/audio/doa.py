@@ -201,9 +201,8 @@ PEAK_STEP_BINS = 4
 """A dominant in-band peak that moves at most this many bins (≈ 94 Hz at 48 kHz) per 10 ms frame is
 continuous: a siren sweeps by less (a yelp sweeps ~1 kHz in ~0.15 s), noise peaks jump about."""
 CONTINUITY_WEIGHT_DB = 10.0
-# The defaults come from the fit in benchmarks/bench_audio_baselines.py: 6 simulated training
-# recordings of 8 s (seed 1000, all scenarios, real ingredients); refit with SirenEnergyDetector.fit
-# or ``makeway audio eval --fit DIR``.
+# The defaults are SirenEnergyDetector.fit on 6 simulated training recordings of 8 s (seed 1000, all
+# scenarios, real ingredients); refit with SirenEnergyDetector.fit or ``makeway audio eval --fit DIR``.
 DEFAULT_SLOPE = 0.2782
 DEFAULT_OFFSET = 22.88
 

@@ -14,8 +14,8 @@ A point source at range ``r`` changing at ``ṙ`` gives ``s = −(20 / ln 10)·�
 closing at 10 m/s from 50 m raises the level by ~1.7 dB/s. Rising means approaching. The level of
 a sweeping siren also depends on its pitch — ground-reflection interference, the siren's own
 spectrum — by up to tens of dB over a wail, so the line is fitted jointly with a quadratic in
-``log(pitch)`` (``level ≈ a + s·t + b·lp + c·lp²``) and only ``s`` is kept; on simulated
-``from_behind`` drives this raised the accuracy from ~69 % to ~80 %.
+``log(pitch)`` (``level ≈ a + s·t + b·lp + c·lp²``) and only ``s`` is kept, so the sweep's own
+level changes do not pass for a trend (see docs/results.md, section "Approaching / receding").
 
 **Doppler shift** (tie-breaker only). The siren's own wail/yelp sweeps move the instantaneous peak
 frequency by an octave, far more than the Doppler shift (±3 % at 10 m/s), and the absolute shift is
@@ -42,10 +42,9 @@ slope (``−s / 8.69``, negative when approaching). Without a distance estimate 
 
 **Distance trend** (:class:`TrendApproach`, the listener's default with the siren network). With
 the network's distance in every window, the slope of ln distance over a few seconds *is* ``ṙ/r``.
-Those slopes and the two cues above go through a small trained classifier. Measured on held-out
-simulated recordings (``benchmarks/bench_audio_approach.py``), it is right in 84 % of the windows
-with a moving siren, against 63 % for the level/Doppler rule alone (docs/journal.md,
-thirteenth session). :data:`APPROACH_METHODS` names both.
+Those slopes and the two cues above go through a small trained classifier, which tells
+approaching from receding in more windows than the level/Doppler rule alone (see docs/results.md,
+section "Approaching / receding"). :data:`APPROACH_METHODS` names both.
 """
 
 from __future__ import annotations
@@ -235,7 +234,8 @@ class TrendApproach:
     Doppler cues of :class:`ApproachEstimator` beside it, combined by a trained classifier.
 
     The siren network (with its localizer and rangers) estimates the nearest siren's distance in
-    every window (median error about 5.5 m at 10–50 m). One window's distance is too noisy to tell
+    every window (its accuracy: docs/results.md, "Siren detection, bearing and distance"). One
+    window's distance is too noisy to tell
     direction, but its trend over a few seconds is not: for a point source ``d ln r / dt = ṙ / r``,
     negative while the siren comes closer. Each update:
 

@@ -29,7 +29,7 @@ only through the nearest siren's direction) rarely shows the second siren.
 **Used with the network.** :meth:`SourceSeparator.further` adds the bearings that lie away from
 the network's nearest siren, but only when the assignment itself finds two or more sirens: in
 one-siren windows the first bearing of the assignment is sometimes a lobe 30–40° off the true one,
-and reporting it beside the network's (correct) bearing was the commonest spurious second siren.
+and reporting it beside the network's (correct) bearing would be the commonest spurious second siren.
 
 **Is it a siren?** The assignment finds *sound sources*, not sirens: a point source of street
 noise, a horn or birds owns bins as well, and the share rule (step 4) compares a source's bins
@@ -50,9 +50,8 @@ with seeds 11 and 12) and on the one-siren recording of issue 21: most spurious 
 that the network calls a siren have half or more of their bins explained by the known siren's
 bearing too, and true second sirens almost never do.
 
-The other constants (and the rules before the checks) were chosen on training-split recordings
-(``benchmarks/bench_audio_multisource.py --data`` on a ``--split train`` set); the held-out figures
-are in ``docs/results.md``.
+The other constants (and the rules before the checks) were chosen on training-split recordings;
+the held-out figures are in docs/results.md, section "Two sirens at once".
 """
 
 from __future__ import annotations

@@ -28,10 +28,9 @@ does not decide whether a siren is there (model card).
 distance is then the geometric mean of the localizer's (or, without one, this network's) and the
 rangers'. Networks trained on different recordings err differently, and their mean removes part of
 the error. The shipped rangers are :data:`DEFAULT_SIREN_RANGERS`: a network trained without pitch
-variety on 120 more no-siren recordings (eighth session; median distance error at 10–50 m on a
-validation set of training-split recordings 5.50 m with it, 5.79 m without) and two trained on
-500 other recordings each (twelfth session; 5.17 m with all three, on validation seeds 77 + 78;
-docs/journal.md).
+variety on 120 more no-siren recordings, and two trained on 500 other recordings each; each was
+kept because it lowered the median distance error at 10–50 m on validation recordings (see
+docs/results.md, section "Siren detection, bearing and distance"; model card).
 
 **Calibration.** The networks read absolute levels at the scale they were trained at
 (:attr:`SirenModel.full_scale_db_spl`, from the ONNX metadata; 135 dB SPL for every shipped one and
@@ -71,14 +70,15 @@ DEFAULT_SIREN_RANGERS = (
     Path(__file__).resolve().parents[2] / "models" / "siren_ranger2.onnx",
     Path(__file__).resolve().parents[2] / "models" / "siren_ranger3.onnx",
 )
-"""The shipped rangers (model card): the eighth session's and the twelfth session's two."""
+"""The shipped rangers (model card ``docs/model_card_siren_net.md``): ``siren_ranger.onnx``, trained
+without pitch variety, and ``siren_ranger2.onnx`` / ``siren_ranger3.onnx``, trained on other recordings."""
 
 MAX_SOURCES = 3
 """At most this many sirens are reported per window (the nearest plus two)."""
 NEAR_ALONE_M = 10.0
 """No further siren is reported while the nearest is closer than this: a siren passing at a few
 metres sweeps tens of degrees of bearing within one 0.5 s window, and its smeared bins look like
-a second siren (chosen on training-split recordings, ``benchmarks/bench_audio_multisource.py``)."""
+a second siren (chosen on training-split recordings; see docs/results.md, section "Two sirens at once")."""
 
 
 @dataclass(frozen=True)

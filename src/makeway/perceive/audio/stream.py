@@ -28,10 +28,9 @@ calibration, or the networks' reference scale).
 ``is_siren`` is decided on ``smoothed_probability``, the mean of this window and the ``smooth`` − 1
 before it, taken over their logits unless ``average="probability"``
 (:class:`~makeway.track.smoother.StreamSmoother`; with ``smooth = 1`` it is this window's
-``probability``). The default, the logit mean of 8 windows (1.36 s of audio), raised the recall at
-≤ 1 % false alarms on 500 validation recordings from 97.3 % (mean of 3 probabilities) to 98.2 %, and
-detected more real siren material without more false alarms on real traffic
-(:data:`~makeway.perceive.audio.windows.LISTEN_SMOOTH`).
+``probability``). The default is the logit mean of 8 windows (1.36 s of audio;
+:data:`~makeway.perceive.audio.windows.LISTEN_SMOOTH`), chosen on validation recordings for its recall
+at ≤ 1 % false alarms (see docs/results.md, section "Siren detection, bearing and distance").
 
 :func:`makeway.viz.listen_plot.plot_listen` draws the messages.
 """

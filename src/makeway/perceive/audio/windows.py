@@ -32,10 +32,10 @@ HOP_S = 0.17
 LISTEN_SMOOTH = 8
 """Windows whose probabilities a live listener averages for its decision by default (``makeway
 audio listen``, :func:`~makeway.perceive.audio.stream.listen`), as the mean of their logits
-(:data:`SMOOTH_AVERAGE`). Chosen on 500 fresh training-split recordings never trained on (12,960
-no-siren windows): the count with the highest recall at ≤ 1 % false alarms per window at the
-detector's stored threshold, whose recall and false alarms on the real mono check were no worse than
-those of the rule it replaced, the mean of 3 probabilities (docs/results.md)."""
+(:data:`SMOOTH_AVERAGE`). Chosen on validation recordings (training-split ingredients, never trained
+on): the count with the highest recall at ≤ 1 % false alarms per window at the detector's stored
+threshold, provided recall and false alarms on the real mono check do not get worse (see
+docs/results.md, section "Siren detection, bearing and distance")."""
 SMOOTH_AVERAGE = "logit"
 """How the smoothed windows are averaged by default: the mean of their logits
 (:class:`~makeway.track.smoother.StreamSmoother`), or ``"probability"``: the mean of their

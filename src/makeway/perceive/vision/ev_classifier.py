@@ -53,14 +53,18 @@ __all__ = [
 
 #: The head shipped with the package (trained on the ev_crops training part; see the model card).
 DEFAULT_MODEL = Path(__file__).resolve().parents[2] / "models" / "ev_head_logreg.npz"
-#: The seeds' small CNN at 64 px (ONNX), shipped as the fast alternative: a few points less accurate
-#: than the head, several times cheaper per crop (``docs/model_card_ev_cnn.md``).
+#: The small CNN of seeds 001/003 (the thesis and project report on the two vision frameworks) at
+#: 64 px (ONNX), shipped as the fast alternative: less accurate than the head, several times cheaper
+#: per crop (docs/results.md, section "EV crop classifiers (accuracy, latency)";
+#: ``docs/model_card_ev_cnn.md``).
 FAST_MODEL = Path(__file__).resolve().parents[2] / "models" / "ev_cnn_small64.onnx"
-#: The same network at 32 px: the one that meets issue 3's latency target (100 crops in ≤ 10 ms on
-#: 2 cores), about three points less accurate than the 64 px one (``docs/model_card_ev_cnn.md``).
+#: The same network at 32 px, sized for issue 3's latency target (100 crops in ≤ 10 ms on 2 cores),
+#: less accurate than the 64 px one (docs/results.md, section "EV crop classifiers (accuracy,
+#: latency)"; ``docs/model_card_ev_cnn.md``).
 FASTEST_MODEL = Path(__file__).resolve().parents[2] / "models" / "ev_cnn_small32.onnx"
-#: The head on EfficientNet-Lite0 ImageNet features: the most accurate on still crops (0.940 held
-#: out), but far worse than the default on the real road videos (``docs/model_card_ev_head.md``).
+#: The head on EfficientNet-Lite0 ImageNet features: the most accurate on still crops, but far worse
+#: than the default on the real road videos (docs/results.md, section "EV crop classifiers (accuracy,
+#: latency)"; ``docs/model_card_ev_head.md``).
 IMAGENET_MODEL = Path(__file__).resolve().parents[2] / "models" / "ev_head_imagenet.npz"
 SHIPPED_MODELS: Registry[Path] = Registry(
     "crop classifier",
@@ -136,7 +140,8 @@ class EVCropClassifier:
 
     :attr:`mirror_at_test` (default ``True``) can be set ``False`` on a fitted ``flip`` head to
     judge each crop by itself only: half the cost per crop, for video (``makeway detect
-    --single-view``), at a small loss (docs/results.md).
+    --single-view``), at a small loss (docs/results.md, section "EV crop classifiers (accuracy,
+    latency)").
     """
 
     def __init__(
@@ -498,7 +503,8 @@ class EVTrackClassifier:
     ``every = k > 1`` judges each track only on frames where ``(frame_index + track_id) % k == 0``
     (staggered, so each frame classifies about 1/k of the tracks) and returns ``probability=None``
     otherwise; the smoother skips those frames, so its 25-judgement window then spans 25·k frames.
-    This divides the classification cost by k (see docs/results.md for the accuracy effect).
+    This divides the classification cost by k (the accuracy effect: docs/results.md, section
+    "Vehicle detection and the video pipeline (speed)").
     """
 
     def __init__(

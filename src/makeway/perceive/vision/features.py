@@ -1,5 +1,9 @@
 """Hand-made crop features of the classical classifier study (SPEC §2, seeds 001/003).
 
+Seeds 001/003 are the thesis on two vision frameworks, roadside units and a pull-over controller,
+and the project report of the same work (``../shared/seeds/001_…``, ``003_…``); both hold the
+classifier study that SPEC §2 digests.
+
 Every feature takes a batch of ``uint8`` BGR crops ``(n, H, W, 3)`` (as
 :meth:`makeway.sense.crops.CropSet.load_images` returns) and gives ``float32`` ``(n, d)``:
 
