@@ -123,7 +123,8 @@ def plot_ev_probability(
             ha="center",
             transform=axes[0].transAxes,
         )
-    state_colour = {EVState.ACTIVE: "#d62728", EVState.INACTIVE: "#2ca02c", EVState.WARMING_UP: "#ffbf00"}
+    # amber is the truth (lights on); the smoothed states take colours of their own
+    state_colour = {EVState.ACTIVE: "#d62728", EVState.INACTIVE: "#2ca02c", EVState.WARMING_UP: "#b39ddb"}
     ev_info = {e["actor_id"]: e for e in metrics["evs"]}
     for ax, a in zip(axes, panels, strict=False):
         actor = scene.actors[a]
