@@ -501,8 +501,8 @@ def test_teacher_targets_leave_out_copies_of_held_out_crops(ev_crops: CropSet, t
     crop (here: one copied in, one mirrored in) is left out."""
     import cv2
 
-    from makeway.train.cnn import teacher_targets
     from makeway.sense.crops import EV_CROPS_HOLDOUT, holdout_split, read_holdout
+    from makeway.train.cnn import teacher_targets
 
     _, test_idx = holdout_split(ev_crops, read_holdout(EV_CROPS_HOLDOUT))
     held = ev_crops.subset(test_idx[:20])

@@ -970,12 +970,15 @@ def teacher_targets(
     input_size: int,
     held_out: Sequence[Any],
     progress: bool = True,
+    *,
+    model: Any = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, str]:
     """Distillation data: the crops of the unlabelled folders ``pools`` at ``input_size`` px with the
     ``teacher``'s probabilities (soft targets) and decisions (a shipped crop classifier name or a model
     file), leaving out crops that are near-duplicates of a crop in the held-out sets ``held_out``
     (:class:`~makeway.sense.crops.CropSet`; they would leak the test set into training) and
-    unreadable files. Returns ``(images, probabilities, labels, description)``.
+    unreadable files. ``model`` is the teacher already loaded (default: loaded here). Returns
+    ``(images, probabilities, labels, description)``.
 
     Raises:
         InputError: a pool folder or the teacher cannot be read (every pool is listed before any work).
@@ -987,7 +990,8 @@ def teacher_targets(
 
     paths_in = [Path(p) for p in pools]
     files = [f for pool in paths_in for f in list_pool(pool)]  # every pool checked before any work
-    model = load_crop_classifier(teacher)
+    if model is None:
+        model = load_crop_classifier(teacher)
     with progress_bar(
         "teacher on the unlabelled crops", len(files), enabled=progress, unit="crops"
     ) as advance:
@@ -1059,6 +1063,11 @@ def train_crop_cnn(
 
     if arch not in ARCHS:
         raise ValueError(f"unknown --arch {arch!r}; choose logreg, {', '.join(ARCHS)}")
+    teacher_model = None
+    if unlabelled:  # a bad teacher fails before any crop is read
+        from makeway.perceive.vision.ev_classifier import load_crop_classifier
+
+        teacher_model = load_crop_classifier(teacher)
     out = Path(out)
     onnx_path = out if out.suffix.lower() == ".onnx" else out.with_suffix(".onnx")
     ckpt_path = onnx_path.with_suffix(".pt")
@@ -1104,7 +1113,7 @@ def train_crop_cnn(
     if unlabelled:
         soft = np.concatenate([np.full(len(y), np.nan) for y in ys])
         pool_images, pool_probs, pool_labels, note = teacher_targets(
-            unlabelled, teacher, input_size, [test for test, _ in held], progress
+            unlabelled, teacher, input_size, [test for test, _ in held], progress, model=teacher_model
         )
         say(note)
         xs.append(pool_images)
