@@ -503,8 +503,8 @@ def test_teacher_targets_leave_out_copies_of_held_out_crops(ev_crops: CropSet, t
     crop (here: one copied in, one mirrored in) is left out."""
     import cv2
 
-    from makeway.cli.classify import _teacher_targets
     from makeway.sense.crops import EV_CROPS_HOLDOUT, holdout_split, read_holdout
+    from makeway.train.cnn import teacher_targets
 
     _, test_idx = holdout_split(ev_crops, read_holdout(EV_CROPS_HOLDOUT))
     held = ev_crops.subset(test_idx[:20])
@@ -518,7 +518,7 @@ def test_teacher_targets_leave_out_copies_of_held_out_crops(ev_crops: CropSet, t
     cv2.imwrite(str(pool / "copy_a.jpg"), copies[3])
     cv2.imwrite(str(pool / "copy_b.jpg"), copies[7][:, ::-1])
     (pool / "broken.jpg").write_bytes(b"not an image")
-    images, probs, labels, note = _teacher_targets([pool], "fastest", 32, [held], progress=False)
+    images, probs, labels, note = teacher_targets([pool], "fastest", 32, [held], progress=False)
     assert images.shape == (len(unlabelled), 32, 32, 3) and images.dtype == np.uint8
     assert probs.shape == labels.shape == (len(unlabelled),)
     assert np.all((probs >= 0) & (probs <= 1)) and np.array_equal(labels, (probs >= 0.5).astype(np.int64))

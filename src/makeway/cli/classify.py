@@ -1,64 +1,18 @@
-"""``makeway classify …``: crop data sets and the classical classifier study (issue 3, SPEC §1–2).
+"""``makeway classify …``: emergency-vehicle crop data sets, the classical study, training and scoring
+crop classifiers, and mining an unlabelled pool.
 
-Commands:
-
-* ``study --data DIR`` — every feature × classifier of SPEC §2 on a crop folder; writes
-  ``OUT/study.md`` and ``OUT/study.csv``. On ``ev_crops`` it evaluates on the committed held-out
-  part (``makeway/data/ev_crops_holdout.txt``); on any other folder on a seeded 20 % group split.
-* ``holdout --data DIR --out FILE`` — write a held-out split file (how the committed one was made)::
-
-      makeway classify holdout --data ../shared/data/vision/ev_crops \\
-          --out src/makeway/data/ev_crops_holdout.txt
-
-* ``build-ambulance-crops --out DIR`` — a crop folder from a YOLO ambulance set
-  (default ``<shared data>/vision/ambulance_yolo/valid``): every labelled ambulance box is a
-  positive; every YOLOX-nano vehicle detection (car, motorcycle, bus, truck) whose IoU with all
-  ambulance boxes is below 0.1 (and that is not mostly — half its area or more — inside one, such
-  as a detection of an ambulance's light bar) is a negative. Crops are squares around the box with
-  10 % context per side, 224×224, boxes under 18 px wide skipped (SPEC §1). ``labels.csv`` gets a ``group``
-  column with the source photo (Roboflow copies of one photo share it), so splits keep a photo on
-  one side. Caveat: some ambulances in that set are unlabelled and come out as negatives when the
-  detector finds them; the label means "ambulance", not "lights on"::
-
-      makeway classify build-ambulance-crops --out ../work/ambulance_crops
-
-* ``train --data DIR [--data DIR2 ...] [--out FILE]`` — train the EV crop classifier head
-  (:class:`~makeway.perceive.vision.ev_classifier.EVCropClassifier`: pooled YOLOX-nano + NanoDet-m
-  backbone features of each crop and its mirror image + standardised logistic regression) and
-  write it as ``.npz`` (default: the shipped ``makeway/models/ev_head_logreg.npz``). On ev_crops
-  only the training part is used, and the held-out metrics are printed as a JSON line.
-  ``--arch resnet18|small_cnn|yolox_ft|nanodet_ft`` trains a CNN of SPEC §1 instead
-  (:mod:`makeway.train.cnn`, torch; ``--input-size``, ``--width``, ``--epochs``, ``--lr``,
-  ``--pretrained FILE``, …; ``yolox_ft`` / ``nanodet_ft`` is a detector's backbone itself, linear
-  probe then fine-tuned,
-  :mod:`makeway.train.onnx_graph`): writes ``OUT.onnx`` + the checkpoint
-  ``OUT.pt`` and scores the held-out part through ONNX Runtime.
-* ``export CHECKPOINT --out FILE.onnx`` — export a CNN checkpoint to ONNX (dynamic batch axis,
-  preprocessing and threshold in the metadata) for
-  :class:`~makeway.perceive.vision.cnn_classifier.OnnxCropClassifier`.
-* ``mine POOL [--model FILE] [--out DIR] [--top N] [--threshold T]`` — data engine: score an
-  unlabelled pool, write the predicted EVs ranked for review (``candidates.csv``,
-  ``contact_sheet.png``, ``labels_template.csv``; see :mod:`makeway.train.mining`).
-* ``eval --data DIR [--model FILE] [--plot FILE.png]`` — score a head ``.npz`` or a CNN ``.onnx``
-  (default: the shipped head) on a crop folder; on ev_crops only the committed held-out part.
-  ``--plot`` writes the precision–recall curve with the operating point and max-F1 marked. Prints
-  one JSON line last: accuracy, precision, recall, f1, max_f1, p_at_r80, n.
-
-Registered by the main app as ``app.add_typer(classify_app, name="classify")``; also runnable as
-``python -m makeway.cli.classify``.
+Each command parses its options, makes one call into :mod:`makeway.apps.classify` or
+:mod:`makeway.train`, and prints. Registered by the main app as
+``app.add_typer(classify_app, name="classify")``; also runnable as ``python -m makeway.cli.classify``.
 """
 
 from __future__ import annotations
 
-import os
-import platform
 import shlex
 import sys
-from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Annotated, Any
 
-import numpy as np
 import typer
 from rich.table import Table
 
@@ -66,7 +20,9 @@ from makeway.cli.common import console, err_console, friendly_errors, new_app, p
 from makeway.errors import InputError
 
 classify_app = new_app(
-    "classify", "Emergency-vehicle crop classifiers: data sets, held-out split, the classical study."
+    "classify",
+    "Emergency-vehicle crop classifiers.\n\n"
+    "Build crop data sets, compare classical classifiers, train, score, export and mine.",
 )
 _STUDY_OUT = Path("docs/study")
 
@@ -82,16 +38,6 @@ def _command_line() -> str:
     if prog in ("__main__.py", "classify.py"):
         prog = "python -m makeway.cli.classify"
     return " ".join([prog, *(shlex.quote(a) for a in sys.argv[1:])])
-
-
-def _versions() -> str:
-    out = []
-    for mod in ("sklearn", "xgboost", "skimage", "cv2"):
-        try:
-            out.append(f"{mod} {__import__(mod).__version__}")
-        except ImportError:
-            continue
-    return ", ".join(out)
 
 
 # -------------------------------------------------------------------------------------------- study
@@ -125,82 +71,31 @@ def study(
     threads: Annotated[int, typer.Option(min=1, help="Threads for classifiers that use several.")] = 1,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")] = False,
 ) -> None:
-    """Run the classical study (SPEC §2): features × classifiers, fitted on the training part and
-    scored on the held-out part; writes OUT/study.md (sorted table) and OUT/study.csv."""
-    from makeway.perceive.vision.features import FEATURES
-    from makeway.sense.crops import (
-        EV_CROPS_HOLDOUT,
-        holdout_split,
-        read_crop_folder,
-        read_holdout,
-        split_holdout,
-    )
-    from makeway.train.classical import CLASSIFIERS, StudyRow, compatible, run_study, write_study
+    """Compare classical crop classifiers.
 
-    feats = _split_names(features, list(FEATURES))
-    clfs = _split_names(classifiers, list(CLASSIFIERS))
-    skipped: list[tuple[str, str]] = []
-    for pair in _split_names(skip, []):
-        feat, sep, clf = pair.partition(":")
-        if not sep or feat not in FEATURES or clf not in CLASSIFIERS:
-            raise ValueError(f"--skip takes FEATURE:CLASSIFIER with registered names, got {pair!r}")
-        skipped.append((feat, clf))
-    n_runs = sum(1 for f in feats for c in clfs if (f, c) not in skipped and compatible(f, c))
-    crops = read_crop_folder(data)
-    if holdout is not None:
-        train_idx, test_idx = holdout_split(crops, read_holdout(holdout))
-        split = f"holdout {holdout.name}"
-        how = f"the held-out names listed in `{holdout}`"
-    else:
-        committed = read_holdout(EV_CROPS_HOLDOUT) if EV_CROPS_HOLDOUT.is_file() else None
-        if committed is not None and committed.matches(crops):
-            train_idx, test_idx = holdout_split(crops, committed)
-            split = "ev_crops holdout"
-            how = (
-                "the committed ev_crops holdout (`src/makeway/data/ev_crops_holdout.txt`: "
-                f"{committed.meta.get('method', 'group split')})"
-            )
-        else:
-            train_idx, test_idx = split_holdout(crops, fraction=fraction, seed=seed)
-            by = "the folder's group column" if crops.groups is not None else "near-duplicate clusters"
-            split = f"group split {fraction:g} seed {seed}"
-            how = f"a {fraction:.0%} split by {by}, stratified by label, seed {seed}"
-    train_set, test_set = crops.subset(train_idx), crops.subset(test_idx)
-    notes = [
-        f"Data: `{data}` — {len(crops)} crops, {crops.n_positive} positive (emergency vehicle).",
-        f"Train: {len(train_set)} crops ({train_set.n_positive} positive); test: {len(test_set)} crops "
-        f"({test_set.n_positive} positive), {how}. Nothing was tuned on the test part.",
-        "Accuracy, precision, recall and F1 at each classifier's own decision rule; max-F1 and precision "
-        "at recall 0.8 (P@R0.8) over thresholds of its score. Times: fit on the whole training part; "
-        "predict and feature extraction per 100 test crops (one batch), "
-        f"{threads} thread(s) on {os.cpu_count()} CPU(s) ({platform.machine()}), {_versions()}.",
-        f"Command: `{_command_line()}`",
-    ]
-    if skipped:
-        notes.append(f"Not run (too slow for this machine): {', '.join(f'{f} × {c}' for f, c in skipped)}.")
-    rows: list[StudyRow] = []
+    Every pair (e.g. HOG features with an SVM) is fitted on the training part and scored on the
+    held-out part: on ev_crops the committed held-out names, on any other folder a seeded group split
+    (--fraction). Writes OUT/study.md (sorted table) and OUT/study.csv.
+    """
+    from makeway.apps.classify import run_classical_study
 
-    def partial(row: StudyRow) -> None:  # keep what is done if a long run is interrupted
-        rows.append(row)
-        write_study(rows, out, notes=[*notes, f"(partial: {len(rows)} of {n_runs} done)"])
-
-    run_study(
-        train_set,
-        test_set,
-        feats,
-        clfs,
-        split=split,
-        n_jobs=threads,
+    run = run_classical_study(
+        data,
+        out,
+        features=_split_names(features, []),
+        classifiers=_split_names(classifiers, []),
+        skip=_split_names(skip, []),
+        holdout=holdout,
+        fraction=fraction,
         seed=seed,
+        threads=threads,
+        command=_command_line(),
         progress=not quiet,
-        on_row=partial,
-        skip=skipped,
     )
-    md_path, csv_path = write_study(rows, out, notes=notes)
-    table = Table(title=f"classical study — {split} ({len(test_set)} test crops)")
+    table = Table(title=f"classical study — {run.split} ({run.n_test} test crops)")
     for col in ("feature", "classifier", "accuracy", "F1", "max-F1", "fit s", "predict ms/100"):
         table.add_column(col)
-    for r in sorted(rows, key=lambda r: -r.accuracy)[:8]:
+    for r in sorted(run.rows, key=lambda r: -r.accuracy)[:8]:
         table.add_row(
             r.feature,
             r.classifier,
@@ -211,7 +106,7 @@ def study(
             f"{r.predict_ms_per_100:.1f}",
         )
     console.print(table)
-    err_console.print(f"→ {md_path}\n→ {csv_path}", highlight=False)
+    err_console.print(f"→ {run.md_path}\n→ {run.csv_path}", highlight=False)
 
 
 # ------------------------------------------------------------------------------------------ holdout
@@ -223,32 +118,17 @@ def holdout(
     fraction: Annotated[float, typer.Option(help="Fraction of crops held out.")] = 0.2,
     seed: Annotated[int, typer.Option(help="Seed of the split.")] = 0,
 ) -> None:
-    """Write a held-out split: the names of about FRACTION of the crops, whole groups (or
-    near-duplicate clusters) at a time, stratified by label."""
-    from makeway.sense.crops import read_crop_folder, split_holdout, write_holdout
+    """Write a held-out split of a crop folder.
 
-    crops = read_crop_folder(data)
-    _, test_idx = split_holdout(crops, fraction=fraction, seed=seed)
-    if crops.groups is not None:
-        method = "split by the group column of labels.csv"
-    else:
-        method = (
-            "split by near-duplicate clusters (grey 32x32 thumbnails, mirror-aware correlation >= 0.85 "
-            "or identical 8x8 average hash; makeway.sense.crops.near_duplicate_groups)"
-        )
-    meta = {
-        "method": f"{method}, stratified by label",
-        "fraction": f"{fraction:g}",
-        "seed": str(seed),
-        "command": (
-            f"makeway classify holdout --data {data} --out {out} --fraction {fraction:g} --seed {seed}"
-        ),
-    }
-    write_holdout(out, crops, test_idx, meta=meta)
-    n_pos = int(crops.labels[test_idx].sum())
-    err_console.print(
-        f"held out {len(test_idx)} of {len(crops)} crops ({n_pos} positive) → {out}", highlight=False
-    )
+    The file lists the names of about FRACTION of the crops, whole groups (the group column of
+    labels.csv, or near-duplicate clusters) at a time, stratified by label. The committed ev_crops
+    split was made with: makeway classify holdout --data ../shared/data/vision/ev_crops --out
+    src/makeway/data/ev_crops_holdout.txt
+    """
+    from makeway.apps.classify import write_holdout_split
+
+    n_held, n_crops, n_pos = write_holdout_split(data, out, fraction=fraction, seed=seed)
+    err_console.print(f"held out {n_held} of {n_crops} crops ({n_pos} positive) → {out}", highlight=False)
 
 
 # ---------------------------------------------------------------------------- build-ambulance-crops
@@ -277,236 +157,50 @@ def build_ambulance_crops(
     threads: Annotated[int, typer.Option(min=1, help="Detector threads.")] = 1,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")] = False,
 ) -> None:
-    """Build a crop folder from a YOLO ambulance set: ambulance boxes → positives, detector vehicles
-    that overlap no ambulance (IoU < MAX_IOU) → negatives; group = source photo."""
-    import cv2
+    """Build a crop folder from a YOLO ambulance set.
 
-    from makeway.paths import data_dir
-    from makeway.perceive.vision.crops import detection_crop_items
-    from makeway.perceive.vision.detectors import DETECTORS
-    from makeway.progress import progress_bar
-    from makeway.sense.crops import read_yolo_set, roboflow_source, write_crop_folder
+    Every labelled ambulance box is a positive; every detected vehicle (car, motorcycle, bus, truck)
+    whose IoU with all ambulance boxes is below MAX_IOU, and that lies less than MAX_INSIDE of its
+    area inside one, is a negative. Crops are squares around the box with MARGIN context per side,
+    SIZE px; boxes under 18 px wide are skipped. labels.csv gets a group column with the source photo,
+    so splits keep copies of a photo on one side. Some ambulances in that set are unlabelled and come
+    out as negatives when the detector finds them; the label means "ambulance", not "lights on".
+    """
+    from makeway.apps.classify import build_ambulance_crops as build
 
-    if data is None:
-        base = data_dir()
-        if base is None:
-            raise InputError(
-                "../shared/data", "shared data folder not found; pass --data or set MAKEWAY_DATA"
-            )
-        data = base / "vision" / "ambulance_yolo" / "valid"
-    images = read_yolo_set(data)
-    det = DETECTORS[detector](
-        model, score_threshold=score_threshold, class_agnostic=True, num_threads=threads
+    counts = build(
+        out,
+        data,
+        ambulance_class=ambulance_class,
+        detector=detector,
+        model=model,
+        score_threshold=score_threshold,
+        max_iou=max_iou,
+        max_inside=max_inside,
+        margin=margin,
+        size=size,
+        threads=threads,
+        progress=not quiet,
     )
-    counts = {"positive": 0, "negative": 0, "boxes": 0}
-
-    def items(advance: Callable[[int], Any]) -> Iterator[tuple[str, np.ndarray, int, str | None]]:
-        for item in images:
-            image = cv2.imread(str(item.path), cv2.IMREAD_COLOR)
-            if image is None:
-                raise InputError(item.path, "OpenCV could not decode this image")
-            positives = item.boxes_of(ambulance_class)
-            counts["boxes"] += len(positives)
-            boxes, _, _ = det.detect_arrays(image)
-            group = roboflow_source(item.path.stem)
-            for tag, crop, label in detection_crop_items(
-                image, positives, boxes, max_iou=max_iou, max_inside=max_inside, margin=margin, size=size
-            ):
-                counts["positive" if label else "negative"] += 1
-                yield f"{item.path.stem}_{tag}.jpg", crop, label, group
-            advance(1)
-
-    with progress_bar("crops from images", len(images), enabled=not quiet, unit="images") as adv:
-        n = write_crop_folder(out, items(adv))
     err_console.print(
-        f"{len(images)} images: {counts['positive']} ambulance crops (of {counts['boxes']} boxes; "
-        f"narrower than 18 px skipped), {counts['negative']} other-vehicle crops → {n} crops in {out}",
+        f"{counts['images']} images: {counts['positive']} ambulance crops (of {counts['boxes']} boxes; "
+        f"narrower than 18 px skipped), {counts['negative']} other-vehicle crops → {counts['crops']} crops "
+        f"in {out}",
         highlight=False,
     )
 
 
 # -------------------------------------------------------------------------------------- train/eval
-def _ev_crops_split(crops: Any) -> tuple[np.ndarray, np.ndarray] | None:
-    """``(train_idx, test_idx)`` when ``crops`` is the ev_crops set of the committed holdout."""
-    from makeway.sense.crops import EV_CROPS_HOLDOUT, holdout_split, read_holdout
-
-    if not EV_CROPS_HOLDOUT.is_file():
-        return None
-    committed = read_holdout(EV_CROPS_HOLDOUT)
-    if not committed.matches(crops):
-        return None
-    return holdout_split(crops, committed)
+def _log(line: str) -> None:
+    """One progress line on stderr."""
+    err_console.print(line, highlight=False)
 
 
-def _metrics(probs: np.ndarray, labels: np.ndarray, threshold: float) -> dict[str, Any]:
-    from makeway.eval.classification import precision_recall_f1, threshold_metrics
-
-    y = np.asarray(labels).astype(bool)
-    pred = probs >= threshold
-    prf = precision_recall_f1(int(np.sum(pred & y)), int(np.sum(pred & ~y)), int(np.sum(~pred & y)))
-    thr = threshold_metrics(probs, y, recall_at=0.8)
-    return {
-        "accuracy": round(float(np.mean(pred == y)), 4),
-        "precision": round(float(prf["precision"]), 4),
-        "recall": round(float(prf["recall"]), 4),
-        "f1": round(float(prf["f1"]), 4),
-        "max_f1": round(float(thr["max_f1"]), 4),
-        "p_at_r80": round(float(thr["precision_at_recall_0.8"]), 4),
-        "n": int(len(y)),
-    }
-
-
-def _teacher_targets(
-    pools: list[Path], teacher: str, input_size: int, held_out: list[Any], progress: bool
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, str]:
-    """Distillation data: the crops of unlabelled ``pools`` at ``input_size`` with the ``teacher``'s
-    probabilities (soft targets) and decisions, leaving out crops that are near-duplicates of a
-    held-out crop (they would leak the test set into training). Returns ``(images, probabilities,
-    labels, description)``."""
-    from makeway.perceive.vision.ev_classifier import load_crop_classifier
-    from makeway.progress import progress_bar
-    from makeway.sense.crops import CropSet, near_duplicates_of
-    from makeway.train.mining import list_pool, score_pool
-
-    files = [f for pool in pools for f in list_pool(pool)]  # every pool checked before any work
-    model = load_crop_classifier(teacher)
-    with progress_bar(
-        "teacher on the unlabelled crops", len(files), enabled=progress, unit="crops"
-    ) as advance:
-        paths, probs, unreadable = score_pool(files, model, advance=advance)
-    crops = CropSet(paths=tuple(paths), labels=np.zeros(len(paths), dtype=np.int64))
-    reference = [test.load_images(64, cache=False) for test in held_out]
-    leak = (
-        near_duplicates_of(crops.load_images(64, cache=False), np.concatenate(reference))
-        if reference and len(crops)
-        else np.zeros(len(crops), dtype=bool)
-    )
-    keep = np.flatnonzero(~leak)
-    labels = (probs[keep] >= model.threshold).astype(np.int64)
-    where = ", ".join("/".join(p.parts[-2:]) for p in pools)
-    note = (
-        f"unlabelled {where}: {len(keep)} crops with soft targets from the "
-        f"teacher {teacher} ({int(labels.sum())} judged EV; {int(leak.sum())} near-duplicates of held-out "
-        f"crops and {len(unreadable)} unreadable files left out)"
-    )
-    err_console.print(note, highlight=False)
-    images = crops.subset(keep).load_images(input_size, cache=False)
-    return images, probs[keep].astype(np.float64), labels, note
-
-
-def _train_cnn(
-    data: list[Path],
-    out: Path,
-    *,
-    arch: str,
-    threshold: float,
-    seed: int,
-    pretrained: Path | None,
-    epochs: int,
-    input_size: int,
-    width: int,
-    lr: float,
-    min_lr: float,
-    patience: int,
-    batch_size: int,
-    box_jitter: bool,
-    pos_oversample: int,
-    neg_downsample: int,
-    threads: int,
-    progress: bool,
-    unlabelled: list[Path] | None = None,
-    teacher: str = "default",
-) -> None:
-    """``classify train --arch resnet18|small_cnn|yolox_ft|nanodet_ft``: fit, write OUT (.onnx) + its .pt
-    checkpoint, score the committed ev_crops holdout through ONNX Runtime (torch imported here only)."""
-    from makeway.perceive.vision.cnn_classifier import OnnxCropClassifier
-    from makeway.sense.crops import near_duplicate_groups, read_crop_folder
-    from makeway.train.cnn import ARCHS, Augment, CNNClassifier
-
-    if arch not in ARCHS:
-        raise ValueError(f"unknown --arch {arch!r}; choose logreg, {', '.join(ARCHS)}")
-    onnx_path = out if out.suffix.lower() == ".onnx" else out.with_suffix(".onnx")
-    ckpt_path = onnx_path.with_suffix(".pt")
-    clf = CNNClassifier(
-        arch,
-        input_size=input_size,
-        width=width,
-        epochs=epochs,
-        batch_size=batch_size,
-        lr=lr,
-        min_lr=min_lr,
-        patience=patience,
-        augment=None if box_jitter else Augment(box_jitter=None),
-        pos_oversample=pos_oversample,
-        neg_downsample=neg_downsample,
-        threshold=threshold,
-        pretrained=pretrained,
-        num_threads=threads,
-        seed=seed,
-    )
-    sets = [(folder, read_crop_folder(folder)) for folder in data]  # all read before any work
-    xs: list[np.ndarray] = []
-    ys: list[np.ndarray] = []
-    gs: list[np.ndarray] = []
-    parts: list[str] = []
-    held: list[tuple[Any, Path]] = []
-    for k, (folder, crops) in enumerate(sets):
-        split = _ev_crops_split(crops)
-        if split is not None:
-            held.append((crops.subset(split[1]), folder))
-            crops = crops.subset(split[0])
-            what = "training part (committed holdout excluded)"
-        else:
-            what = "all"
-        err_console.print(f"{folder.name}: {what}, {len(crops)} crops ({crops.n_positive} positive)")
-        parts.append(f"{folder.name}: {what}, {len(crops)} crops, {crops.n_positive} positive")
-        images = crops.load_images(input_size, cache=False)
-        groups = crops.groups if crops.groups is not None else near_duplicate_groups(images)
-        xs.append(images)
-        ys.append(crops.labels)
-        gs.append(np.asarray([f"{k}:{g}" for g in groups]))
-    soft: np.ndarray | None = None
-    if unlabelled:
-        soft = np.concatenate([np.full(len(y), np.nan) for y in ys])
-        pool_images, pool_probs, pool_labels, note = _teacher_targets(
-            unlabelled, teacher, input_size, [test for test, _ in held], progress
-        )
-        xs.append(pool_images)
-        ys.append(pool_labels)
-        gs.append(np.asarray([f"pool:{i}" for i in range(len(pool_labels))]))
-        soft = np.concatenate([soft, pool_probs])
-        parts.append(note)
-
-    def show(row: dict[str, float]) -> None:
-        if progress:
-            err_console.print(
-                "  ".join(f"{k} {v:.4g}" if isinstance(v, float) else f"{k} {v}" for k, v in row.items()),
-                highlight=False,
-            )
-
-    clf.fit(
-        np.concatenate(xs),
-        np.concatenate(ys),
-        np.concatenate(gs),
-        soft_targets=soft,
-        training="; ".join(parts),
-        progress=progress,
-        on_epoch=show,
-    )
-    clf.save(ckpt_path)
-    clf.export_onnx(onnx_path)
-    err_console.print(
-        f"{len(clf.history)} epochs; checkpoint → {ckpt_path}; ONNX → {onnx_path} "
-        f"({onnx_path.stat().st_size} bytes)",
-        highlight=False,
-    )
-    runtime = OnnxCropClassifier(onnx_path, num_threads=threads)
-    for test_set, folder in held:
-        probs = runtime.predict_proba(test_set.load_images(runtime.input_size, cache=False))
-        err_console.print(
-            f"held-out metrics on {folder.name} (committed holdout, ONNX Runtime):", highlight=False
-        )
-        print_json_line(_metrics(probs, test_set.labels, runtime.threshold))
+def _print_held_out(held_out: list[tuple[Path, dict[str, Any]]], how: str) -> None:
+    """Each held-out score: a line on stderr naming the folder, then its JSON line."""
+    for folder, metrics in held_out:
+        err_console.print(f"held-out metrics on {folder.name} ({how}):", highlight=False)
+        print_json_line(metrics)
 
 
 @classify_app.command()
@@ -541,7 +235,7 @@ def train(
     epochs: Annotated[int, typer.Option(min=1, help="CNNs: most epochs.")] = 30,
     input_size: Annotated[int, typer.Option(min=16, help="CNNs: crop side in pixels.")] = 64,
     width: Annotated[int, typer.Option(min=1, help="CNNs: channels of the first stage.")] = 16,
-    lr: Annotated[float, typer.Option(help="CNNs: Adam learning rate (SPEC §1: 1e-4).")] = 1e-4,
+    lr: Annotated[float, typer.Option(help="CNNs: Adam learning rate.")] = 1e-4,
     min_lr: Annotated[float, typer.Option(help="CNNs: stop when the plateau schedule goes below.")] = 1e-5,
     patience: Annotated[
         int, typer.Option(min=0, help="CNNs: epochs without a better validation loss before halving the lr.")
@@ -585,14 +279,18 @@ def train(
     ] = "default",
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")] = False,
 ) -> None:
-    """Train an EV crop classifier: the detector-backbone features + logistic head (default) or a CNN of
-    SPEC §1 (``--arch resnet18|small_cnn``: trained from scratch, or from ``--pretrained``;
-    ``--arch yolox_ft``: the COCO detector's backbone fine-tuned).
+    """Train an EV crop classifier.
 
+    By default a logistic head on pooled detector-backbone features (written as .npz); with --arch
+    a CNN written as .onnx with its .pt checkpoint: resnet18 or small_cnn trained from scratch (or
+    resnet18 from --pretrained), yolox_ft or nanodet_ft a detector's own backbone fine-tuned after a
+    linear probe. With --unlabelled, a CNN also learns a teacher's judgements of unlabelled crops.
     On ev_crops only the training part (the complement of the committed holdout) is used, and the
     held-out metrics are printed (one JSON line last)."""
     if arch != "logreg":
-        _train_cnn(
+        from makeway.train.cnn import train_crop_cnn
+
+        run = train_crop_cnn(
             data,
             out if out is not None else Path(f"ev_cnn_{arch}.onnx"),
             arch=arch,
@@ -610,16 +308,17 @@ def train(
             pos_oversample=pos_oversample,
             neg_downsample=neg_downsample,
             threads=threads,
-            progress=not quiet,
             unlabelled=unlabelled,
             teacher=teacher,
+            progress=not quiet,
+            log=_log,
         )
+        _print_held_out(run.held_out, "committed holdout, ONNX Runtime")
         return
     from makeway.perceive.vision.backbone import DEFAULT_BLOCKS, FeatureBlock
-    from makeway.perceive.vision.ev_classifier import DEFAULT_MODEL, EVCropClassifier
-    from makeway.sense.crops import near_duplicate_groups, read_crop_folder
+    from makeway.perceive.vision.ev_classifier import EVCropClassifier
+    from makeway.train.ev_head import train_ev_head
 
-    target = out if out is not None else DEFAULT_MODEL
     if unlabelled:
         raise typer.BadParameter(
             "distillation is for the CNN archs (--arch small_cnn, …)", param_hint="--unlabelled"
@@ -632,48 +331,8 @@ def train(
         clf = EVCropClassifier(blocks=blocks, flip=flip, threshold=threshold, seed=seed, shrink=shrink or ())
     except ValueError as exc:
         raise typer.BadParameter(str(exc), param_hint="--shrink") from None
-    sets = [(folder, read_crop_folder(folder)) for folder in data]  # all read before any work
-    xs: list[np.ndarray] = []
-    xms: list[np.ndarray] = []
-    ys: list[np.ndarray] = []
-    gs: list[np.ndarray] = []
-    parts: list[str] = []
-    held: list[tuple[Any, Path]] = []
-    for folder, crops in sets:
-        split = _ev_crops_split(crops)
-        if split is not None:
-            train_idx, test_idx = split
-            held.append((crops.subset(test_idx), folder))
-            crops = crops.subset(train_idx)
-            what = "training part (committed holdout excluded)"
-        else:
-            what = "all"
-        err_console.print(f"{folder.name}: {what}, {len(crops)} crops ({crops.n_positive} positive)")
-        parts.append(f"{folder.name}: {what}, {len(crops)} crops, {crops.n_positive} positive")
-        images = crops.load_images(clf.input_size, cache=False)
-        # near-duplicates stay in one inner-CV fold (as the holdout keeps them on one side)
-        groups = np.char.add(f"{len(gs)}:", near_duplicate_groups(images).astype(str))
-        x, x_mirrored, y, g = clf.training_features(images, crops.labels, groups)
-        xs.append(x)
-        if x_mirrored is not None:
-            xms.append(x_mirrored)
-        ys.append(y)
-        gs.append(g)
-    if clf.shrink:
-        parts.append(f"each crop also shrunk to {', '.join(f'{w} px' for w in clf.shrink)} and enlarged back")
-    clf.fit_features(
-        np.concatenate(xs),
-        np.concatenate(ys),
-        x_mirrored=np.concatenate(xms) if xms else None,
-        groups=np.concatenate(gs),
-        training="; ".join(parts),
-    )
-    clf.save(target)
-    err_console.print(f"C = {clf.C:g}; head → {target} ({target.stat().st_size} bytes)", highlight=False)
-    for test_set, folder in held:
-        probs = clf.predict_proba(test_set.load_images(clf.input_size, cache=False))
-        err_console.print(f"held-out metrics on {folder.name} (committed holdout):", highlight=False)
-        print_json_line(_metrics(probs, test_set.labels, clf.threshold))
+    run = train_ev_head(clf, data, out, log=_log)
+    _print_held_out(run.held_out, "committed holdout")
 
 
 @classify_app.command("eval")
@@ -693,47 +352,22 @@ def eval_cmd(
         ),
     ] = None,
 ) -> None:
-    """Score an EV crop classifier (a head .npz or a CNN .onnx) on a crop folder; prints one JSON
-    line last.
+    """Score an EV crop classifier on a crop folder.
 
-    On ev_crops only the committed held-out part is scored. A crop that cannot be read (corrupt,
+    The classifier is a shipped one or a head .npz / CNN .onnx. Prints one JSON line last: accuracy,
+    precision, recall, f1, max_f1, p_at_r80 (precision at recall 0.8), n, skipped. On ev_crops only
+    the committed held-out part is scored. A crop that cannot be read (corrupt,
     truncated) is named on stderr ("skipped: FILE: problem"), left out and listed under "skipped";
     the rest is scored."""
-    from makeway.atomic import check_writable
-    from makeway.perceive.vision.ev_classifier import SHIPPED_MODELS, load_crop_classifier
-    from makeway.sense.crops import read_crop_folder
+    from makeway.apps.classify import evaluate_crop_classifier
 
-    if plot is not None:
-        check_writable(plot, folder=False)
-    clf = load_crop_classifier(model)
-    crops = read_crop_folder(data)
-    split = _ev_crops_split(crops)
-    if split is not None:
-        crops = crops.subset(split[1])
-        err_console.print(
-            f"ev_crops: scoring the committed held-out part only ({len(crops)} crops)", highlight=False
-        )
-    else:
-        err_console.print(f"scoring all {len(crops)} crops of {data}", highlight=False)
-    skipped: list[str] = []  # a bad crop is named and left out; the rest is scored
-    crops, images = crops.load_readable(clf.input_size, on_bad=lambda e: skipped.append(_skip_line(e)))
-    probs = clf.predict_proba(images)
-    if plot is not None:
-        from makeway.viz.pr_plot import plot_pr_curve
-
-        name = Path(SHIPPED_MODELS.get(model.strip().lower(), model)).name
-        what = "held-out part" if split is not None else "all crops"
-        plot_pr_curve(
-            probs, crops.labels, plot, threshold=clf.threshold, title=f"{name} on {data.name} ({what})"
-        )
-        err_console.print(f"PR curve → {plot}", highlight=False)
-    print_json_line({**_metrics(probs, crops.labels, clf.threshold), "skipped": skipped})
+    run = evaluate_crop_classifier(data, model, plot=plot, on_skip=_skip_line, log=_log)
+    print_json_line({**run.metrics, "skipped": run.skipped})
 
 
-def _skip_line(exc: InputError) -> str:
-    """Print ``skipped: FILE: problem`` (one line on stderr); return the file."""
+def _skip_line(exc: InputError) -> None:
+    """Print ``skipped: FILE: problem`` (one line on stderr)."""
     err_console.print(f"[yellow]skipped:[/] {exc}", highlight=False, soft_wrap=True)
-    return str(exc.path)
 
 
 # -------------------------------------------------------------------------------------------- mine
@@ -760,15 +394,18 @@ def mine(
     ] = None,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")] = False,
 ) -> None:
-    """Data engine (seed 000 §3.3.2): score an unlabelled pool and write every predicted EV — true or
-    false positive — ranked for review: OUT/candidates.csv (rank, image, probability, blank
+    """Find likely EVs in unlabelled crops for review.
+
+    Scores an unlabelled pool and writes every predicted EV — true or false positive — ranked for
+    review: OUT/candidates.csv (rank, image, probability, blank
     emergency), OUT/contact_sheet.png (top N) and OUT/labels_template.csv (image,emergency, ready to
     fill and append to a crop folder). Unreadable files are skipped and counted. One JSON line last."""
     from makeway.perceive.vision.ev_classifier import load_crop_classifier
     from makeway.train.mining import mine as mine_pool
 
-    clf = load_crop_classifier(model)
-    result = mine_pool(pool, clf, out, top=top, threshold=threshold, progress=not quiet)
+    result = mine_pool(
+        pool, load_crop_classifier(model), out, top=top, threshold=threshold, progress=not quiet
+    )
     summary = result.summary()
     if result.unreadable:
         shown = ", ".join(str(p.relative_to(pool)) for p in result.unreadable[:5])
@@ -794,21 +431,17 @@ def export_cmd(
         float | None, typer.Option(help="Decision threshold to store (default: the checkpoint's).")
     ] = None,
 ) -> None:
-    """Export a CNN checkpoint to ONNX (dynamic batch axis; input size, threshold and preprocessing in
-    the metadata), then load it back through ONNX Runtime as a check."""
-    from makeway.perceive.vision.cnn_classifier import OnnxCropClassifier
-    from makeway.train.cnn import load_checkpoint
+    """Export a CNN checkpoint to ONNX.
 
-    clf = load_checkpoint(checkpoint)
-    if threshold is not None:
-        if not 0.0 < threshold < 1.0:
-            raise ValueError(f"--threshold must be in (0, 1), got {threshold}")
-        clf.threshold = float(threshold)
-    clf.export_onnx(out)
-    runtime = OnnxCropClassifier(out)
+    The ONNX file has a dynamic batch axis and the input size, threshold and preprocessing in its
+    metadata; it is loaded back through ONNX Runtime as a check.
+    """
+    from makeway.train.cnn import export_checkpoint
+
+    clf, stored_threshold = export_checkpoint(checkpoint, out, threshold=threshold)
     err_console.print(
         f"{clf.arch} (input {clf.input_size}, width {clf.width}) → {out} ({out.stat().st_size} bytes, "
-        f"threshold {runtime.threshold:g})",
+        f"threshold {stored_threshold:g})",
         highlight=False,
     )
 

@@ -46,5 +46,11 @@ def print_json_line(obj: Any) -> None:
 def new_app(name: str, help_text: str) -> typer.Typer:
     """A typer app with makeway's settings."""
     return typer.Typer(
-        name=name, help=help_text, no_args_is_help=True, add_completion=False, pretty_exceptions_enable=False
+        name=name,
+        help=help_text,
+        no_args_is_help=True,
+        add_completion=False,
+        pretty_exceptions_enable=False,
+        rich_markup_mode=None,  # plain help: square brackets stay text, paragraphs rewrap to the terminal
+        context_settings={"max_content_width": 120},
     )

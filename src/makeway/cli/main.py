@@ -7,18 +7,14 @@ and no half-written outputs.
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 from typing import Annotated
 
-import numpy as np
 import typer
 from rich.table import Table
 
 from makeway import __version__
-from makeway.atomic import check_writable
 from makeway.cli.common import console, err_console, friendly_errors, new_app, print_json_line
-from makeway.errors import MakewayError
 
 app = new_app(
     "makeway",
@@ -87,31 +83,26 @@ def detect(
     as_json: Annotated[bool, typer.Option("--json", help="Print the run summary as one JSON line.")] = False,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")] = False,
 ) -> None:
-    """Detect and track vehicles in a video (Framework B: detector → SORT → [classifier] → smoother).
+    """Detect, track and judge the vehicles in a road video.
 
-    Writes OUT/annotated.mp4 (H.264, boxes, ids, EV state colours, FPS), OUT/tracks.jsonl (one JSON
-    object per frame) and OUT/summary.json (timings per stage, real-time factor).
+    The pipeline: vehicle detector → SORT tracker → [crop classifier] → smoother. Writes
+    OUT/annotated.mp4 (H.264, boxes, ids, EV state colours, FPS), OUT/tracks.jsonl (one JSON object
+    per frame) and OUT/summary.json (timings per stage, real-time factor).
     """
-    from makeway.pipeline.video import run_video
+    from makeway.apps.detect import detect as run
 
-    track_classifier = None
-    if classifier.strip().lower() != "none":
-        from makeway.perceive.vision.ev_classifier import EVTrackClassifier, load_crop_classifier
-
-        crop_classifier = load_crop_classifier(classifier, single_view=single_view)
-        track_classifier = EVTrackClassifier(crop_classifier, every=classify_every)
-        getattr(track_classifier.classifier, "extractors", None)  # build them now: bad weights fail early
-    out_dir = out if out is not None else Path("makeway_out") / video.stem
-    summary = run_video(
+    summary = run(
         video,
-        out_dir,
+        out,
         detector=detector,
         model=model,
         score_threshold=score_threshold,
         stride=stride,
         max_frames=max_frames,
         write_video=not no_video,
-        classifier=track_classifier,
+        classifier=classifier,
+        classify_every=classify_every,
+        single_view=single_view,
         progress=not quiet,
     )
     table = Table(title=f"makeway detect — {video.name}", show_header=False)
@@ -143,33 +134,29 @@ def track(
         float | None, typer.Option(help="Drop detections scoring below this before tracking.")
     ] = None,
 ) -> None:
-    """Run SORT on a MOTChallenge detection file; write frame,id,x,y,w,h,1,-1,-1,-1 rows.
+    """Track a MOTChallenge detection file with SORT.
 
-    With --gt, prints the CLEAR MOT and identity metrics as one JSON line.
+    Writes frame,id,x,y,w,h,1,-1,-1,-1 rows to OUT. With --gt, also prints the CLEAR MOT and
+    identity metrics as one JSON line.
     """
-    from makeway.eval.mot import evaluate_mot
-    from makeway.pipeline.mot import track_mot
-    from makeway.sense.motfile import read_mot, write_mot_tracks
+    from makeway.apps.mot import track_mot_file
 
-    check_writable(out, folder=False)
-    dets = read_mot(mot_det, kind="detection")
-    truth = read_mot(gt, kind="gt") if gt is not None else None  # read before writing anything
-    tracks = track_mot(
-        dets, max_age=max_age, min_hits=min_hits, iou_threshold=iou_threshold, min_score=min_score
+    run = track_mot_file(
+        mot_det,
+        out,
+        gt=gt,
+        max_age=max_age,
+        min_hits=min_hits,
+        iou_threshold=iou_threshold,
+        min_score=min_score,
     )
-    rows = [
-        (int(f), int(i), float(b[0]), float(b[1]), float(b[2]), float(b[3]))
-        for f, i, b in zip(tracks.frames, tracks.ids, tracks.xywh, strict=True)
-    ]
-    write_mot_tracks(out, rows)
     err_console.print(
-        f"tracked {dets.num_frames} frames, {len(dets)} detections → {len(np.unique(tracks.ids))} tracks, "
-        f"{len(rows)} boxes → {out}",
+        f"tracked {run.frames} frames, {run.detections} detections → {run.tracks} tracks, "
+        f"{run.boxes} boxes → {out}",
         highlight=False,
     )
-    if truth is not None:
-        metrics = evaluate_mot(truth, tracks).summary()
-        print_json_line({"sequence": str(mot_det), **metrics})
+    if run.metrics is not None:
+        print_json_line({"sequence": str(mot_det), **run.metrics})
 
 
 @app.command("mot-eval")
@@ -179,12 +166,13 @@ def mot_eval(
     tracks: Annotated[Path, typer.Argument(help="Tracker output in MOTChallenge format.")],
     iou: Annotated[float, typer.Option(min=0.0, max=1.0, help="IoU needed for a match.")] = 0.5,
 ) -> None:
-    """Score a MOTChallenge tracker output against ground truth (MOTA, MOTP, IDF1, switches)."""
-    from makeway.eval.mot import evaluate_mot
-    from makeway.sense.motfile import read_mot
+    """Score tracks against ground truth (MOTChallenge files).
 
-    metrics = evaluate_mot(read_mot(gt, kind="gt"), read_mot(tracks, kind="tracks"), iou_threshold=iou)
-    print_json_line(metrics.summary())
+    Prints one JSON line: MOTA, MOTP, IDF1, ID switches and their counts.
+    """
+    from makeway.apps.mot import score_mot_files
+
+    print_json_line(score_mot_files(gt, tracks, iou=iou))
 
 
 # --------------------------------------------------------------------------------------------- demo
@@ -195,12 +183,13 @@ def demo(
     no_video: Annotated[bool, typer.Option("--no-video", help="Skip the annotated mp4.")] = False,
     as_json: Annotated[bool, typer.Option("--json", help="Print the summary as one JSON line.")] = False,
 ) -> None:
-    """The whole system on built-in simulated scenes (no data, no weights needed).
+    """Run the whole system on simulated scenes.
 
-    1) seed 003's field test in closed loop: EV behind → yield decision → pull-over path → steering and
-    braking → vehicle, with Stanley and pure pursuit for comparison; 2) every built-in scenario;
-    3) SORT + smoother on a simulated roadside camera. Writes OUT/report.md, OUT/summary.json, plots
-    and an annotated video.
+    No data or weights needed. 1) The field-test situation in closed loop (an EV 50 m behind at 13.4
+    m/s): yield decision → pull-over path → steering and braking → vehicle, with the Stanley and
+    pure-pursuit controllers for comparison; 2) every built-in scenario; 3) the SORT tracker and
+    smoother on a simulated roadside camera. Writes OUT/report.md, OUT/summary.json, plots and an
+    annotated video.
     """
     from makeway.apps.demo import run_demo
 
@@ -254,21 +243,26 @@ def demo(
 def simulate(
     name: Annotated[
         str,
-        typer.Argument(help="Scenario: seed003, curve_behind, oncoming, crossing, signals_off, no_ev."),
+        typer.Argument(
+            help="Scenario: seed003 (the field test: EV behind on a straight road), curve_behind, oncoming, "
+            "crossing, signals_off, no_ev."
+        ),
     ] = "seed003",
     controller: Annotated[
         str, typer.Option(help="Lateral controller: ffb (feed-forward + feedback), stanley, pure_pursuit.")
     ] = "ffb",
     out: Annotated[
         Path | None,
-        typer.Option("--out", "-o", help="Write plots (as seed 003 Figs. 12–16) and metrics.json here."),
+        typer.Option("--out", "-o", help="Write plots (like the field test's) and metrics.json here."),
     ] = None,
     seed: Annotated[
         int, typer.Option(help="Perception seed (noise, dropouts; with --perception siren: the scene).")
     ] = 0,
     path: Annotated[
         Path | None,
-        typer.Option(help="Recorded path (CSV with x,y columns, metres) to drive seed003's situation on."),
+        typer.Option(
+            help="Recorded path (CSV with x,y columns, metres) to drive the field-test situation on."
+        ),
     ] = None,
     perception: Annotated[
         str,
@@ -293,11 +287,12 @@ def simulate(
     ] = "generated",
     as_json: Annotated[bool, typer.Option("--json", help="Print the metrics as one JSON line last.")] = False,
 ) -> None:
-    """Run a built-in closed-loop scenario: perceived EV → yield decision → path → control → vehicle.
+    """Drive a simulated scenario in closed loop.
 
-    Prints max/settled lateral error, yaw and yaw-rate error ranges, comfort, the time from the EV
-    switching on to detection and to standstill, the closest approach, and the action taken.
-    With --perception siren the EV is heard by the siren stack (--out adds siren.png, siren.jsonl).
+    The loop: perceived EV → yield decision → path → control → vehicle. Prints max/settled lateral
+    error, yaw and yaw-rate error ranges, comfort, the time from the EV switching on to detection and to
+    standstill, the closest approach, and the action taken. With --perception siren the EV is heard by
+    the siren stack (--out adds siren.png, siren.jsonl).
     """
     from makeway.apps.simulate import simulate as run
 
@@ -329,30 +324,16 @@ def simulate(
 # --------------------------------------------------------------------------------------------- info
 @app.command()
 def info() -> None:
-    """Show versions, where the shared data and detector weights were found, and the H.264 encoder."""
-    import cv2
-    import onnxruntime as ort
+    """Show versions, data and model folders, and the H.264 encoder.
 
-    from makeway.paths import data_candidates, data_dir, models_candidates
-    from makeway.viz.video_writer import pick_h264_encoder
+    Lists where the shared data and the detector weights were found and which H.264 encoder writes
+    the annotated videos.
+    """
+    from makeway.apps.info import environment_info
 
     table = Table(title="makeway info", show_header=False)
-    table.add_row("makeway", __version__)
-    table.add_row("python", sys.version.split()[0])
-    table.add_row("onnxruntime", ort.__version__)
-    table.add_row("opencv", cv2.__version__)
-    found = data_dir()
-    table.add_row(
-        "data",
-        str(found) if found else "not found (looked in " + ", ".join(map(str, data_candidates())) + ")",
-    )
-    for folder in models_candidates():
-        models = sorted(p.name for p in folder.glob("*.onnx")) if folder.is_dir() else []
-        table.add_row("models", f"{folder}: {', '.join(models) or 'none'}")
-    try:
-        table.add_row("h264 encoder", pick_h264_encoder())
-    except MakewayError as exc:
-        table.add_row("h264 encoder", f"none ({exc})")
+    for what, value in environment_info():
+        table.add_row(what, value)
     console.print(table)
 
 

@@ -78,3 +78,22 @@ def pr_curve(scores: np.ndarray, labels: np.ndarray) -> dict[str, np.ndarray]:
     tp = np.cumsum(y)[last].astype(np.float64)
     fp = np.cumsum(~y)[last].astype(np.float64)
     return {"precision": tp / (tp + fp), "recall": tp / n_pos, "threshold": s[last]}
+
+
+def operating_point_metrics(probs: np.ndarray, labels: np.ndarray, threshold: float) -> dict[str, Any]:
+    """A classifier's scores at its decision ``threshold`` (a probability is an EV at or above it):
+    ``accuracy``, ``precision``, ``recall``, ``f1``, and over all thresholds ``max_f1`` and ``p_at_r80``
+    (precision at recall 0.8), rounded to 4 digits; ``n`` crops."""
+    y = np.asarray(labels).astype(bool)
+    pred = np.asarray(probs) >= threshold
+    prf = precision_recall_f1(int(np.sum(pred & y)), int(np.sum(pred & ~y)), int(np.sum(~pred & y)))
+    thr = threshold_metrics(probs, y, recall_at=0.8)
+    return {
+        "accuracy": round(float(np.mean(pred == y)), 4),
+        "precision": round(float(prf["precision"]), 4),
+        "recall": round(float(prf["recall"]), 4),
+        "f1": round(float(prf["f1"]), 4),
+        "max_f1": round(float(thr["max_f1"]), 4),
+        "p_at_r80": round(float(thr["precision_at_recall_0.8"]), 4),
+        "n": int(len(y)),
+    }

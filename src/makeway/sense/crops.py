@@ -54,6 +54,7 @@ __all__ = [
     "Holdout",
     "YoloImage",
     "average_hash",
+    "committed_split",
     "holdout_split",
     "names_fingerprint",
     "near_duplicate_groups",
@@ -680,3 +681,14 @@ def holdout_split(crop_set: CropSet, holdout: Holdout) -> tuple[np.ndarray, np.n
     mask = np.ones(len(crop_set), dtype=bool)
     mask[test] = False
     return np.flatnonzero(mask).astype(np.int64), test
+
+
+def committed_split(crop_set: CropSet) -> tuple[np.ndarray, np.ndarray] | None:
+    """``(train_idx, test_idx)`` of ``crop_set`` when it is the set the committed holdout
+    (:data:`EV_CROPS_HOLDOUT`, the ev_crops held-out names) was made for; ``None`` for any other set."""
+    if not EV_CROPS_HOLDOUT.is_file():
+        return None
+    committed = read_holdout(EV_CROPS_HOLDOUT)
+    if not committed.matches(crop_set):
+        return None
+    return holdout_split(crop_set, committed)

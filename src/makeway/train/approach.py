@@ -92,3 +92,57 @@ def export_approach_onnx(
     with atomic_path(path) as tmp:
         onnx.save(onx, str(tmp))
     return Path(path)
+
+
+def train_approach_classifier(
+    data: Sequence[str | Path],
+    out: str | Path | None = None,
+    *,
+    val: Sequence[str | Path] = (),
+    siren: SirenModel | None = None,
+    seed: int = 0,
+    progress: bool = True,
+) -> dict[str, Any]:
+    """Train the approaching/receding classifier on the recordings under each folder of ``data`` and
+    write it to ``out`` as ONNX (default: the shipped model's path). Every recording runs as ``audio
+    listen`` runs it through ``siren`` (default: the shipped siren networks); the windows where a
+    siren is reported and moves by at least 1 m/s relative to the car are the rows, the sign of the
+    labelled range rate the target (module docstring).
+
+    Returns ``model`` (the file written), ``training`` (recordings, windows, ``approaching_share``,
+    the booster's params, seed, siren model) and, with ``val``, ``validation``: the scores of the new
+    classifier and of the level/Doppler rule on those recordings
+    (:func:`~makeway.eval.siren_approach.approach_scores`).
+
+    Raises:
+        InputError: a recording folder or a model cannot be read (all folders listed first).
+        ValueError: the training windows hold only one class.
+    """
+    from makeway.eval.siren_approach import approach_scores
+    from makeway.perceive.audio.motion import DEFAULT_APPROACH_MODEL
+    from makeway.progress import progress_bar
+
+    target = Path(out) if out is not None else DEFAULT_APPROACH_MODEL
+    folders = [f for d in data for f in recording_folders(d)]
+    val_folders = [f for d in val for f in recording_folders(d)]
+    net = siren if siren is not None else SirenModel(None, localizer=True, ranger=True)
+    with progress_bar("training windows", len(folders), enabled=progress, unit="rec") as advance:
+        train_set = approach_dataset(folders, net, advance=advance)
+    rows = train_set["scored"]
+    clf = fit_approach(train_set["features"][rows], train_set["approaching"][rows], seed=seed)
+    training = {
+        "recordings": len(folders),
+        "windows": int(rows.sum()),
+        "approaching_share": round(float(train_set["approaching"][rows].mean()), 4),
+        "params": XGB_PARAMS,
+        "seed": seed,
+        "siren_model": repr(net),
+    }
+    export_approach_onnx(clf, target, TrendApproach(model=None).feature_names, extra={"training": training})
+    result: dict[str, Any] = {"model": str(target), "training": training}
+    if val_folders:
+        trained = TrendApproach(target)
+        with progress_bar("validation", len(val_folders), enabled=progress, unit="rec") as advance:
+            val_set = approach_dataset(val_folders, net, advance=advance)
+        result["validation"] = approach_scores(val_set, trained)
+    return result

@@ -67,6 +67,7 @@ from torch import nn
 from makeway.atomic import atomic_path
 from makeway.errors import InputError
 from makeway.perceive.vision.cnn_classifier import ONNX_FORMAT
+from makeway.train.ev_head import CropTrainingRun
 
 __all__ = [
     "ARCHS",
@@ -82,6 +83,7 @@ __all__ = [
     "SmallCNN",
     "SmallCNNPixels",
     "build_model",
+    "export_checkpoint",
     "export_onnx",
     "fit_box_jitter",
     "focal_loss",
@@ -90,6 +92,8 @@ __all__ = [
     "preprocess",
     "resnet18_binary",
     "small_cnn",
+    "teacher_targets",
+    "train_crop_cnn",
     "validation_split",
 ]
 
@@ -958,3 +962,211 @@ class SmallCNNPixels:
 
     def predict(self, x: np.ndarray) -> np.ndarray:
         return (self.predict_proba(x)[:, 1] >= self.clf.threshold).astype(np.int64)
+
+
+def teacher_targets(
+    pools: Sequence[str | Path],
+    teacher: str,
+    input_size: int,
+    held_out: Sequence[Any],
+    progress: bool = True,
+    *,
+    model: Any = None,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, str]:
+    """Distillation data: the crops of the unlabelled folders ``pools`` at ``input_size`` px with the
+    ``teacher``'s probabilities (soft targets) and decisions (a shipped crop classifier name or a model
+    file), leaving out crops that are near-duplicates of a crop in the held-out sets ``held_out``
+    (:class:`~makeway.sense.crops.CropSet`; they would leak the test set into training) and
+    unreadable files. ``model`` is the teacher already loaded (default: loaded here). Returns
+    ``(images, probabilities, labels, description)``.
+
+    Raises:
+        InputError: a pool folder or the teacher cannot be read (every pool is listed before any work).
+    """
+    from makeway.perceive.vision.ev_classifier import load_crop_classifier
+    from makeway.progress import progress_bar
+    from makeway.sense.crops import CropSet, near_duplicates_of
+    from makeway.train.mining import list_pool, score_pool
+
+    paths_in = [Path(p) for p in pools]
+    files = [f for pool in paths_in for f in list_pool(pool)]  # every pool checked before any work
+    if model is None:
+        model = load_crop_classifier(teacher)
+    with progress_bar(
+        "teacher on the unlabelled crops", len(files), enabled=progress, unit="crops"
+    ) as advance:
+        paths, probs, unreadable = score_pool(files, model, advance=advance)
+    crops = CropSet(paths=tuple(paths), labels=np.zeros(len(paths), dtype=np.int64))
+    reference = [test.load_images(64, cache=False) for test in held_out]
+    leak = (
+        near_duplicates_of(crops.load_images(64, cache=False), np.concatenate(reference))
+        if reference and len(crops)
+        else np.zeros(len(crops), dtype=bool)
+    )
+    keep = np.flatnonzero(~leak)
+    labels = (probs[keep] >= model.threshold).astype(np.int64)
+    where = ", ".join("/".join(p.parts[-2:]) for p in paths_in)
+    note = (
+        f"unlabelled {where}: {len(keep)} crops with soft targets from the "
+        f"teacher {teacher} ({int(labels.sum())} judged EV; {int(leak.sum())} near-duplicates of held-out "
+        f"crops and {len(unreadable)} unreadable files left out)"
+    )
+    images = crops.subset(keep).load_images(input_size, cache=False)
+    return images, probs[keep].astype(np.float64), labels, note
+
+
+def train_crop_cnn(
+    data: Sequence[str | Path],
+    out: str | Path,
+    *,
+    arch: str,
+    threshold: float = 0.5,
+    seed: int = 0,
+    pretrained: str | Path | None = None,
+    epochs: int = 30,
+    input_size: int = 64,
+    width: int = 16,
+    lr: float = 1e-4,
+    min_lr: float = 1e-5,
+    patience: int = 3,
+    batch_size: int = 32,
+    box_jitter: bool = True,
+    pos_oversample: int = 1,
+    neg_downsample: int = 1,
+    threads: int = 2,
+    unlabelled: Sequence[str | Path] | None = None,
+    teacher: str = "default",
+    progress: bool = True,
+    log: Callable[[str], None] | None = None,
+) -> CropTrainingRun:
+    """Train a CNN crop classifier (``arch`` of :data:`ARCHS`; :class:`CNNClassifier` explains the
+    settings: ``input_size`` and ``width`` in px and channels, Adam ``lr`` with a plateau schedule
+    stopping below ``min_lr``, positive-only box jitter, over/undersampling) on the crop folders
+    ``data``; write ``out`` (``.onnx``) and the checkpoint beside it (``.pt``). On ev_crops only the
+    training part is used, and the committed held-out part is scored afterwards through ONNX Runtime.
+    With ``unlabelled`` crop folders, the ``teacher``'s probabilities on them are trained on too
+    (:func:`teacher_targets`). ``log`` receives a line per data set, per epoch (with ``progress``)
+    and for the files written.
+
+    Raises:
+        ValueError: an unknown ``arch`` (lists the known ones).
+        InputError: a crop folder, the teacher or ``pretrained`` cannot be read (the folders are read
+            before any training).
+    """
+    from makeway.eval.classification import operating_point_metrics
+    from makeway.perceive.vision.cnn_classifier import OnnxCropClassifier
+    from makeway.sense.crops import committed_split, near_duplicate_groups, read_crop_folder
+
+    def say(line: str) -> None:
+        if log is not None:
+            log(line)
+
+    if arch not in ARCHS:
+        raise ValueError(f"unknown --arch {arch!r}; choose logreg, {', '.join(ARCHS)}")
+    teacher_model = None
+    if unlabelled:  # a bad teacher fails before any crop is read
+        from makeway.perceive.vision.ev_classifier import load_crop_classifier
+
+        teacher_model = load_crop_classifier(teacher)
+    out = Path(out)
+    onnx_path = out if out.suffix.lower() == ".onnx" else out.with_suffix(".onnx")
+    ckpt_path = onnx_path.with_suffix(".pt")
+    clf = CNNClassifier(
+        arch,
+        input_size=input_size,
+        width=width,
+        epochs=epochs,
+        batch_size=batch_size,
+        lr=lr,
+        min_lr=min_lr,
+        patience=patience,
+        augment=None if box_jitter else Augment(box_jitter=None),
+        pos_oversample=pos_oversample,
+        neg_downsample=neg_downsample,
+        threshold=threshold,
+        pretrained=pretrained,
+        num_threads=threads,
+        seed=seed,
+    )
+    sets = [(Path(folder), read_crop_folder(folder)) for folder in data]  # all read before any work
+    xs: list[np.ndarray] = []
+    ys: list[np.ndarray] = []
+    gs: list[np.ndarray] = []
+    parts: list[str] = []
+    held: list[tuple[Any, Path]] = []
+    for k, (folder, crops) in enumerate(sets):
+        split = committed_split(crops)
+        if split is not None:
+            held.append((crops.subset(split[1]), folder))
+            crops = crops.subset(split[0])
+            what = "training part (committed holdout excluded)"
+        else:
+            what = "all"
+        say(f"{folder.name}: {what}, {len(crops)} crops ({crops.n_positive} positive)")
+        parts.append(f"{folder.name}: {what}, {len(crops)} crops, {crops.n_positive} positive")
+        images = crops.load_images(input_size, cache=False)
+        groups = crops.groups if crops.groups is not None else near_duplicate_groups(images)
+        xs.append(images)
+        ys.append(crops.labels)
+        gs.append(np.asarray([f"{k}:{g}" for g in groups]))
+    soft: np.ndarray | None = None
+    if unlabelled:
+        soft = np.concatenate([np.full(len(y), np.nan) for y in ys])
+        pool_images, pool_probs, pool_labels, note = teacher_targets(
+            unlabelled, teacher, input_size, [test for test, _ in held], progress, model=teacher_model
+        )
+        say(note)
+        xs.append(pool_images)
+        ys.append(pool_labels)
+        gs.append(np.asarray([f"pool:{i}" for i in range(len(pool_labels))]))
+        soft = np.concatenate([soft, pool_probs])
+        parts.append(note)
+
+    def show(row: dict[str, float]) -> None:
+        if progress:
+            say("  ".join(f"{k} {v:.4g}" if isinstance(v, float) else f"{k} {v}" for k, v in row.items()))
+
+    clf.fit(
+        np.concatenate(xs),
+        np.concatenate(ys),
+        np.concatenate(gs),
+        soft_targets=soft,
+        training="; ".join(parts),
+        progress=progress,
+        on_epoch=show,
+    )
+    clf.save(ckpt_path)
+    clf.export_onnx(onnx_path)
+    say(
+        f"{len(clf.history)} epochs; checkpoint → {ckpt_path}; ONNX → {onnx_path} "
+        f"({onnx_path.stat().st_size} bytes)"
+    )
+    runtime = OnnxCropClassifier(onnx_path, num_threads=threads)
+    scores = []
+    for test_set, folder in held:
+        probs = runtime.predict_proba(test_set.load_images(runtime.input_size, cache=False))
+        scores.append((folder, operating_point_metrics(probs, test_set.labels, runtime.threshold)))
+    return CropTrainingRun(model=onnx_path, checkpoint=ckpt_path, held_out=scores)
+
+
+def export_checkpoint(
+    checkpoint: str | Path, out: str | Path, *, threshold: float | None = None
+) -> tuple[CNNClassifier, float]:
+    """Export the CNN ``checkpoint`` (``.pt``) to ONNX at ``out`` (dynamic batch axis; input size,
+    decision ``threshold`` — default: the checkpoint's — and preprocessing in the metadata), then
+    load it back through ONNX Runtime as a check. Returns the classifier and the threshold the ONNX
+    file states.
+
+    Raises:
+        InputError: the checkpoint cannot be read, or ``out`` cannot be written.
+        ValueError: ``threshold`` outside (0, 1).
+    """
+    from makeway.perceive.vision.cnn_classifier import OnnxCropClassifier
+
+    clf = load_checkpoint(checkpoint)
+    if threshold is not None:
+        if not 0.0 < threshold < 1.0:
+            raise ValueError(f"--threshold must be in (0, 1), got {threshold}")
+        clf.threshold = float(threshold)
+    clf.export_onnx(out)
+    return clf, OnnxCropClassifier(out).threshold

@@ -61,6 +61,7 @@ __all__ = [
     "calibrate_threshold",
     "export_onnx",
     "train_siren_net",
+    "train_siren_networks",
 ]
 
 INPUT_NAMES = ("wave", "spec", "gcc", "level")
@@ -609,3 +610,186 @@ def export_onnx(
 
 def config_dict(cfg: TrainConfig) -> dict[str, Any]:
     return {k: (list(v) if isinstance(v, tuple) else v) for k, v in asdict(cfg).items()}
+
+
+def train_siren_networks(
+    data: Sequence[str | Path],
+    out: str | Path | None = None,
+    *,
+    test: str | Path | None = None,
+    streams: Sequence[str] = INPUT_NAMES,
+    distance_loss: str = "squared",
+    loss_weights: Sequence[float] | None = None,
+    width: int = 24,
+    epochs: int = 30,
+    lr: float = 1e-3,
+    batch_size: int = 64,
+    patience: int = 2,
+    max_false_alarm: float | None = None,
+    mirror: bool = True,
+    cache: str | Path | None = None,
+    threads: int = 2,
+    seed: int = 0,
+    gain_augment_db: float = 0.0,
+    command: str = "makeway audio train",
+    log: Callable[[str], None] | None = None,
+    progress: bool = True,
+) -> dict[str, Any]:
+    """Train the siren network (detection, bearing and distance heads; module docstring) on the
+    recordings under each folder of ``data`` and export it to ``out`` as ONNX (default: the shipped
+    model's path). A checkpoint of the best network so far is written after every better epoch, so a
+    run cut short still leaves a model.
+
+    ``streams`` is a subset of :data:`~makeway.perceive.audio.siren_features.STREAMS`;
+    ``distance_loss`` ``"squared"`` (m²) or ``"log"`` (ln distance); ``loss_weights`` weigh the siren,
+    direction and distance losses (default ``(10, 10, 0.008)`` with the squared loss, ``(10, 10, 10)``
+    with the log loss). ``lr`` is Adam's learning rate, ``patience`` the epochs without improvement
+    before it drops; ``gain_augment_db`` shifts each training window by up to ± that many dB. With
+    ``max_false_alarm`` the stored decision threshold is raised from 0.5 until the validation
+    false-alarm rate per window is at most that fraction. ``cache`` is a feature cache (``.npz``);
+    ``threads`` torch threads and feature-extraction processes; ``command`` is stored with the model.
+    ``log`` receives one line per step worth reporting (data set size, every epoch, the threshold,
+    the file written).
+
+    Returns ``model`` (the file written), the training description stored in the model (data,
+    configuration, ``history`` per epoch, ``train_seconds``, ``best_val_loss``) and, with ``test``,
+    ``test``: :func:`makeway.eval.siren.evaluate` of the new model on the recordings under ``test``.
+
+    Raises:
+        ValueError: an unknown stream, distance loss, or bad loss weights (before any work).
+        InputError: a recording folder cannot be read.
+    """
+    from makeway.perceive.audio.siren_features import STREAMS
+    from makeway.perceive.audio.siren_model import DEFAULT_SIREN_MODEL
+    from makeway.progress import progress_bar
+    from makeway.sense.recording import recording_folders
+
+    def say(line: str) -> None:
+        if log is not None:
+            log(line)
+
+    folders = [f for d in data for f in recording_folders(d)]
+    test_folders = recording_folders(test) if test is not None else []
+    target = Path(out) if out is not None else DEFAULT_SIREN_MODEL
+    names = tuple(streams)
+    unknown = sorted(set(names) - set(STREAMS))
+    if unknown or not names:
+        raise ValueError(
+            f"unknown streams {unknown}; --streams takes a comma-separated subset of {', '.join(STREAMS)}"
+        )
+    if distance_loss not in DISTANCE_LOSSES:
+        raise ValueError(f"--distance-loss must be {' or '.join(DISTANCE_LOSSES)}, not {distance_loss!r}")
+    weights = (
+        [10.0, 10.0, 0.008 if distance_loss == "squared" else 10.0]
+        if loss_weights is None
+        else [float(w) for w in loss_weights]
+    )
+    if len(weights) != 3 or min(weights) < 0:
+        raise ValueError(f"--loss-weights takes three non-negative numbers like 10,10,0.008, not {weights!r}")
+    cfg = TrainConfig(
+        streams=names,
+        distance_loss=distance_loss,
+        loss_weights=(weights[0], weights[1], weights[2]),
+        width=width,
+        epochs=epochs,
+        lr=lr,
+        batch_size=batch_size,
+        plateau_patience=patience,
+        seed=seed,
+        threads=threads,
+        gain_augment_db=gain_augment_db,
+    )
+    feats = SirenFeatures()
+    with progress_bar("features", len(folders), enabled=progress, unit="rec") as advance:
+        dataset = build_dataset(
+            folders,
+            feats,
+            mirror=mirror,
+            cache=None if cache is None else Path(cache),
+            workers=threads,
+            advance=advance,
+        )
+    n_pos = int(dataset.siren.sum())
+    say(
+        f"{len(folders)} recordings → {len(dataset)} windows ({n_pos} with a siren ≤ 100 m)"
+        + (" incl. mirrored copies" if mirror else "")
+    )
+    training: dict[str, Any] = {
+        "command": command,
+        "recordings": [str(d) for d in data],
+        "n_recordings": len(folders),
+        "windows": len(dataset),
+        "positives": n_pos,
+        "mirror": mirror,
+        "config": config_dict(cfg),
+    }
+    t0 = time.perf_counter()
+    with progress_bar("training", cfg.epochs, enabled=progress, unit="epoch") as advance:
+
+        def on_epoch(epoch: int, row: dict[str, float]) -> None:
+            distance = (
+                f"distance rmse {row['val_distance_mse'] ** 0.5:.1f} m) "
+                if distance_loss == "squared"
+                else f"distance rms ln-error {row['val_distance_mse'] ** 0.5:.2f}) "
+            )
+            say(
+                f"epoch {epoch + 1}: lr {row['lr']:.2g} train {row['train_loss']:.3f} "
+                f"val {row['val_loss']:.3f} "
+                f"(bce {row['val_bce']:.3f}, direction {row['val_direction']:.3f}, "
+                + distance
+                + f"{row['seconds']:.0f} s"
+            )
+            advance(1)
+
+        def on_best(best_net: Any, row: dict[str, float]) -> None:
+            export_onnx(
+                best_net,
+                target,
+                feats.config,
+                extra={"training": {**training, "checkpoint_epoch": row["epoch"]}},
+            )
+
+        net, history = train_siren_net(
+            dataset,
+            feats.shapes(),
+            cfg,
+            n_azimuth=feats.config.n_azimuth,
+            on_epoch=on_epoch,
+            on_best=on_best,
+            features=feats,
+        )
+    wall = time.perf_counter() - t0
+    training.update(
+        epochs_run=len(history),
+        best_val_loss=round(min(h["val_loss"] for h in history), 5),
+        history=[{k: round(float(v), 5) for k, v in h.items()} for h in history],
+        train_seconds=round(wall, 1),
+    )
+    threshold = 0.5
+    if max_false_alarm is not None:
+        _, val_idx = split_by_recording(dataset, cfg.val_fraction, cfg.seed)  # the split training used
+        val = dataset.subset(val_idx)
+        threshold = calibrate_threshold(evaluate_net(net, val)["prob"], val.siren > 0.5, max_false_alarm)
+        training["threshold_calibration"] = {
+            "max_false_alarm": max_false_alarm,
+            "validation_windows": len(val),
+            "threshold": round(threshold, 6),
+        }
+        say(f"decision threshold {threshold:.4f} (validation false alarms ≤ {max_false_alarm:g})")
+    export_onnx(net, target, feats.config, threshold=threshold, extra={"training": training})
+    say(f"model → {target} ({target.stat().st_size / 1e6:.2f} MB)")
+    summary: dict[str, Any] = {"model": str(target), **training}
+    if test_folders:
+        from makeway.eval.siren import evaluate, model_estimator
+        from makeway.perceive.audio.siren_model import SirenModel
+
+        with progress_bar("test", len(test_folders), enabled=progress, unit="rec") as advance:
+            trained = SirenModel(target)
+            summary["test"] = evaluate(
+                test_folders,
+                model_estimator(trained),
+                on_recording=advance,
+                name="model",
+                threshold=trained.threshold,
+            )
+    return summary

@@ -1,0 +1,335 @@
+"""``makeway classify …``: emergency-vehicle crop data sets, the classical study, and scoring a crop
+classifier.
+
+Each function here is one command's work; it reads every input before it writes anything and
+returns what the command prints. Training lives in :mod:`makeway.train` (``train.ev_head``,
+``train.cnn``).
+"""
+
+from __future__ import annotations
+
+import os
+import platform
+from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from makeway.errors import InputError
+
+__all__ = [
+    "CropEvaluation",
+    "StudyRun",
+    "build_ambulance_crops",
+    "evaluate_crop_classifier",
+    "run_classical_study",
+    "write_holdout_split",
+]
+
+
+def _versions() -> str:
+    """The versions of the study's libraries that are installed, e.g. ``sklearn 1.5.0, cv2 4.10.0``."""
+    out = []
+    for mod in ("sklearn", "xgboost", "skimage", "cv2"):
+        try:
+            out.append(f"{mod} {__import__(mod).__version__}")
+        except ImportError:
+            continue
+    return ", ".join(out)
+
+
+@dataclass(frozen=True)
+class StudyRun:
+    """What :func:`run_classical_study` did: its ``rows``, the ``split`` name, the test crops
+    ``n_test`` and the two files written (``study.md``, ``study.csv``)."""
+
+    rows: list[Any]
+    split: str
+    n_test: int
+    md_path: Path
+    csv_path: Path
+
+
+def run_classical_study(
+    data: str | Path,
+    out: str | Path,
+    *,
+    features: Sequence[str] | None = None,
+    classifiers: Sequence[str] | None = None,
+    skip: Sequence[str] = (),
+    holdout: str | Path | None = None,
+    fraction: float = 0.2,
+    seed: int = 0,
+    threads: int = 1,
+    command: str = "",
+    progress: bool = True,
+) -> StudyRun:
+    """The classical study: every feature × classifier of :mod:`makeway.train.classical` (default: all
+    registered) fitted on the training part of the crop folder ``data`` and scored on its held-out
+    part; ``skip`` lists ``FEATURE:CLASSIFIER`` pairs not to run. The held-out part is the names in
+    ``holdout`` when given, else the committed ev_crops holdout when ``data`` is that set, else a
+    ``fraction`` split by group (or near-duplicate cluster) with ``seed``. Writes ``OUT/study.md``
+    (sorted table, with the data, split, machine and ``command`` as notes) and ``OUT/study.csv``,
+    rewritten after every pair so an interrupted run keeps what is done.
+
+    Raises:
+        ValueError: a ``skip`` entry that is not ``FEATURE:CLASSIFIER`` with registered names.
+        InputError: the crop folder or the holdout cannot be read.
+    """
+    from makeway.perceive.vision.features import FEATURES
+    from makeway.sense.crops import (
+        EV_CROPS_HOLDOUT,
+        holdout_split,
+        read_crop_folder,
+        read_holdout,
+        split_holdout,
+    )
+    from makeway.train.classical import CLASSIFIERS, StudyRow, compatible, run_study, write_study
+
+    feats = list(features) if features else list(FEATURES)
+    clfs = list(classifiers) if classifiers else list(CLASSIFIERS)
+    skipped: list[tuple[str, str]] = []
+    for pair in skip:
+        feat, sep, clf = pair.partition(":")
+        if not sep or feat not in FEATURES or clf not in CLASSIFIERS:
+            raise ValueError(f"--skip takes FEATURE:CLASSIFIER with registered names, got {pair!r}")
+        skipped.append((feat, clf))
+    n_runs = sum(1 for f in feats for c in clfs if (f, c) not in skipped and compatible(f, c))
+    crops = read_crop_folder(data)
+    if holdout is not None:
+        train_idx, test_idx = holdout_split(crops, read_holdout(holdout))
+        split = f"holdout {Path(holdout).name}"
+        how = f"the held-out names listed in `{holdout}`"
+    else:
+        committed = read_holdout(EV_CROPS_HOLDOUT) if EV_CROPS_HOLDOUT.is_file() else None
+        if committed is not None and committed.matches(crops):
+            train_idx, test_idx = holdout_split(crops, committed)
+            split = "ev_crops holdout"
+            how = (
+                "the committed ev_crops holdout (`src/makeway/data/ev_crops_holdout.txt`: "
+                f"{committed.meta.get('method', 'group split')})"
+            )
+        else:
+            train_idx, test_idx = split_holdout(crops, fraction=fraction, seed=seed)
+            by = "the folder's group column" if crops.groups is not None else "near-duplicate clusters"
+            split = f"group split {fraction:g} seed {seed}"
+            how = f"a {fraction:.0%} split by {by}, stratified by label, seed {seed}"
+    train_set, test_set = crops.subset(train_idx), crops.subset(test_idx)
+    notes = [
+        f"Data: `{data}` — {len(crops)} crops, {crops.n_positive} positive (emergency vehicle).",
+        f"Train: {len(train_set)} crops ({train_set.n_positive} positive); test: {len(test_set)} crops "
+        f"({test_set.n_positive} positive), {how}. Nothing was tuned on the test part.",
+        "Accuracy, precision, recall and F1 at each classifier's own decision rule; max-F1 and precision "
+        "at recall 0.8 (P@R0.8) over thresholds of its score. Times: fit on the whole training part; "
+        "predict and feature extraction per 100 test crops (one batch), "
+        f"{threads} thread(s) on {os.cpu_count()} CPU(s) ({platform.machine()}), {_versions()}.",
+        f"Command: `{command}`",
+    ]
+    if skipped:
+        notes.append(f"Not run (too slow for this machine): {', '.join(f'{f} × {c}' for f, c in skipped)}.")
+    rows: list[StudyRow] = []
+
+    def partial(row: StudyRow) -> None:  # keep what is done if a long run is interrupted
+        rows.append(row)
+        write_study(rows, out, notes=[*notes, f"(partial: {len(rows)} of {n_runs} done)"])
+
+    run_study(
+        train_set,
+        test_set,
+        feats,
+        clfs,
+        split=split,
+        n_jobs=threads,
+        seed=seed,
+        progress=progress,
+        on_row=partial,
+        skip=skipped,
+    )
+    md_path, csv_path = write_study(rows, out, notes=notes)
+    return StudyRun(rows, split, len(test_set), md_path, csv_path)
+
+
+def write_holdout_split(
+    data: str | Path, out: str | Path, *, fraction: float = 0.2, seed: int = 0
+) -> tuple[int, int, int]:
+    """Write a held-out split of the crop folder ``data`` to ``out``: the names of about ``fraction``
+    of the crops, whole groups (the ``group`` column, else near-duplicate clusters) at a time,
+    stratified by label, with how it was made in the header. Returns ``(held out, crops, held-out
+    positives)``.
+
+    Raises:
+        InputError: the crop folder cannot be read, or ``out`` cannot be written.
+    """
+    from makeway.sense.crops import read_crop_folder, split_holdout, write_holdout
+
+    crops = read_crop_folder(data)
+    _, test_idx = split_holdout(crops, fraction=fraction, seed=seed)
+    if crops.groups is not None:
+        method = "split by the group column of labels.csv"
+    else:
+        method = (
+            "split by near-duplicate clusters (grey 32x32 thumbnails, mirror-aware correlation >= 0.85 "
+            "or identical 8x8 average hash; makeway.sense.crops.near_duplicate_groups)"
+        )
+    meta = {
+        "method": f"{method}, stratified by label",
+        "fraction": f"{fraction:g}",
+        "seed": str(seed),
+        "command": (
+            f"makeway classify holdout --data {data} --out {out} --fraction {fraction:g} --seed {seed}"
+        ),
+    }
+    write_holdout(out, crops, test_idx, meta=meta)
+    return len(test_idx), len(crops), int(crops.labels[test_idx].sum())
+
+
+def build_ambulance_crops(
+    out: str | Path,
+    data: str | Path | None = None,
+    *,
+    ambulance_class: int = 0,
+    detector: str = "yolox_nano",
+    model: str | Path | None = None,
+    score_threshold: float = 0.3,
+    max_iou: float = 0.1,
+    max_inside: float = 0.5,
+    margin: float = 0.1,
+    size: int = 224,
+    threads: int = 1,
+    progress: bool = True,
+) -> dict[str, int]:
+    """A crop folder (``images/`` + ``labels.csv`` with a ``group`` column: the source photo) at
+    ``out`` from the YOLO ambulance set ``data`` (default ``<shared data>/vision/ambulance_yolo/valid``).
+    Every labelled box of ``ambulance_class`` is a positive; every ``detector`` vehicle whose IoU with
+    all ambulance boxes is below ``max_iou`` and that lies less than ``max_inside`` of its area inside
+    one is a negative. Crops are ``size`` × ``size`` px squares around the box with ``margin`` (of the
+    box's longer side) of context per side; boxes under 18 px wide are skipped.
+
+    Returns the counts: ``images``, ``boxes`` (labelled ambulances), ``positive``, ``negative`` and
+    ``crops`` (written).
+
+    Raises:
+        InputError: the data folder is not found or an image cannot be decoded (nothing is written).
+        UnknownNameError: an unknown detector (lists the known ones).
+    """
+    import cv2
+
+    from makeway.paths import data_dir
+    from makeway.perceive.vision.crops import detection_crop_items
+    from makeway.perceive.vision.detectors import DETECTORS
+    from makeway.progress import progress_bar
+    from makeway.sense.crops import read_yolo_set, roboflow_source, write_crop_folder
+
+    if data is None:
+        base = data_dir()
+        if base is None:
+            raise InputError(
+                "../shared/data", "shared data folder not found; pass --data or set MAKEWAY_DATA"
+            )
+        data = base / "vision" / "ambulance_yolo" / "valid"
+    images = read_yolo_set(data)
+    det = DETECTORS[detector](
+        model, score_threshold=score_threshold, class_agnostic=True, num_threads=threads
+    )
+    counts = {"images": len(images), "positive": 0, "negative": 0, "boxes": 0}
+
+    def items(advance: Callable[[int], Any]) -> Iterator[tuple[str, np.ndarray, int, str | None]]:
+        for item in images:
+            image = cv2.imread(str(item.path), cv2.IMREAD_COLOR)
+            if image is None:
+                raise InputError(item.path, "OpenCV could not decode this image")
+            positives = item.boxes_of(ambulance_class)
+            counts["boxes"] += len(positives)
+            boxes, _, _ = det.detect_arrays(image)
+            group = roboflow_source(item.path.stem)
+            for tag, crop, label in detection_crop_items(
+                image, positives, boxes, max_iou=max_iou, max_inside=max_inside, margin=margin, size=size
+            ):
+                counts["positive" if label else "negative"] += 1
+                yield f"{item.path.stem}_{tag}.jpg", crop, label, group
+            advance(1)
+
+    with progress_bar("crops from images", len(images), enabled=progress, unit="images") as adv:
+        counts["crops"] = write_crop_folder(out, items(adv))
+    return counts
+
+
+@dataclass(frozen=True)
+class CropEvaluation:
+    """What :func:`evaluate_crop_classifier` scored: ``metrics``
+    (:func:`~makeway.eval.classification.operating_point_metrics`), the crops left out as unreadable
+    (``skipped``), whether only the committed held-out part was scored (``held_out``), how many crops
+    were scored (``n``) and the PR curve written (``plot``, or ``None``)."""
+
+    metrics: dict[str, Any]
+    skipped: list[str]
+    held_out: bool
+    n: int
+    plot: Path | None
+
+
+def evaluate_crop_classifier(
+    data: str | Path,
+    model: str = "default",
+    *,
+    plot: str | Path | None = None,
+    on_skip: Callable[[InputError], None] | None = None,
+    log: Callable[[str], None] | None = None,
+) -> CropEvaluation:
+    """Score the crop classifier ``model`` (a shipped name — ``default``, ``fast``, ``fastest``,
+    ``imagenet`` — or a head ``.npz`` / CNN ``.onnx``) on the crop folder ``data`` at its own decision
+    threshold; on ev_crops only the committed held-out part is scored. A crop that cannot be read is
+    left out, passed to ``on_skip`` and listed in ``skipped``; the rest is scored. With ``plot``,
+    also writes the precision–recall curve (operating point and max-F1 marked) as PNG. ``log``
+    receives a line saying which crops are scored, before they are read, and one naming the plot.
+
+    Raises:
+        InputError: the model or the crop folder cannot be read, or ``plot`` cannot be written (checked
+            first); an unknown model name lists the shipped ones.
+    """
+    from makeway.atomic import check_writable
+    from makeway.eval.classification import operating_point_metrics
+    from makeway.perceive.vision.ev_classifier import SHIPPED_MODELS, load_crop_classifier
+    from makeway.sense.crops import committed_split, read_crop_folder
+
+    def say(line: str) -> None:
+        if log is not None:
+            log(line)
+
+    if plot is not None:
+        check_writable(plot, folder=False)
+    clf = load_crop_classifier(model)
+    crops = read_crop_folder(data)
+    split = committed_split(crops)
+    if split is not None:
+        crops = crops.subset(split[1])
+        say(f"ev_crops: scoring the committed held-out part only ({len(crops)} crops)")
+    else:
+        say(f"scoring all {len(crops)} crops of {data}")
+    skipped: list[str] = []
+
+    def skip(exc: InputError) -> None:
+        skipped.append(str(exc.path))
+        if on_skip is not None:
+            on_skip(exc)
+
+    crops, images = crops.load_readable(clf.input_size, on_bad=skip)
+    probs = clf.predict_proba(images)
+    if plot is not None:
+        from makeway.viz.pr_plot import plot_pr_curve
+
+        name = Path(SHIPPED_MODELS.get(model.strip().lower(), model)).name
+        what = "held-out part" if split is not None else "all crops"
+        plot_pr_curve(
+            probs, crops.labels, plot, threshold=clf.threshold, title=f"{name} on {Path(data).name} ({what})"
+        )
+        say(f"PR curve → {plot}")
+    return CropEvaluation(
+        metrics=operating_point_metrics(probs, crops.labels, clf.threshold),
+        skipped=skipped,
+        held_out=split is not None,
+        n=len(crops),
+        plot=None if plot is None else Path(plot),
+    )
