@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import io
 import json
 import math
 from pathlib import Path
@@ -163,6 +164,17 @@ def test_demo_writes_the_report(tmp_path: Path) -> None:
     assert (out / "closed_loop" / "seed003_siren" / "siren.png").exists()
     assert (out / "closed_loop" / "seed003_siren" / "siren.jsonl").read_text().count("\n") > 100
     assert not any(p.name.endswith(".partial") for p in tmp_path.iterdir())
+    # what `makeway demo` prints fits an 80-column terminal: cells wrap, nothing is cut with "…"
+    from rich.console import Console
+
+    from makeway.cli.main import demo_report
+
+    narrow = Console(width=80, record=True, file=io.StringIO())
+    for part in demo_report(s, out):
+        narrow.print(part)
+    text = narrow.export_text()
+    assert "…" not in text and "stop before intersection" in text and "pull over and stop" in text
+    assert max(len(line) for line in text.splitlines()) <= 80
 
 
 def test_cli_simulate_on_a_recorded_path(tmp_path: Path) -> None:

@@ -8,7 +8,7 @@ and no half-written outputs.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
 from rich.table import Table
@@ -197,11 +197,17 @@ def demo(
     if as_json:
         print_json_line(summary.to_json())
         return
+    for part in demo_report(summary, Path(out)):
+        console.print(part)
+
+
+def demo_report(summary: Any, out: Path) -> list[Any]:
+    """What ``makeway demo`` prints: tables whose cells wrap (never cut) at any terminal width."""
     m = summary.seed003
     table = Table(title="makeway demo — make way for an emergency vehicle (simulated)")
-    table.add_column("seed003: EV 50 m behind, ego 13.4 m/s", no_wrap=True)
-    table.add_column("makeway", justify="right", no_wrap=True)
-    table.add_column("field test / target", justify="right", no_wrap=True)
+    table.add_column("EV 50 m behind, ego at 13.4 m/s", overflow="fold")
+    table.add_column("makeway", justify="right", overflow="fold")
+    table.add_column("field test / target", justify="right", overflow="fold")
     table.add_row("max |e_lat| in the manoeuvre (m)", f"{m['max_abs_e_lat_m']:.3f}", "0.55 / ≤ 0.25")
     table.add_row("settled |e_lat| (m)", f"{m['settled_abs_e_lat_m']:.3f}", "~0.10 / ≤ 0.05")
     yaw = m["yaw_error_range_rad"]
@@ -213,28 +219,37 @@ def demo(
     ):
         v = m[key]
         table.add_row(label, "—" if v is None else f"{v:.2f}", "")
-    table.add_row("action", str(m["action"]), "pull over and stop")
-    console.print(table)
+    table.add_row("action", _words(m["action"]), "pull over and stop")
     h = summary.seed003_siren
-    console.print(
-        f"seed003 heard by the siren stack (audio → networks → track): detected "
+    heard = (
+        f"Heard by the siren stack (audio → networks → track): detected "
         f"{h['time_active_to_detected_s']:.2f} s after the siren went on, stopped after "
-        f"{h['time_active_to_stopped_s']:.2f} s, action {h['action']}, "
-        f"collision {'yes' if h['collision'] else 'no'}"
+        f"{h['time_active_to_stopped_s']:.2f} s, action {_words(h['action'])}, "
+        f"collision {'yes' if h['collision'] else 'no'}."
     )
     sc = Table(title="built-in scenarios")
     for col in ("scenario", "action", "expected", "collision"):
-        sc.add_column(col, no_wrap=True)
+        sc.add_column(col, overflow="fold")
     for name, sm in summary.scenarios.items():
         ok = "[green]" if sm["action_ok"] and not sm["collision"] else "[red]"
-        sc.add_row(name, f"{ok}{sm['action']}", sm["expected_action"], "yes" if sm["collision"] else "no")
-    console.print(sc)
+        sc.add_row(
+            name,
+            f"{ok}{_words(sm['action'])}",
+            _words(sm["expected_action"]),
+            "yes" if sm["collision"] else "no",
+        )
     tr = summary.tracking
-    console.print(
-        f"tracking demo: MOTA {tr['mota']:.3f}, IDF1 {tr['idf1']:.3f}, per-actor P/R after smoothing "
-        f"{tr['actor_precision']:.2f}/{tr['actor_recall']:.2f}"
+    tracking = (
+        f"Tracking on a simulated roadside camera: MOTA {tr['mota']:.3f}, IDF1 {tr['idf1']:.3f}, "
+        f"per-actor precision/recall after smoothing {tr['actor_precision']:.2f}/{tr['actor_recall']:.2f}."
     )
-    console.print(f"report: [bold]{Path(out) / 'report.md'}[/]  ({summary.elapsed_s:.1f} s)")
+    done = f"report: [bold]{out / 'report.md'}[/]  ({summary.elapsed_s:.1f} s)"
+    return [table, heard, sc, tracking, done]
+
+
+def _words(action: str) -> str:
+    """``pull_over_and_stop`` → ``pull over and stop`` (wraps at spaces in a narrow table)."""
+    return action.replace("_", " ")
 
 
 # ----------------------------------------------------------------------------------------- simulate
