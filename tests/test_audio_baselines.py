@@ -182,7 +182,11 @@ def test_evaluate_returns_all_keys(tiny_recordings: Path) -> None:
     res = evaluate(paths, "gccphat")
     _check_keys(res)
     assert res["windows"] == 2 * 5 and res["negatives"] >= 5
-    assert 0.0 <= res["accuracy"] <= 1.0
+    # accuracy from its parts: hits on the positives plus correct rejections of the negatives
+    pos, neg = res["positives"], res["negatives"]
+    hits = (res["recall"] or 0.0) * pos
+    rejections = (1.0 - res["false_alarm_rate"]) * neg
+    assert res["accuracy"] == pytest.approx((hits + rejections) / (pos + neg), abs=2e-3)
     assert sum(b["n"] for b in res["by_distance"]) == res["positives"]
     with pytest.raises(ValueError, match="unknown bearing estimator"):
         evaluate(paths, "beamformer")
