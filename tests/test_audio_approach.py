@@ -176,8 +176,12 @@ def test_cli_train_approach_and_listen_approach(tmp_path: Path) -> None:
     assert res.exit_code == 0, res.output
     result = json.loads(res.stdout.strip().splitlines()[-1])
     assert result["training"]["windows"] > 20 and result["training"]["recordings"] == 3
-    for name in ("trend", "level"):
-        assert 0.0 <= result["validation"][name]["correct"] <= 1.0
+    val = result["validation"]
+    for name in ("trend", "level"):  # a window counts as correct only when a call was made
+        assert val[name]["correct"] <= val[name]["decided"]
+    # validated on the recordings it was trained on, the classifier must have learned them (0.93
+    # when written) and beat the untrained level/Doppler rule on them (0.32)
+    assert val["trend"]["correct"] >= 0.8 and val["trend"]["correct"] > val["level"]["correct"]
     trained = TrendApproach(out)
     assert json.loads(trained.session_.get_modelmeta().custom_metadata_map["training"])["recordings"] == 3
     assert [p.name for p in out.parent.iterdir()] == ["approach.onnx"]  # nothing half-written beside it
