@@ -353,8 +353,14 @@ def test_track_classifier_wraps_the_onnx_model(tiny_onnx: Path, subset: CropSet)
     frame = np.zeros((240, 320, 3), dtype=np.uint8)
     frame[40:200, 60:220] = subset.load_images(160)[0]
     tracks = [Track(track_id=1, box=Box(60, 40, 220, 200)), Track(track_id=2, box=Box(5, 5, 12, 12))]
-    obs = EVTrackClassifier(OnnxCropClassifier(tiny_onnx, num_threads=1)).classify(frame, tracks, 3, 0.1)
-    assert obs[0].probability is not None and 0.0 <= obs[0].probability <= 1.0
+    model = OnnxCropClassifier(tiny_onnx, num_threads=1)
+    obs = EVTrackClassifier(model).classify(frame, tracks, 3, 0.1)
+    # the wrapper reports what the model says on the track's crop (10 % context, the model's size)
+    from makeway.perceive.vision.crops import crops_for_tracks
+
+    crops, kept = crops_for_tracks(frame, [tracks[0].box], margin=0.1, size=model.input_size)
+    assert kept.tolist() == [0]
+    assert obs[0].probability == pytest.approx(float(model.predict_proba(crops)[0]), abs=1e-6)
     assert obs[1].probability is None  # 7 px wide: no judgement
 
 
