@@ -26,8 +26,9 @@ _TAB = (
     "#7f7f7f", "#bcbd22", "#17becf", "#aec7e8", "#ffbb78", "#98df8a",
 )  # fmt: skip
 _EV_COLOUR = "#d62728"
-#: Per-track colours in the probability plot: none of them red, green or amber (the state colours).
-_TRACK_COLOURS = ("#1f77b4", "#9467bd", "#8c564b", "#e377c2", "#17becf", "#393b79", "#7f7f7f", "#bcbd22")
+#: Per-track colours in the probability plot: none of them red, green, purple or amber (the colours of
+#: the states and of the lights-on truth).
+_TRACK_COLOURS = ("#1f77b4", "#2f4f4f", "#8c564b", "#e377c2", "#17becf", "#393b79", "#7f7f7f", "#bcbd22")
 
 
 def plot_tracks(
