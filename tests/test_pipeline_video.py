@@ -105,7 +105,7 @@ def test_classifier_hook_and_smoother(night_classified: Classified) -> None:
     strict=True,
     reason="the shipped head calls the white coach (track 1) an EV: a known false positive of the head "
     "(video_track_labels.csv, docs/results.md per-actor sweep); waits on a head trained on labelled "
-    "video crops (docs/model_card_ev_head.md)",
+    "video crops, issue 24 (docs/model_card_ev_head.md)",
 )
 def test_white_coach_is_not_an_active_ev(night_classified: Classified) -> None:
     s, _ = night_classified

@@ -226,7 +226,7 @@ def test_crossing_heard_waits_until_the_ev_has_crossed(crossing_heard: ClosedLoo
 @pytest.mark.xfail(
     strict=True,
     reason="heard ~200 m away a crossing EV's track has no heading yet, so the decision asks for a "
-    "pull-over instead of a stop before the intersection (docs/results.md: 6 of 8 crossing runs); "
+    "pull-over instead of a stop before the intersection (docs/results.md: 5 of 8 crossing runs); "
     "waits on issue 26 (fusion)",
 )
 def test_crossing_heard_stops_before_the_intersection(crossing_heard: ClosedLoopResult) -> None:
