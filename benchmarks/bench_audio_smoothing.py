@@ -11,7 +11,7 @@ that the rule is chosen before any held-out set is looked at:
 * each window alone (seed 002's decision, the anchor);
 * the mean of the probabilities of K windows (K = 2–6; 3 was the listener's rule until the
   twelfth session);
-* the mean of the logits of K windows (K = 2–12; :class:`~makeway.track.smoother.StreamSmoother`).
+* the mean of the logits of K windows (K = 2–12; :class:`~makeway.perceive.audio.windows.StreamSmoother`).
 
 For every rule it prints, in 10–50 m, the recall and the false alarms per window at the model's
 stored threshold, and the recall with the threshold set for ≤ ``--max-false-alarm`` false alarms

@@ -5,7 +5,7 @@ lazy import cannot hide an arrow the wrong way. The rules:
 
 * car-side stages (sense → perceive → track → fuse → decide → plan → control) and the core modules
   import nothing from the simulator, the metrics, the pipelines, the apps, training, plots or the
-  command line: a car runs them without any of those;
+  command line: a car runs them without any of those; a stage imports only earlier stages;
 * no cycle between sub-packages;
 * ``pipeline`` may use ``eval``'s metrics, never the other way round; only the command line imports
   ``apps``; nothing imports the command line;
@@ -73,6 +73,20 @@ def test_car_side_never_imports_the_simulator_or_tools() -> None:
         and (_unit(module) in CAR_SIDE or (module.count(".") == 1 and _unit(module) not in OFF_CAR))
         for t in targets
         if t.startswith("makeway.") and _unit(t) in OFF_CAR
+    ]
+    assert bad == []
+
+
+def test_car_side_stages_import_only_earlier_stages() -> None:
+    """sense → perceive → track → fuse → decide → plan → control: a stage may use what an earlier
+    stage offers (control uses plan's paths), never a later one."""
+    order = ["sense", "perceive", "track", "fuse", "decide", "plan", "control"]
+    units = _unit_edges()
+    bad = [
+        f"{a} → {b}"
+        for a in order
+        for b in units.get(a, ())
+        if b in order and order.index(b) > order.index(a)
     ]
     assert bad == []
 

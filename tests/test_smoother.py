@@ -7,7 +7,8 @@ import math
 import pytest
 
 from makeway.messages import EVObservation, EVState
-from makeway.track.smoother import StreamSmoother, TrackSmoother
+from makeway.perceive.audio.windows import StreamSmoother
+from makeway.track.smoother import TrackSmoother
 
 
 def obs(track: int, frame: int, p: float | None) -> EVObservation:

@@ -50,9 +50,8 @@ import numpy as np
 from makeway.eval.siren_labels import label_recording
 from makeway.perceive.audio.doa import DOA_METHODS, SirenEnergyDetector, wrap_angle
 from makeway.perceive.audio.features import window_batch
-from makeway.perceive.audio.windows import SMOOTH_AVERAGE, smoothed_probability
+from makeway.perceive.audio.windows import SMOOTH_AVERAGE, StreamSmoother, smoothed_probability
 from makeway.sense.recording import Recording, assume_calibration, read_recording
-from makeway.track.smoother import StreamSmoother
 
 METRIC_KEYS = (
     "recall",

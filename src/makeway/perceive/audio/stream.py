@@ -27,7 +27,7 @@ calibration, or the networks' reference scale).
 
 ``is_siren`` is decided on ``smoothed_probability``, the mean of this window and the ``smooth`` − 1
 before it, taken over their logits unless ``average="probability"``
-(:class:`~makeway.track.smoother.StreamSmoother`; with ``smooth = 1`` it is this window's
+(:class:`~makeway.perceive.audio.windows.StreamSmoother`; with ``smooth = 1`` it is this window's
 ``probability``). The default is the logit mean of 8 windows (1.36 s of audio;
 :data:`~makeway.perceive.audio.windows.LISTEN_SMOOTH`), chosen on validation recordings for its recall
 at ≤ 1 % false alarms (see docs/results.md, section "Siren detection, bearing and distance").
@@ -50,9 +50,15 @@ from makeway.perceive.audio.features import band_level_db
 from makeway.perceive.audio.motion import DEFAULT_APPROACH_MODEL, ApproachEstimator, TrendApproach
 from makeway.perceive.audio.multisource import SourceSeparator
 from makeway.perceive.audio.siren_model import SirenModel
-from makeway.perceive.audio.windows import HOP_S, LISTEN_SMOOTH, SMOOTH_AVERAGE, WINDOW_S, window_starts
+from makeway.perceive.audio.windows import (
+    HOP_S,
+    LISTEN_SMOOTH,
+    SMOOTH_AVERAGE,
+    WINDOW_S,
+    StreamSmoother,
+    window_starts,
+)
 from makeway.sense.recording import AUDIO_FILE, REFERENCE_FULL_SCALE_DB_SPL, Recording
-from makeway.track.smoother import StreamSmoother
 
 
 class SirenListener:
