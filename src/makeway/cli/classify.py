@@ -400,12 +400,9 @@ def mine(
     review: OUT/candidates.csv (rank, image, probability, blank
     emergency), OUT/contact_sheet.png (top N) and OUT/labels_template.csv (image,emergency, ready to
     fill and append to a crop folder). Unreadable files are skipped and counted. One JSON line last."""
-    from makeway.perceive.vision.ev_classifier import load_crop_classifier
     from makeway.train.mining import mine as mine_pool
 
-    result = mine_pool(
-        pool, load_crop_classifier(model), out, top=top, threshold=threshold, progress=not quiet
-    )
+    result = mine_pool(pool, model, out, top=top, threshold=threshold, progress=not quiet)
     summary = result.summary()
     if result.unreadable:
         shown = ", ".join(str(p.relative_to(pool)) for p in result.unreadable[:5])

@@ -213,7 +213,8 @@ def mine(
 
     Args:
         pool: folder of crops (searched recursively).
-        classifier: crop classifier with ``predict_proba(uint8 BGR (n, s, s, 3))`` and ``input_size``.
+        classifier: crop classifier with ``predict_proba(uint8 BGR (n, s, s, 3))`` and ``input_size``,
+            or its name or file (:func:`~makeway.perceive.vision.ev_classifier.load_crop_classifier`).
         out_dir: where the three files go (created).
         top: thumbnails on the contact sheet.
         threshold: candidates are images at or above this probability (default: the classifier's
@@ -222,6 +223,11 @@ def mine(
         progress: show a progress bar.
     """
     from makeway.progress import progress_bar
+
+    if isinstance(classifier, str | Path):
+        from makeway.perceive.vision.ev_classifier import load_crop_classifier
+
+        classifier = load_crop_classifier(classifier)
 
     thr = float(threshold if threshold is not None else getattr(classifier, "threshold", 0.5))
     if not 0.0 <= thr <= 1.0:
