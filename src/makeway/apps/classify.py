@@ -395,12 +395,13 @@ def cross_source_evaluation(
     ``imagenet`` or head ``.npz`` / CNN ``.onnx`` files), each scored on every source — on
     ``ev_crops`` only its committed held-out part, as the shipped models learnt the rest. ``train``
     names trainers (:data:`CROSS_SOURCE_TRAINERS`), each fitted leave-one-source-out and scored on
-    the whole held-out source. ``sources`` picks among :data:`CROSS_SOURCES` (default: all);
-    ``extra`` adds ``(name, crop folder)`` sources (e.g. one you labelled; a ``group`` column keeps
-    related crops together). ``ambulance_yolo`` and ``road_clips`` are built on first use into
-    ``cache`` (default ``~/.cache/makeway/cross_source``; ``every`` = the frame step between a
-    track's crops), as are the backbone features of the heads. ``data`` is the shared data folder
-    (default: found as :func:`makeway.paths.data_dir` does). ``on_score`` gets each score when known.
+    the whole held-out source. ``extra`` adds ``(name, crop folder)`` sources (e.g. one you
+    labelled; a ``group`` column keeps related crops together); ``sources`` picks among
+    :data:`CROSS_SOURCES` and those (default: all). ``ambulance_yolo`` and ``road_clips`` are built
+    on first use into ``cache`` (default ``~/.cache/makeway/cross_source``; ``every`` = the frame
+    step between a track's crops), as are the backbone features of the heads. ``data`` is the
+    shared data folder (default: found as :func:`makeway.paths.data_dir` does). ``on_score`` gets
+    each score when known; ``log`` a line per step.
 
     Raises:
         InputError: the data folder, a model file or a crop folder is missing or unreadable, or a
@@ -421,18 +422,20 @@ def cross_source_evaluation(
 
     if not models and not train:
         raise ValueError("nothing to evaluate: give --model and/or --train")
-    known = Registry("source", {n: n for n in CROSS_SOURCES})
-    wanted = [known[s] for s in sources] if sources is not None else list(CROSS_SOURCES)
+    extra_names = [n for n, _ in extra]
+    all_names = [*CROSS_SOURCES, *extra_names]
+    if len(set(all_names)) != len(all_names):
+        raise ValueError(f"a source is named twice: {', '.join(all_names)}")
+    known = Registry("source", {n: n for n in all_names})
+    selected = [known[s] for s in sources] if sources is not None else all_names
+    if not selected:
+        raise ValueError("no sources to evaluate on")
+    wanted = [n for n in CROSS_SOURCES if n in selected]
     for name in train:
         if name not in CROSS_SOURCE_TRAINERS:
             raise UnknownNameError("trainer", name, list(CROSS_SOURCE_TRAINERS))
-    names = [*wanted, *(n for n, _ in extra)]
-    if len(set(names)) != len(names):
-        raise ValueError(f"a source is named twice: {', '.join(names)}")
-    if not names:
-        raise ValueError("no sources to evaluate on")
     loaded = [(m, load_crop_classifier(m, num_threads=threads)) for m in models]  # bad files fail here
-    extra_sets = [(n, read_crop_folder(folder)) for n, folder in extra]
+    extra_sets = [(n, read_crop_folder(folder)) for n, folder in extra if n in selected]
     root = (
         Path(cache).expanduser() if cache is not None else Path.home() / ".cache" / "makeway" / "cross_source"
     )

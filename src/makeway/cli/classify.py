@@ -396,7 +396,9 @@ def cross_source(
     source: Annotated[
         list[str] | None,
         typer.Option(
-            "--source", help="Sources to use: ev_crops, ambulance_yolo, road_clips (default: all; repeat)."
+            "--source",
+            help="Sources to use: ev_crops, ambulance_yolo, road_clips or a --source-dir name "
+            "(default: all; repeat or comma-separate).",
         ),
     ] = None,
     source_dir: Annotated[
@@ -419,7 +421,7 @@ def cross_source(
     threads: Annotated[int, typer.Option(min=1, help="ONNX Runtime threads.")] = 1,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bars.")] = False,
 ) -> None:
-    """Judge EV crop classifiers on every labelled source they have not seen.
+    """Score EV crop classifiers on each unseen source.
 
     Sources: ev_crops (web photos), ambulance_yolo (crops of the Roboflow road photos: ambulances,
     and YOLOX-found other vehicles) and road_clips (crops of the shared road clips' labelled tracks,

@@ -49,12 +49,13 @@ def track_group(clip: str, track_id: int) -> str:
 
 
 def cached_track_boxes(
-    video: str | Path, cache_dir: str | Path, *, progress: bool = False
+    video: str | Path, cache_dir: str | Path, *, max_frames: int | None = None, progress: bool = False
 ) -> tuple[ClipRecord, bool]:
     """Every track's box per frame of ``video`` under :data:`RECORD_CONFIG` (track ids as in the
-    label file), cached in ``cache_dir``; returns ``(record, from_cache)``.
+    label file), cached in ``cache_dir``; returns ``(record, from_cache)``. ``max_frames`` stops
+    after that many frames (the track ids of the frames recorded do not change).
 
-    The cache key covers the clip (name and size) and :data:`RECORD_CONFIG`.
+    The cache key covers the clip (name and size), :data:`RECORD_CONFIG` and ``max_frames``.
 
     Raises:
         InputError: the video is missing or unreadable.
@@ -63,14 +64,20 @@ def cached_track_boxes(
     if not video.is_file():
         raise InputError(video, "video not found")
     key_src = json.dumps(
-        {"clip": video.name, "size": video.stat().st_size, "config": RECORD_CONFIG, "boxes_only": True},
+        {
+            "clip": video.name,
+            "size": video.stat().st_size,
+            "config": RECORD_CONFIG,
+            "max_frames": max_frames,
+            "boxes_only": True,
+        },
         sort_keys=True,
     )
     key = hashlib.sha256(key_src.encode()).hexdigest()[:16]
     target = Path(cache_dir) / f"{video.stem}.boxes.{key}.npz"
     if target.is_file():
         return ClipRecord.load(target), True
-    rec = record_clip(video, _NoJudgement(), progress=progress)
+    rec = record_clip(video, _NoJudgement(), max_frames=max_frames, progress=progress)
     target.parent.mkdir(parents=True, exist_ok=True)
     rec.save(target)
     return rec, False
@@ -97,13 +104,14 @@ def build_track_crops(
     every: int = 5,
     margin: float | None = None,
     size: int = 224,
+    max_frames: int | None = None,
     progress: bool = True,
 ) -> dict[str, int]:
     """Write a crop folder at ``out`` (``images/`` + ``labels.csv`` with ``image,emergency,group``)
     from the labelled tracks of ``videos`` (module docstring): one crop every ``every`` frames of
     each track, ``size`` px, ``margin`` context per side (default: the pipeline's,
     ``RECORD_CONFIG["crop_margin"]``), tracks' boxes from :func:`cached_track_boxes` in
-    ``cache_dir``.
+    ``cache_dir``; ``max_frames`` uses only the first frames of each clip.
 
     Returns the counts ``clips``, ``tracks`` (with at least one crop), ``positive``, ``negative``
     and ``crops``.
@@ -128,7 +136,7 @@ def build_track_crops(
             raise InputError(Path(labels), f"no labels for clip {path.stem!r}")
     records: list[tuple[Path, ClipRecord]] = []
     for path in paths:
-        rec, _ = cached_track_boxes(path, cache_dir, progress=progress)
+        rec, _ = cached_track_boxes(path, cache_dir, max_frames=max_frames, progress=progress)
         for tid in rec.track_ids:
             track_labels.label(rec.clip, tid)  # raises before anything is written
         records.append((path, rec))
@@ -139,7 +147,7 @@ def build_track_crops(
     def items(advance: Callable[[int], Any]) -> Iterator[tuple[str, np.ndarray, int, str | None]]:
         for path, rec in records:
             wanted = _sampled_rows(rec, every)
-            with VideoReader(path) as reader:
+            with VideoReader(path, max_frames=rec.frames) as reader:
                 for index, _, image in reader:
                     advance(1)
                     for r in wanted.get(index, []):
