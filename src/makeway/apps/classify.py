@@ -20,9 +20,12 @@ import numpy as np
 from makeway.errors import InputError
 
 __all__ = [
+    "CROSS_SOURCES",
     "CropEvaluation",
+    "CrossSourceRun",
     "StudyRun",
     "build_ambulance_crops",
+    "cross_source_evaluation",
     "evaluate_crop_classifier",
     "run_classical_study",
     "write_holdout_split",
@@ -333,3 +336,192 @@ def evaluate_crop_classifier(
         n=len(crops),
         plot=None if plot is None else Path(plot),
     )
+
+
+# ------------------------------------------------------------------------------------- cross-source
+
+#: The labelled crop sources of the cross-source protocol (issue 24), in report order: ``ev_crops``
+#: (web photos), ``ambulance_yolo`` (crops of the Roboflow road photos, :func:`build_ambulance_crops`)
+#: and ``road_clips`` (the labelled tracks of the shared road clips,
+#: :func:`makeway.pipeline.track_crops.build_track_crops`).
+CROSS_SOURCES = ("ev_crops", "ambulance_yolo", "road_clips")
+
+#: Trainers the protocol can fit leave-one-source-out: ``head`` = the shipped ``default`` head's
+#: recipe (YOLOX-nano + NanoDet-m backbone features, mirror images, logistic regression).
+CROSS_SOURCE_TRAINERS = ("head",)
+
+
+@dataclass(frozen=True)
+class CrossSourceRun:
+    """What :func:`cross_source_evaluation` scored: every (model, held-out source) score in order,
+    the worst source of each model (by accuracy), and each source's folder and crop counts
+    (``sources[name] = {"folder", "n", "positive"}``)."""
+
+    scores: list[Any]
+    worst: dict[str, Any]
+    sources: dict[str, dict[str, Any]]
+
+
+def _cache_key(**parts: Any) -> str:
+    import hashlib
+    import json
+
+    return hashlib.sha256(json.dumps(parts, sort_keys=True, default=str).encode()).hexdigest()[:12]
+
+
+def _file_digest(path: Path) -> str:
+    import hashlib
+
+    return hashlib.sha256(path.read_bytes()).hexdigest()[:16]
+
+
+def cross_source_evaluation(
+    models: Sequence[str] = (),
+    train: Sequence[str] = (),
+    *,
+    sources: Sequence[str] | None = None,
+    extra: Sequence[tuple[str, str | Path]] = (),
+    data: str | Path | None = None,
+    cache: str | Path | None = None,
+    every: int = 5,
+    threads: int = 1,
+    progress: bool = True,
+    on_score: Callable[[Any], None] | None = None,
+    log: Callable[[str], None] | None = None,
+) -> CrossSourceRun:
+    """The cross-source protocol (:mod:`makeway.eval.cross_source`) over the labelled crop sources.
+
+    ``models`` are fixed crop classifiers (shipped names ``default``, ``fast``, ``fastest``,
+    ``imagenet`` or head ``.npz`` / CNN ``.onnx`` files), each scored on every source — on
+    ``ev_crops`` only its committed held-out part, as the shipped models learnt the rest. ``train``
+    names trainers (:data:`CROSS_SOURCE_TRAINERS`), each fitted leave-one-source-out and scored on
+    the whole held-out source. ``extra`` adds ``(name, crop folder)`` sources (e.g. one you
+    labelled; a ``group`` column keeps related crops together); ``sources`` picks among
+    :data:`CROSS_SOURCES` and those (default: all). ``ambulance_yolo`` and ``road_clips`` are built
+    on first use into ``cache`` (default ``~/.cache/makeway/cross_source``; ``every`` = the frame
+    step between a track's crops), as are the backbone features of the heads. ``data`` is the
+    shared data folder (default: found as :func:`makeway.paths.data_dir` does). ``on_score`` gets
+    each score when known; ``log`` a line per step.
+
+    Raises:
+        InputError: the data folder, a model file or a crop folder is missing or unreadable, or a
+            source has no crops (all checked before any long work).
+        UnknownNameError: an unknown source, trainer or shipped model name (lists the known ones).
+        ValueError: nothing to evaluate, or a source named twice.
+    """
+    from makeway.eval.cross_source import leave_one_source_out, score_sources, worst_source
+    from makeway.paths import data_dir
+    from makeway.perceive.vision.ev_classifier import EVCropClassifier, load_crop_classifier
+    from makeway.registry import Registry, UnknownNameError
+    from makeway.sense.crops import CropSet, committed_split, near_duplicate_groups, read_crop_folder
+    from makeway.train.ev_head import FeatureCache, cached_head, head_trainer
+
+    def say(line: str) -> None:
+        if log is not None:
+            log(line)
+
+    if not models and not train:
+        raise ValueError("nothing to evaluate: give --model and/or --train")
+    extra_names = [n for n, _ in extra]
+    all_names = [*CROSS_SOURCES, *extra_names]
+    if len(set(all_names)) != len(all_names):
+        raise ValueError(f"a source is named twice: {', '.join(all_names)}")
+    known = Registry("source", {n: n for n in all_names})
+    selected = [known[s] for s in sources] if sources is not None else all_names
+    if not selected:
+        raise ValueError("no sources to evaluate on")
+    wanted = [n for n in CROSS_SOURCES if n in selected]
+    for name in train:
+        if name not in CROSS_SOURCE_TRAINERS:
+            raise UnknownNameError("trainer", name, list(CROSS_SOURCE_TRAINERS))
+    loaded = [(m, load_crop_classifier(m, num_threads=threads)) for m in models]  # bad files fail here
+    extra_sets = [(n, read_crop_folder(folder)) for n, folder in extra if n in selected]
+    root = (
+        Path(cache).expanduser() if cache is not None else Path.home() / ".cache" / "makeway" / "cross_source"
+    )
+    base: Path | None = None
+    if any(n in CROSS_SOURCES for n in wanted):
+        base = Path(data).expanduser() if data is not None else data_dir()
+        if base is None or not base.is_dir():
+            raise InputError(
+                data or "../shared/data", "shared data folder not found; pass --data or set MAKEWAY_DATA"
+            )
+
+    crop_sets: dict[str, CropSet] = {}
+    for name in wanted:
+        assert base is not None
+        if name == "ev_crops":
+            crops = read_crop_folder(base / "vision" / "ev_crops")
+            # near-duplicate clusters as groups: kept in one fold of a trainer's inner CV
+            images = crops.load_images(64, cache=False)
+            groups = near_duplicate_groups(images).astype(str)
+            crop_sets[name] = CropSet(crops.paths, crops.labels, groups, crops.root)
+        elif name == "ambulance_yolo":
+            yolo = base / "vision" / "ambulance_yolo" / "valid"
+            if not yolo.is_dir():
+                raise InputError(yolo, "ambulance_yolo set not found")
+            folder = root / "sources" / f"ambulance_yolo-{_cache_key(data=yolo.resolve(), v=1)}"
+            if not (folder / "labels.csv").is_file():
+                say(f"building the ambulance_yolo crops → {folder}")
+                build_ambulance_crops(folder, yolo, threads=threads, progress=progress)
+            crop_sets[name] = read_crop_folder(folder)
+        else:  # road_clips
+            from makeway.eval.actor_sweep import TRACK_LABELS, read_track_labels
+            from makeway.pipeline.track_crops import build_track_crops
+
+            clips = [base / "video" / f"{c}.mp4" for c in read_track_labels(TRACK_LABELS).clips]
+            for clip in clips:
+                if not clip.is_file():
+                    raise InputError(clip, "road clip not found (its tracks are labelled in the package)")
+            key = _cache_key(
+                clips=[(c.name, c.stat().st_size) for c in clips],
+                labels=_file_digest(TRACK_LABELS),
+                every=every,
+            )
+            folder = root / "sources" / f"road_clips-{key}"
+            if not (folder / "labels.csv").is_file():
+                say(f"building the road-clip track crops → {folder}")
+                build_track_crops(
+                    folder, clips, cache_dir=root / "clip_boxes", every=every, progress=progress
+                )
+            crop_sets[name] = read_crop_folder(folder)
+    crop_sets.update(extra_sets)
+    for name, crops in crop_sets.items():
+        if len(crops) == 0:  # pragma: no cover - read_crop_folder refuses empty folders
+            raise InputError(crops.root or Path(name), f"source {name!r} has no crops")
+    info = {
+        n: {"folder": str(c.root) if c.root is not None else None, "n": len(c), "positive": c.n_positive}
+        for n, c in crop_sets.items()
+    }
+    for n, c in crop_sets.items():
+        say(f"source {n}: {len(c)} crops, {c.n_positive} positive ({c.root})")
+
+    features_dir = root / "features"
+    scores: list[Any] = []
+    worst: dict[str, Any] = {}
+
+    def emit(score: Any) -> None:
+        scores.append(score)
+        if on_score is not None:
+            on_score(score)
+
+    fixed_sets = dict(crop_sets)
+    if "ev_crops" in fixed_sets:
+        split = committed_split(fixed_sets["ev_crops"])
+        if split is not None:
+            fixed_sets["ev_crops"] = fixed_sets["ev_crops"].subset(split[1])
+    for name, clf in loaded:
+        model: Any = clf
+        if isinstance(clf, EVCropClassifier):
+            model = cached_head(clf, features_dir, num_threads=threads, progress=progress)
+        say(f"{name}: scoring each source (ev_crops: the committed held-out part)")
+        worst[name] = worst_source(score_sources(model, fixed_sets, model=name, on_score=emit))
+    for trainer_name in train:
+        label = f"{trainer_name} (leave-one-source-out)"
+        trainer = head_trainer(
+            cache=FeatureCache(folder=features_dir, num_threads=threads, progress=progress)
+        )
+        worst[label] = worst_source(
+            leave_one_source_out(crop_sets, trainer, model=label, on_score=emit, log=log)
+        )
+    return CrossSourceRun(scores=scores, worst=worst, sources=info)
