@@ -5,9 +5,10 @@ Frames and units:
 * **Camera frame** (OpenCV axes): ``x`` right, ``y`` down, ``z`` forward along the optical axis;
   points in any length unit (only their direction matters), rays are unit vectors.
 * **Pixels**: ``(u, v)``, ``u`` to the right and ``v`` down, in the image frame of
-  :mod:`makeway.messages` (origin at the image's top-left corner); the image covers
-  ``0 ≤ u ≤ width``, ``0 ≤ v ≤ height``. ``fx``, ``fy``, ``cx``, ``cy`` are in pixels, as in OpenCV's
-  camera matrix ``K = [[fx, 0, cx], [0, fy, cy], [0, 0, 1]]`` (no skew).
+  :mod:`makeway.messages` (origin at the image's top-left); as in OpenCV, the centre of the top-left
+  pixel is ``(0, 0)``. A pixel counts as in the image when ``0 ≤ u ≤ width`` and ``0 ≤ v ≤ height``
+  (every pixel centre and a box edge at the image border). ``fx``, ``fy``, ``cx``, ``cy`` are in
+  pixels, OpenCV's camera matrix ``K = [[fx, 0, cx], [0, fy, cy], [0, 0, 1]]`` (no skew).
 
 Models (looked up by name in :data:`CAMERA_MODELS`):
 
@@ -46,6 +47,7 @@ CAMERA_MODELS: Registry[type[Camera]] = Registry("camera model")
 
 _TABLE_SIZE = 2048  # samples of θ_d(θ) for the Newton start (start error ~1e-7 rad)
 _NEWTON_MAX_ITER = 60  # bisection fallback halves the bracket: 60 steps reach machine precision
+_NEWTON_TOL = 4e-15  # rad; a step this small is rounding (θ ≤ π)
 
 
 @dataclass(frozen=True)
@@ -216,16 +218,20 @@ class KannalaBrandtCamera(Camera):
         lo, hi = table_t[i - 1], table_t[i]
         d0, d1 = table_d[i - 1], table_d[i]
         th = lo + (target - d0) * (hi - lo) / (d1 - d0)
+        active = np.arange(th.size)  # elements still moving; converged ones drop out
         with np.errstate(divide="ignore", invalid="ignore"):
             for _ in range(_NEWTON_MAX_ITER):
-                g = self.theta_d(th) - target
-                lo = np.where(g < 0, th, lo)
-                hi = np.where(g > 0, th, hi)
-                new = th - g / self._dtheta_d(th)
-                new = np.where((new >= lo) & (new <= hi), new, 0.5 * (lo + hi))
-                done = np.all(np.abs(new - th) <= 2e-16 * np.maximum(1.0, th))
-                th = new
-                if done:
+                t, goal, a, b = th[active], target[active], lo[active], hi[active]
+                g = self.theta_d(t) - goal
+                a = np.where(g < 0, t, a)
+                b = np.where(g > 0, t, b)
+                new = t - g / self._dtheta_d(t)
+                new = np.where((new >= a) & (new <= b), new, 0.5 * (a + b))
+                th[active] = new
+                moving = np.abs(new - t) > _NEWTON_TOL
+                lo[active], hi[active] = a, b
+                active = active[moving]
+                if active.size == 0:
                     break
         out[ok] = th
         return out

@@ -166,7 +166,7 @@ class Rig:
             bu, bv = px[bad][0]
             raise InputError(
                 self.source,
-                f"pixel ({bu:g}, {bv:g}) is outside camera {name!r}'s image "
+                f"pixel ({bu:g}, {bv:g}) is outside the image of camera {name!r} "
                 f"(0 ≤ u ≤ {cam.camera.width}, 0 ≤ v ≤ {cam.camera.height})",
             )
         rays = cam.camera.unproject(px)
