@@ -16,7 +16,7 @@ from makeway.cli.common import err_console, friendly_errors, new_app, print_json
 
 rig_app = new_app(
     "rig",
-    "The vehicle's cameras: where a pixel looks, and a camera's intrinsics from chessboard images.\n\n"
+    "Camera rig: a pixel's azimuth, chessboard calibration.\n\n"
     "A rig file (YAML) lists each camera's model, intrinsics and mounting; 'default' is the shipped rig "
     "of four 180° fisheye cameras (front, left, right, rear).",
 )
@@ -57,7 +57,7 @@ def azimuth(
         ),
     ] = None,
 ) -> None:
-    """Where a camera pixel looks: azimuth and elevation in the vehicle frame.
+    """Where a camera pixel looks: azimuth and elevation around the car.
 
     Prints one JSON line per pixel: camera, u, v, [range_m,] azimuth_deg (0 ahead, positive to the
     left, ±180 behind) and elevation_deg (positive up). Without a range, the angles are of the
