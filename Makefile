@@ -7,7 +7,7 @@ DEV    := $(VENV)/.dev
 OUT    ?= reports/demo
 
 .PHONY: venv demo test lint typecheck bench bench-sort bench-video bench-crops bench-pull-over bench-siren-loop \
-	bench-audio clean
+	bench-audio bench-rig clean
 
 # `make demo` installs the runtime only; `make test` and the benchmarks add the dev extra (linters,
 # scikit-learn, XGBoost, torch for the training tests).
@@ -69,7 +69,11 @@ bench-audio: venv
 	$(BIN)/python benchmarks/bench_audio_calibration.py
 	$(BIN)/python benchmarks/bench_audio_range_bound.py
 
-bench: bench-sort bench-video bench-crops bench-pull-over bench-siren-loop bench-audio
+# the rig's azimuth beside OpenCV's fisheye model (pure geometry) and the unproject speed
+bench-rig: venv
+	$(BIN)/python benchmarks/bench_rig_azimuth.py
+
+bench: bench-sort bench-video bench-crops bench-pull-over bench-siren-loop bench-audio bench-rig
 
 clean:
 	rm -rf $(VENV) reports .pytest_cache .mypy_cache .ruff_cache

@@ -1,8 +1,11 @@
 """Sensor input: video files, MOTChallenge files, crop folders and YOLO sets, microphone-array
-recordings and their calibration.
+recordings and their calibration, camera models and the vehicle's camera rig.
 
 * :class:`VideoReader` — frames of a video file with their timestamps (:mod:`~makeway.sense.video`);
 * :func:`read_recording` — an array recording folder (audio, geometry, logged trajectories);
+* :mod:`~makeway.sense.camera` — pinhole and Kannala–Brandt fisheye intrinsics (pixel ↔ ray);
+  :mod:`~makeway.sense.rig` — the rig file, pixel → vehicle-frame ray and azimuth;
+  :mod:`~makeway.sense.camera_calibration` — intrinsics from chessboard images;
 * :mod:`~makeway.sense.motfile`, :mod:`~makeway.sense.crops`, :mod:`~makeway.sense.calibration`.
 """
 
