@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from makeway.apps.evaluate_detector import HELD_OUT_FILE, held_out_by_hash
+from makeway.apps.evaluate_detector import HELD_OUT_FILE, BoxJudgements, held_out_by_hash, score_judgements
 from makeway.cli.main import app
 from makeway.eval.detection import (
     COCO_IOU_THRESHOLDS,
@@ -110,6 +110,26 @@ def test_precision_recall_at_a_score_threshold_across_images() -> None:
     assert precision_recall(dets, scores, gt)[:2] == (pytest.approx(2 / 3), pytest.approx(2 / 3))
     p, r, *_ = precision_recall(dets, scores, gt, score_threshold=0.95)
     assert np.isnan(p) and r == 0.0
+
+
+def test_framework_b_scores_rank_by_product_and_operate_on_the_classifier() -> None:
+    # the ambulance A: detector 0.9, P(EV) 0.6; a car B: detector 0.2, P(EV) 0.9; a bus C: P(EV) 0.3.
+    # Ranked by product (0.54, 0.18, 0.24) A comes first: AP 1. Ranked by P(EV) alone B comes first:
+    # precision 1/2 at recall 1, AP 0.5. At the threshold 0.5, A and B are EV detections: P 1/2, R 1.
+    judged = [
+        BoxJudgements(
+            boxes=_b([0, 0, 100, 80], [200, 0, 300, 80], [400, 0, 500, 80]),
+            det_scores=np.array([0.9, 0.2, 0.8]),
+            probs=np.array([0.6, 0.9, 0.3]),
+            gt=_b([0, 0, 100, 80]),
+            seconds=0.01,
+        )
+    ]
+    product = score_judgements(judged, 0.5, "product")
+    alone = score_judgements(judged, 0.5, "classifier")
+    assert product["map50"] == pytest.approx(1.0) and alone["map50"] == pytest.approx(0.5)
+    for out in (product, alone):
+        assert out["precision"] == 0.5 and out["recall"] == 1.0 and out["n_detections"] == 2
 
 
 # --------------------------------------------------------------------------------------------- split
