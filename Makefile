@@ -6,8 +6,8 @@ RUNTIME := $(VENV)/.runtime
 DEV    := $(VENV)/.dev
 OUT    ?= reports/demo
 
-.PHONY: venv demo test lint typecheck bench bench-sort bench-video bench-crops bench-pull-over bench-siren-loop \
-	bench-audio bench-rig clean
+.PHONY: venv demo test lint typecheck bench bench-sort bench-video bench-crops bench-detection bench-pull-over \
+	bench-siren-loop bench-audio bench-rig clean
 
 # `make demo` installs the runtime only; `make test` and the benchmarks add the dev extra (linters,
 # scikit-learn, XGBoost, torch for the training tests).
@@ -52,6 +52,12 @@ bench-crops: venv
 	$(BIN)/python benchmarks/bench_cnn_latency.py
 	$(BIN)/python benchmarks/bench_track_sweep.py
 
+# EV detection on images (vehicle detector + crop classifier) on the held-out ambulance_yolo split;
+# the detection metrics beside pycocotools / torchmetrics where either is installed
+bench-detection: venv
+	$(BIN)/python benchmarks/bench_evaluate_detector.py
+	$(BIN)/python benchmarks/bench_detection_metrics_reference.py
+
 bench-pull-over: venv
 	$(BIN)/python benchmarks/bench_pull_over.py
 
@@ -73,7 +79,7 @@ bench-audio: venv
 bench-rig: venv
 	$(BIN)/python benchmarks/bench_rig_azimuth.py
 
-bench: bench-sort bench-video bench-crops bench-pull-over bench-siren-loop bench-audio bench-rig
+bench: bench-sort bench-video bench-crops bench-detection bench-pull-over bench-siren-loop bench-audio bench-rig
 
 clean:
 	rm -rf $(VENV) reports .pytest_cache .mypy_cache .ruff_cache

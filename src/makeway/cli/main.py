@@ -175,6 +175,60 @@ def mot_eval(
     print_json_line(score_mot_files(gt, tracks, iou=iou))
 
 
+# -------------------------------------------------------------------------------- evaluate-detector
+@app.command("evaluate-detector")
+@friendly_errors
+def evaluate_detector(
+    data: Annotated[
+        Path, typer.Option("--data", help="YOLO folder (images/ + labels/); class 0 is the EV class.")
+    ],
+    framework: Annotated[
+        str,
+        typer.Option(help="b: vehicle detector + the crop classifier per box; a: not built yet."),
+    ] = "b",
+    classifier: Annotated[
+        str,
+        typer.Option(help="Crop classifier: default, fast, fastest, imagenet, or a .npz/.onnx file."),
+    ] = "default",
+    split: Annotated[
+        str,
+        typer.Option(
+            help="all: every image; held_out: the committed held-out part of ambulance_yolo/valid "
+            "(src/makeway/data/ambulance_yolo_held_out.txt); validation: the rest of that set."
+        ),
+    ] = "all",
+    score: Annotated[
+        str,
+        typer.Option(help="Ranking score for AP: product (detector score × P(EV)) or classifier (P(EV))."),
+    ] = "product",
+    detector: Annotated[str, typer.Option(help="Vehicle detector: yolox_nano or nanodet_m.")] = "yolox_nano",
+    model: Annotated[Path | None, typer.Option(help="ONNX weights for the vehicle detector.")] = None,
+    max_images: Annotated[int | None, typer.Option(min=1, help="Score the first N images only.")] = None,
+) -> None:
+    """Score an EV detector on YOLO images (boxes of class 0).
+
+    With --framework b (the default): vehicle detector → square crop per box → crop classifier; each
+    box is an EV detection ranked by its score, and the operating point is the classifier's own
+    threshold. A detection is
+    correct at IoU >= 0.5. Prints one JSON line: map50, map50_95, precision, recall (at the
+    operating point), n_images, n_boxes, framework, classifier, ms_per_image.
+    """
+    from makeway.apps.evaluate_detector import evaluate_detector as run
+
+    print_json_line(
+        run(
+            data,
+            framework=framework.strip().lower(),
+            classifier=classifier,
+            split=split,
+            score=score,
+            detector=detector,
+            model=model,
+            max_images=max_images,
+        )
+    )
+
+
 # --------------------------------------------------------------------------------------------- demo
 @app.command()
 @friendly_errors
@@ -339,7 +393,7 @@ def simulate(
 # --------------------------------------------------------------------------------------------- info
 @app.command()
 def info() -> None:
-    """Show versions, data and model folders, and the H.264 encoder.
+    """Show versions, data and model folders, H.264 encoder.
 
     Lists where the shared data and the detector weights were found and which H.264 encoder writes
     the annotated videos.
