@@ -89,7 +89,7 @@ class ProposalConfig:
             a big coloured patch is a sign, a wall or a reflection.
     """
 
-    colours: tuple[str, ...] = ("blue", "red", "amber")
+    colours: tuple[str, ...] = ("blue", "red")
     hsv: dict[str, list[tuple[int, int, int, int]]] = field(default_factory=lambda: dict(DEFAULT_HSV))
     core_v: int = 245
     core_s_max: int = 80
@@ -97,7 +97,7 @@ class ProposalConfig:
     halo_fraction: float = 0.25
     merge_px: int = 3
     min_area_px: int = 12
-    max_area_fraction: float = 0.01
+    max_area_fraction: float = 0.03
 
 
 @dataclass(frozen=True)
@@ -173,7 +173,9 @@ class LabelFile:
 
 
 # ------------------------------------------------------------------------------------------ proposals
-def colour_masks(frame_bgr: np.ndarray, hsv: dict[str, list[tuple[int, int, int, int]]]) -> dict[str, np.ndarray]:
+def colour_masks(
+    frame_bgr: np.ndarray, hsv: dict[str, list[tuple[int, int, int, int]]]
+) -> dict[str, np.ndarray]:
     """Colour name → boolean mask (H×W) of the pixels in that colour's HSV ranges."""
     img = cv2.cvtColor(frame_bgr, cv2.COLOR_BGR2HSV)
     h, s, v = img[..., 0], img[..., 1], img[..., 2]
@@ -193,9 +195,9 @@ def _components(mask: np.ndarray, merge_px: int) -> list[tuple[int, int, int, in
     merged = m
     if merge_px > 0:
         k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * merge_px + 1, 2 * merge_px + 1))
-        merged = cv2.dilate(m, k)
+        merged = np.asarray(cv2.dilate(m, k), np.uint8)
     n, lab = cv2.connectedComponents(merged, connectivity=8)
-    out = []
+    out: list[tuple[int, int, int, int, int]] = []
     if n <= 1:
         return out
     ys, xs = np.nonzero(m)
@@ -377,15 +379,14 @@ def write_labels(path: str | Path, source: str, width: int, height: int, rows: I
     from makeway.atomic import atomic_path
 
     lines = [f"# source: {source}", f"# width: {width}", f"# height: {height}"]
-    with atomic_path(path) as tmp:
-        with open(tmp, "w", newline="", encoding="utf-8") as fh:
-            fh.write("\n".join(lines) + "\n")
-            w = csv.writer(fh, lineterminator="\n")
-            w.writerow(HEADER)
-            for r in rows:
-                box = [str(v) for v in r.box] if r.box else ["", "", "", ""]
-                vehicle = "" if r.vehicle is None else str(r.vehicle)
-                w.writerow([r.frame, int(r.checked), r.kind, *box, r.colour, vehicle, r.note])
+    with atomic_path(path) as tmp, open(tmp, "w", newline="", encoding="utf-8") as fh:
+        fh.write("\n".join(lines) + "\n")
+        w = csv.writer(fh, lineterminator="\n")
+        w.writerow(HEADER)
+        for r in rows:
+            box = [str(v) for v in r.box] if r.box else ["", "", "", ""]
+            vehicle = "" if r.vehicle is None else str(r.vehicle)
+            w.writerow([r.frame, int(r.checked), r.kind, *box, r.colour, vehicle, r.note])
 
 
 _META = re.compile(r"#\s*(source|width|height)\s*:\s*(.*?)\s*$")
@@ -445,7 +446,7 @@ def read_labels(path: str | Path) -> LabelFile:
         if first.checked != r.checked:
             raise InputError(f"{p}:{r.line}", f"frame {r.frame} is checked on line {first.line} but not here")
         kinds.setdefault(r.frame, set()).add(r.kind)
-        if "frame" in kinds[r.frame] and len(kinds[r.frame]) > 1 or (r.kind == "frame" and r is not first):
+        if ("frame" in kinds[r.frame] and len(kinds[r.frame]) > 1) or (r.kind == "frame" and r is not first):
             raise InputError(f"{p}:{r.line}", f"frame {r.frame} has a 'frame' row beside other rows")
     return LabelFile(p, meta["source"], width, height, rows)
 
@@ -499,7 +500,9 @@ def image_name(source: str, frame: str) -> str:
     return Path(frame).stem
 
 
-def export_yolo(labels: Sequence[LabelFile], out: str | Path, *, single_class: bool = False) -> dict[str, int]:
+def export_yolo(
+    labels: Sequence[LabelFile], out: str | Path, *, single_class: bool = False
+) -> dict[str, int]:
     """Write the checked frames of ``labels`` in YOLO layout, ABLDataset style.
 
     ``out/labels/<image>.txt``: one row ``class cx cy w h`` per light (normalised to the image size,
@@ -545,7 +548,7 @@ def read_yolo(
     Raises :class:`~makeway.errors.InputError` naming ``file:line`` on a malformed row or when the
     grouping file has a different number of rows."""
     p = Path(label_file)
-    out = []
+    out: list[tuple[int, tuple[int, int, int, int], int | None]] = []
     for lineno, line in enumerate(p.read_text(encoding="utf-8").splitlines(), 1):
         if not line.strip():
             continue
