@@ -69,6 +69,16 @@ def test_adjacent_bulbs_in_one_glow_are_one_box_and_separate_ones_two() -> None:
     assert boxes == [(40, 60, 82, 72), (200, 60, 220, 72)]
 
 
+def test_a_bright_core_in_a_large_bloom_is_boxed_by_itself() -> None:
+    # a blue light at night: its bloom (80x60 px, 6 % of the frame) is too large to be a light box,
+    # but the clipped white core inside it is the lit part and is proposed alone
+    img = _night()
+    img[80:140, 100:180] = (255, 60, 30)
+    img[107:113, 135:145] = (255, 255, 255)
+    props = propose(img, ProposalConfig())
+    assert [(p.box, p.colour, p.cues) for p in props] == [((135, 107, 145, 113), "blue", ("core",))]
+
+
 def test_tiny_and_huge_coloured_regions_are_not_lights() -> None:
     img = _night()
     img[10:12, 10:12] = (255, 40, 20)  # 4 px speck

@@ -214,12 +214,17 @@ def _components(mask: np.ndarray, merge_px: int) -> list[tuple[int, int, int, in
 def propose(frame_bgr: np.ndarray, config: ProposalConfig | None = None, frame: int = 0) -> list[Proposal]:
     """Candidate lit-light boxes in one BGR frame, from the colour and brightness cues.
 
-    Colour cue: each colour of ``config.colours`` gives a mask; its regions, merged across gaps of
-    ``merge_px``, become boxes. Brightness cue: saturated cores (near-white, very bright) whose ring of
-    ``halo_px`` pixels is at least ``halo_fraction`` of one colour join that colour's mask (a lit bulb's
-    centre clips to white; its glow carries the colour); a core ringed by nothing coloured is a
-    ``white`` proposal only when ``white`` is in ``config.colours``. The score is the region's mean
-    HSV value (0–1) times the fraction of its box that is lit. Sorted left to right.
+    Colour cue: each colour of ``config.colours`` gives a mask (saturated cores excluded); its regions,
+    merged across gaps of ``merge_px``, become boxes (cue ``colour``). Brightness cue: saturated cores
+    (near-white, very bright: a lit bulb's centre clips to white while its glow carries the colour)
+    whose ring of ``halo_px`` pixels is at least ``halo_fraction`` of one colour take that colour. A
+    core inside a small coloured region (the region's box at most 6 times the core's) joins it (cues
+    ``colour`` and ``core``); a core inside a large glow, or with a glow too large to keep, is its own
+    box (cue ``core``): the lit part of a bright light whose bloom fills its surroundings. A core ringed
+    by nothing coloured is a ``white`` proposal only when ``white`` is in ``config.colours``. Regions
+    below ``min_area_px`` or above ``max_area_fraction`` of the frame are dropped. The score is the
+    mean HSV value (0–1) of the lit pixels times the fraction of the box they fill. Sorted left to
+    right.
     """
     cfg = config or ProposalConfig()
     h, w = frame_bgr.shape[:2]
@@ -249,25 +254,43 @@ def propose(frame_bgr: np.ndarray, config: ProposalConfig | None = None, frame: 
                 if f > frac:
                     best, frac = c, f
             if best and frac >= cfg.halo_fraction:
-                used[best][y0:y1, x0:x1] |= blob.astype(bool)
                 cue_core[best][y0:y1, x0:x1] |= blob.astype(bool)
             else:
                 white_cores[y0:y1, x0:x1] |= blob.astype(bool)
     if "white" in cfg.colours:
-        used["white"] = white_cores
         cue_core["white"] = white_cores
     out: list[Proposal] = []
-    for c, m in used.items():
-        for x1, y1, x2, y2, area in _components(m, cfg.merge_px):
+    for c, cores in cue_core.items():
+        core_boxes = [b for b in _components(cores, cfg.merge_px) if b[4] >= max(1, cfg.min_area_px // 3)]
+        merged_cores: set[int] = set()
+        for x1, y1, x2, y2, area in _components(used.get(c, np.zeros((h, w), bool)), cfg.merge_px):
             box_area = (x2 - x1) * (y2 - y1)
             if area < cfg.min_area_px or box_area > cfg.max_area_fraction * h * w:
                 continue
-            region = m[y1:y2, x1:x2]
-            cues = ("colour",) if c != "white" else ()
-            if cue_core[c][y1:y2, x1:x2].any():
-                cues = (*cues, "core")
-            score = float(value[y1:y2, x1:x2][region].mean()) * area / box_area
+            cues: tuple[str, ...] = ("colour",)
+            inside = [
+                i
+                for i, b in enumerate(core_boxes)
+                if b[0] < x2
+                and b[2] > x1
+                and b[1] < y2
+                and b[3] > y1
+                and box_area <= 6 * (b[2] - b[0]) * (b[3] - b[1])
+            ]
+            for i in inside:  # a small coloured ring around a core: one light, core and glow
+                x1, y1 = min(x1, core_boxes[i][0]), min(y1, core_boxes[i][1])
+                x2, y2 = max(x2, core_boxes[i][2]), max(y2, core_boxes[i][3])
+                merged_cores.add(i)
+                cues = ("colour", "core")
+            lit = used[c][y1:y2, x1:x2] | cores[y1:y2, x1:x2]
+            score = float(value[y1:y2, x1:x2][lit].mean()) * float(lit.mean())
             out.append(Proposal(frame, x1, y1, x2, y2, c, round(score, 4), cues))
+        for i, (x1, y1, x2, y2, _area) in enumerate(core_boxes):
+            if i in merged_cores:
+                continue  # a core inside a large glow is its own box: the lit part of the light
+            lit = cores[y1:y2, x1:x2]
+            score = float(value[y1:y2, x1:x2][lit].mean()) * float(lit.mean())
+            out.append(Proposal(frame, x1, y1, x2, y2, c, round(score, 4), ("core",)))
     return sorted(out, key=lambda p: (p.x1, p.y1))
 
 
