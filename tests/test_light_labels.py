@@ -160,3 +160,50 @@ def test_yolo_export_round_trip_keeps_boxes_colours_and_vehicles(tmp_path: Path)
     assert back == [(0, (101, 50, 133, 66), 0), (1, (140, 52, 170, 66), 0), (0, (600, 300, 640, 360), 1)]
     assert (tmp_path / "yolo/labels/clip_000008.txt").read_text() == ""  # a negative image
     assert not (tmp_path / "yolo/labels/clip_000009.txt").exists()
+
+
+LABELS = Path(__file__).resolve().parents[1] / "src" / "makeway" / "data" / "lights"
+
+
+def test_shipped_label_files_read_and_keep_the_rules() -> None:
+    """The committed labels pass the reader, and what they say is consistent with their sources: the
+    no-EV clips have no light at all, and the night clip's lights are blue or red, on checked frames
+    with a vehicle id (docs/data_card_lights.md)."""
+    files = {p.stem: read_labels(p) for p in sorted(LABELS.glob("*.csv"))}
+    assert set(files) == {"night_ambulance_lights", "traffic_no_ev", "highway_cam_no_ev"}
+    for stem in ("traffic_no_ev", "highway_cam_no_ev"):
+        counts = files[stem].counts()
+        assert counts["boxes"] == 0 and counts["checked_frames"] == counts["frames"] >= 60
+    night = files["night_ambulance_lights"]
+    assert (night.width, night.height) == (1280, 720)
+    lights = [r for r in night.rows if r.kind == "light" and r.checked]
+    assert len(lights) >= 150 and {r.colour for r in lights} == {"blue", "red"}
+    assert all(r.vehicle is not None and r.vehicle >= 1 for r in lights)
+
+
+def test_cli_check_reports_a_bad_row_in_one_line(tmp_path: Path) -> None:
+    from typer.testing import CliRunner
+
+    from makeway.cli.main import app
+
+    path = _write(tmp_path, "3,1,light,10,10,20,20,green,0,\n")
+    result = CliRunner().invoke(app, ["light-labels", "check", str(path)], terminal_width=200)
+    assert result.exit_code == 2
+    lines = [line for line in result.output.splitlines() if line.strip()]
+    assert len(lines) == 1 and f"{path}:5" in lines[0] and "unknown colour 'green'" in lines[0]
+
+
+def test_cli_export_writes_yolo_and_test_id(tmp_path: Path) -> None:
+    from typer.testing import CliRunner
+
+    from makeway.cli.main import app
+
+    night = LABELS / "night_ambulance_lights.csv"
+    result = CliRunner().invoke(app, ["light-labels", "export", str(night), "-o", str(tmp_path / "y")])
+    assert result.exit_code == 0, result.output
+    counts = read_labels(night).counts()
+    names = sorted(p.name for p in (tmp_path / "y" / "labels").glob("*.txt"))
+    assert len(names) == counts["checked_frames"]
+    assert sorted(p.name for p in (tmp_path / "y" / "test_id").glob("*.txt")) == names
+    boxes = sum(len(p.read_text().splitlines()) for p in (tmp_path / "y" / "labels").glob("*.txt"))
+    assert boxes == counts["boxes"]
