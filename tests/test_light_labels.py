@@ -17,6 +17,7 @@ from makeway.train.light_labels import (
     export_yolo,
     flash_score,
     image_name,
+    link_tracklets,
     lit_maps,
     propose,
     read_labels,
@@ -207,3 +208,20 @@ def test_cli_export_writes_yolo_and_test_id(tmp_path: Path) -> None:
     assert sorted(p.name for p in (tmp_path / "y" / "test_id").glob("*.txt")) == names
     boxes = sum(len(p.read_text().splitlines()) for p in (tmp_path / "y" / "labels").glob("*.txt"))
     assert boxes == counts["boxes"]
+
+
+def test_tracklets_link_a_moving_light_across_a_gap_and_keep_colours_apart(tmp_path: Path) -> None:
+    rows = []
+    for f in (0, 2, 4, 8):  # frame 6 missing: the light is off in a flash gap
+        rows.append(LabelRow(str(f), False, "light", (100 + 5 * f, 50, 110 + 5 * f, 58), "blue", 0))
+        rows.append(LabelRow(str(f), False, "light", (112 + 5 * f, 50, 122 + 5 * f, 58), "red", 0))
+    rows.append(LabelRow("4", False, "light", (500, 300, 510, 310), "blue", 0))  # a one-frame reflection
+    rows.append(LabelRow("20", False, "light", (160, 50, 170, 58), "blue", 0))  # too late to join
+    write_labels(tmp_path / "t.csv", "clip.mp4", 640, 360, rows)
+    tracks = link_tracklets(read_labels(tmp_path / "t.csv"), max_gap=6)
+    assert tracks == [
+        [("0", 0), ("2", 0), ("4", 0), ("8", 0)],
+        [("0", 1), ("2", 1), ("4", 1), ("8", 1)],
+        [("4", 2)],
+        [("20", 0)],
+    ]

@@ -19,7 +19,8 @@ from makeway.cli.common import console, friendly_errors, new_app, print_json_lin
 light_labels_app = new_app(
     "light-labels",
     "Label lit emergency lights for training.\n\n"
-    "Workflow: `propose VIDEO LABELS.csv` → `sheets VIDEO LABELS.csv DIR` → look at every sheet, "
+    "Workflow: `propose VIDEO LABELS.csv` → optionally `tracklets VIDEO LABELS.csv DIR` → "
+    "`sheets VIDEO LABELS.csv DIR` → look at every sheet, "
     "correct the CSV by hand and set checked=1 → `check LABELS.csv` → `export LABELS.csv... DIR`. "
     "The CSV format and the labelling rules are in docs/data_card_lights.md.",
 )
@@ -142,3 +143,38 @@ def export(
     files = [read_labels(p) for p in labels]
     counts = export_yolo(files, out, single_class=single_class)
     console.print(f"{counts['images']} images, {counts['boxes']} boxes → {out}", highlight=False)
+
+
+@light_labels_app.command()
+@friendly_errors
+def tracklets(
+    video: Annotated[Path, typer.Argument(help="The video the label file labels.")],
+    labels: Annotated[Path, typer.Argument(help="Label file (CSV), e.g. fresh proposals.")],
+    out: Annotated[Path, typer.Argument(help="Folder for tracklets.csv and the PNG thumbnail sheets.")],
+    min_length: Annotated[int, typer.Option(min=1, help="Draw tracklets of at least N boxes.")] = 3,
+    max_gap: Annotated[int, typer.Option(min=1, help="Close a tracklet after N frames without a box.")] = 8,
+) -> None:
+    """Link boxes across frames into tracklets.
+
+    Draws one thumbnail per tracklet, to accept or reject a light once for many frames. Writes
+    OUT/tracklets.csv (tracklet, frame, n: the box's number on the contact sheets) and
+    OUT/tracklets_NNN.png (thumbnails captioned with the tracklet number, colour initial and length).
+    """
+    from makeway.sense.video import VideoReader
+    from makeway.train.light_labels import link_tracklets, read_labels, tracklet_sheets
+
+    lab = read_labels(labels)
+    tracks = link_tracklets(lab, max_gap=max_gap)
+    out.mkdir(parents=True, exist_ok=True)
+    lines = ["tracklet,frame,n"] + [f"{i},{k},{n}" for i, t in enumerate(tracks) for k, n in t]
+    (out / "tracklets.csv").write_text("\n".join(lines) + "\n", encoding="utf-8")
+    keys = {k for t in tracks if len(t) >= min_length for k, _n in t}
+
+    def frames() -> Iterator[tuple[str, np.ndarray]]:
+        with VideoReader(video) as reader:
+            for index, _t, frame in reader:
+                if str(index) in keys:
+                    yield str(index), frame
+
+    paths = tracklet_sheets(frames(), lab, tracks, out, min_length=min_length)
+    console.print(f"{len(tracks)} tracklets, {len(paths)} sheets → {out}", highlight=False)

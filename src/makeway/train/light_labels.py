@@ -676,3 +676,105 @@ def contact_sheets(
             flush()
     flush()
     return paths
+
+
+# ------------------------------------------------------------------------------------------ tracklets
+def link_tracklets(
+    labels: LabelFile, *, kinds: tuple[str, ...] = ("light",), max_gap: int = 8, reach_px: float = 25.0
+) -> list[list[tuple[str, int]]]:
+    """Link the boxes of consecutive frames into tracklets, so a person can accept or reject a light
+    once for many frames.
+
+    Frames are taken in index order (video sources); a box joins the open tracklet of the same colour
+    whose last box centre is nearest, when closer than ``reach_px`` plus half that box's longer side
+    (pixels), each tracklet taking at most one box per frame; a tracklet closes after ``max_gap`` frame
+    indices without a box. Returns tracklets as lists of ``(frame key, n)``, where ``n`` numbers the
+    frame's boxed rows in file order (the numbers drawn by :func:`draw_boxes`), in order of first box.
+    """
+    frames = labels.frames()
+    keys = sorted(frames, key=lambda k: (not k.isdigit(), int(k) if k.isdigit() else 0, k))
+    tracks: list[list[tuple[str, int, LabelRow]]] = []
+    open_: list[list[tuple[str, int, LabelRow]]] = []
+    for key in keys:
+        if key.isdigit():  # close the tracklets whose last box is too many frames back
+            open_ = [t for t in open_ if not t[-1][0].isdigit() or int(key) - int(t[-1][0]) <= max_gap]
+        boxed = [r for r in frames[key] if r.box is not None]
+        rows = [(n, r) for n, r in enumerate(boxed) if r.kind in kinds]
+        pairs = []
+        for t in open_:
+            last = t[-1][2]
+            assert last.box is not None
+            lx, ly = (last.box[0] + last.box[2]) / 2, (last.box[1] + last.box[3]) / 2
+            reach = reach_px + 0.5 * max(last.box[2] - last.box[0], last.box[3] - last.box[1])
+            for n, r in rows:
+                assert r.box is not None
+                if r.colour != last.colour:
+                    continue
+                d = math.hypot((r.box[0] + r.box[2]) / 2 - lx, (r.box[1] + r.box[3]) / 2 - ly)
+                if d < reach:
+                    pairs.append((d, id(t), t, n, r))
+        pairs.sort(key=lambda p: p[0])
+        taken: set[int] = set()
+        used: set[int] = set()
+        for _d, tid, t, n, r in pairs:
+            if tid not in taken and n not in used:
+                t.append((key, n, r))
+                taken.add(tid)
+                used.add(n)
+        for n, r in rows:
+            if n not in used:
+                t = [(key, n, r)]
+                tracks.append(t)
+                open_.append(t)
+    return [[(k, n) for k, n, _r in t] for t in tracks]
+
+
+def tracklet_sheets(
+    frames: Iterable[tuple[str, np.ndarray]],
+    labels: LabelFile,
+    tracklets: Sequence[Sequence[tuple[str, int]]],
+    out_dir: str | Path,
+    *,
+    min_length: int = 3,
+    thumb: int = 128,
+    columns: int = 10,
+    rows_per_sheet: int = 6,
+) -> list[Path]:
+    """PNG grids with one zoomed thumbnail per tracklet of at least ``min_length`` boxes: the crop
+    around the tracklet's middle box (about three times its size, at least 120 px), box drawn in green,
+    captioned ``<tracklet><colour initial> n<length>``. ``frames`` yields ``(frame key, BGR image)``.
+    Returns the sheet paths (``tracklets_000.png``, …)."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    boxed = {k: [r for r in v if r.box is not None] for k, v in labels.frames().items()}
+    need: dict[str, list[tuple[int, LabelRow, int]]] = {}
+    for t_id, t in enumerate(tracklets):
+        if len(t) >= min_length:
+            key, n = t[len(t) // 2]
+            need.setdefault(key, []).append((t_id, boxed[key][n], len(t)))
+    thumbs: dict[int, np.ndarray] = {}
+    for key, img in frames:
+        for t_id, r, length in need.get(key, []):
+            assert r.box is not None
+            x1, y1, x2, y2 = r.box
+            cx, cy = (x1 + x2) // 2, (y1 + y2) // 2
+            half = max(60, int(1.6 * max(x2 - x1, y2 - y1)))
+            ox, oy = max(0, cx - half), max(0, cy - half)
+            crop = img[oy : cy + half, ox : cx + half].copy()
+            cv2.rectangle(crop, (x1 - ox - 1, y1 - oy - 1), (x2 - ox, y2 - oy), (0, 255, 0), 1)
+            crop = cv2.resize(crop, (thumb, thumb))
+            text = f"{t_id}{r.colour[:1]} n{length}"
+            cv2.putText(crop, text, (2, 12), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (0, 0, 0), 3)
+            cv2.putText(crop, text, (2, 12), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (0, 255, 255), 1)
+            thumbs[t_id] = crop
+    per = columns * rows_per_sheet
+    ids = sorted(thumbs)
+    paths = []
+    for s in range(0, len(ids), per):
+        batch = [thumbs[i] for i in ids[s : s + per]]
+        batch += [np.zeros((thumb, thumb, 3), np.uint8)] * (per - len(batch))
+        grid = np.vstack([np.hstack(batch[r * columns : (r + 1) * columns]) for r in range(rows_per_sheet)])
+        path = out / f"tracklets_{s // per:03d}.png"
+        cv2.imwrite(str(path), grid)
+        paths.append(path)
+    return paths
