@@ -408,11 +408,13 @@ def info() -> None:
 
 from makeway.cli.audio import audio_app  # noqa: E402  (sub-apps register after the main commands)
 from makeway.cli.classify import classify_app  # noqa: E402
+from makeway.cli.light_labels import light_labels_app  # noqa: E402
 from makeway.cli.rig import rig_app  # noqa: E402
 
 app.add_typer(classify_app, name="classify")
 app.add_typer(audio_app, name="audio")
 app.add_typer(rig_app, name="rig")
+app.add_typer(light_labels_app, name="light-labels")
 
 if __name__ == "__main__":  # pragma: no cover
     app()
