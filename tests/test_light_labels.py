@@ -171,7 +171,9 @@ def test_shipped_label_files_read_and_keep_the_rules() -> None:
     no-EV clips have no light at all, and the night clip's lights are blue or red, on checked frames
     with a vehicle id (docs/data_card_lights.md)."""
     files = {p.stem: read_labels(p) for p in sorted(LABELS.glob("*.csv"))}
-    assert set(files) == {"night_ambulance_lights", "traffic_no_ev", "highway_cam_no_ev"}
+    assert {"night_ambulance_lights", "traffic_no_ev", "highway_cam_no_ev", "fire_trucks_red_lights"} <= set(
+        files
+    )
     for stem in ("traffic_no_ev", "highway_cam_no_ev"):
         counts = files[stem].counts()
         assert counts["boxes"] == 0 and counts["checked_frames"] == counts["frames"] >= 60
@@ -180,6 +182,33 @@ def test_shipped_label_files_read_and_keep_the_rules() -> None:
     lights = [r for r in night.rows if r.kind == "light" and r.checked]
     assert len(lights) >= 150 and {r.colour for r in lights} == {"blue", "red"}
     assert all(r.vehicle is not None and r.vehicle >= 1 for r in lights)
+    fire = files["fire_trucks_red_lights"]
+    assert (fire.width, fire.height) == (640, 352)
+    fire_lights = [r for r in fire.rows if r.kind == "light" and r.checked]
+    assert len(fire_lights) >= 100 and {r.colour for r in fire_lights} == {"blue", "red"}
+    assert {r.vehicle for r in fire_lights} == {1, 2}  # the fire truck and the ambulance
+    for labels in files.values():  # every checked light of every clip has a vehicle id
+        assert all(
+            r.vehicle is not None and r.vehicle >= 1 for r in labels.rows if r.kind == "light" and r.checked
+        )
+
+
+def test_wide_hue_preset_proposes_magenta_as_red_and_orange_glow_as_amber() -> None:
+    """A lit pink lamp (OpenCV hue 155) falls between the default red and blue ranges and is red under
+    ``wide``; an orange glow (hue 12) is past the default red range (0-7) and is amber under ``wide``
+    with amber proposed. Default settings propose neither."""
+    from makeway.train.light_labels import HSV_PRESETS, ProposalConfig, propose
+
+    frame = np.zeros((120, 200, 3), np.uint8)
+    hsv = np.zeros((20, 20, 3), np.uint8)
+    hsv[...] = (155, 200, 230)
+    frame[20:40, 20:40] = cv2.cvtColor(hsv, cv2.COLOR_HSV2BGR)
+    hsv[...] = (12, 200, 230)
+    frame[60:80, 120:140] = cv2.cvtColor(hsv, cv2.COLOR_HSV2BGR)
+    default = propose(frame, ProposalConfig())
+    wide = propose(frame, ProposalConfig(colours=("blue", "red", "amber"), hsv=dict(HSV_PRESETS["wide"])))
+    assert default == []
+    assert [(p.box, p.colour) for p in wide] == [((20, 20, 40, 40), "red"), ((120, 60, 140, 80), "amber")]
 
 
 def test_cli_check_reports_a_bad_row_in_one_line(tmp_path: Path) -> None:

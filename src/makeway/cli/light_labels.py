@@ -36,6 +36,10 @@ def propose(
         str, typer.Option(help="Comma-separated colours to propose: blue, red, amber.")
     ] = "blue,red",
     window_s: Annotated[float, typer.Option(min=0.1, help="Flash window (s) centred on each frame.")] = 0.6,
+    hue: Annotated[
+        str,
+        typer.Option(help="HSV ranges: 'default', or 'wide' (red also magenta/pink 141-179, amber from 11)."),
+    ] = "default",
 ) -> None:
     """Propose lit-light boxes on every N-th frame.
 
@@ -46,6 +50,7 @@ def propose(
     """
     from makeway.train.light_labels import (
         COLOURS,
+        HSV_PRESETS,
         ProposalConfig,
         proposals_to_rows,
         propose_video,
@@ -56,9 +61,10 @@ def propose(
     bad = [c for c in chosen if c not in COLOURS or c == "white"]
     if bad or not chosen:
         raise ValueError(f"--colours takes blue, red, amber; not {colours!r}")
-    props, width, height, frames = propose_video(
-        video, ProposalConfig(colours=chosen), stride=stride, window_s=window_s
-    )
+    if hue not in HSV_PRESETS:
+        raise ValueError(f"--hue takes {', '.join(HSV_PRESETS)}; not {hue!r}")
+    config = ProposalConfig(colours=chosen, hsv=dict(HSV_PRESETS[hue]))
+    props, width, height, frames = propose_video(video, config, stride=stride, window_s=window_s)
     write_labels(out, video.name, width, height, proposals_to_rows(props, frames))
     console.print(f"{len(props)} proposals on {len(frames)} frames → {out}", highlight=False)
 

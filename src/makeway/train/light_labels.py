@@ -70,6 +70,23 @@ DEFAULT_HSV: dict[str, list[tuple[int, int, int, int]]] = {
     "white": [(0, 179, 0, 250)],
 }
 
+#: Wider hue ranges for clips whose lamps fall between the default ranges: red takes hue 0–10 and the
+#: magenta/pink band 141–179 (a red or blue-red lamp blooming pink in a night camera; 141–169 is left
+#: out of :data:`DEFAULT_HSV`), and amber starts at 11 so that a red lamp whose glow turns orange is
+#: proposed as amber (its colour is set by eye when checked). Chosen with ``propose --hue wide``.
+WIDE_HSV: dict[str, list[tuple[int, int, int, int]]] = {
+    "blue": [(100, 140, 90, 140)],
+    "red": [(0, 10, 120, 150), (141, 179, 120, 150)],
+    "amber": [(11, 28, 120, 170)],
+    "white": [(0, 179, 0, 250)],
+}
+
+#: Named hue-range presets of ``makeway light-labels propose --hue``.
+HSV_PRESETS: dict[str, dict[str, list[tuple[int, int, int, int]]]] = {
+    "default": DEFAULT_HSV,
+    "wide": WIDE_HSV,
+}
+
 
 @dataclass(frozen=True)
 class ProposalConfig:
