@@ -176,13 +176,15 @@ def listen(
     listen_on: Sequence[str] = (DEFAULT_ENDPOINT,),
     connect: Sequence[str] = (),
     ego: tuple[float, float, float, float] | None = None,
+    hold_s: float = 1.0,
 ) -> Iterator[dict[str, Any]]:
     """Subscribe to the segments, verify every payload, and yield one row per payload:
-    ``{"key", "valid", "reason", ...decoded fields, "latency_ms", "belief"}``; the belief
-    (:class:`~makeway.v2x.belief.V2XBeliefSource`) takes valid alerts only. ``ego`` is
-    (lat, lon, heading clockwise from north in degrees, speed m/s): the belief's position is relative
-    to it; without it the belief says presence, siren and lights only. Ends after ``duration_s`` or
-    ``count`` payloads, then yields a summary row ``{"summary": {...}}``."""
+        ``{"key", "valid", "reason", ...decoded fields, "latency_ms", "belief"}``; the belief
+        (:class:`~makeway.v2x.belief.V2XBeliefSource`) takes valid alerts only. ``ego`` is
+        (lat, lon, heading clockwise from north in degrees, speed m/s): the belief's position is relative
+        to it; without it the belief says presence, siren and lights only; ``hold_s`` is how long the belief
+    keeps an alert after its generation time. Ends after ``duration_s`` or
+        ``count`` payloads, then yields a summary row ``{"summary": {...}}``."""
     from makeway.v2x.belief import LocalFrame, V2XBeliefSource
     from makeway.v2x.security import TrustStore, Verifier
     from makeway.v2x.transport import AlertSubscriber, open_peer, segment_key
@@ -191,7 +193,7 @@ def listen(
         segment_key(s)
     verifier = Verifier(TrustStore.load(trust))
     frame = LocalFrame(ego[0], ego[1]) if ego is not None else None
-    source = V2XBeliefSource(frame or LocalFrame(0.0, 0.0))
+    source = V2XBeliefSource(frame or LocalFrame(0.0, 0.0), hold_s=hold_s)
     valid = rejected = 0
     reasons: dict[str, int] = {}
     session = open_peer(listen_on, connect)

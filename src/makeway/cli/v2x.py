@@ -17,11 +17,15 @@ from makeway.cli.common import err_console, friendly_errors, new_app, print_json
 
 v2x_app = new_app(
     "v2x",
-    "Signed emergency-vehicle alerts (ETSI DENM / SAE J2735 fields, ECDSA P-256).\n\n"
-    "keygen makes a local root, a unit key and the car's trust store; alert signs one alert; verify "
-    "checks alert files as a car would; send publishes them over zenoh on loopback.",
+    "Signed emergency-vehicle alerts.\n\n"
+    "The alert carries the fields of ETSI's DENM and SAE J2735's EmergencyVehicleAlert, signed with "
+    "ECDSA P-256. keygen makes a local root, a unit key and the car's trust store; alert signs one "
+    "alert; verify checks alert files as a car would; send publishes them over zenoh on loopback.",
 )
-vehicle_app = new_app("vehicle", "The car's side of V2X: listen for alerts and turn them into the EV belief.")
+vehicle_app = new_app(
+    "vehicle",
+    "The car's side of V2X alerts.\n\nListen for alerts and turn the valid ones into the EV belief.",
+)
 
 _ENDPOINT_HELP = "zenoh endpoint (loopback only), e.g. tcp/127.0.0.1:7447; repeat for several."
 
@@ -98,8 +102,9 @@ def verify(
     max_age_s: Annotated[float, typer.Option(min=0.0, help="Freshness window (s).")] = 10.0,
     max_future_s: Annotated[float, typer.Option(min=0.0, help="Clock-skew allowance (s).")] = 1.0,
 ) -> None:
-    """Check alert files as a car would: signer, revocation, signature, time, replay.
+    """Check alert files as a car would.
 
+    Checks signer, revocation, signature, generation time and replay.
     One JSON line per file, in order: {"file", "valid", "reason", ...decoded fields}. Exit code 0
     when all are valid, 1 when any is rejected, 2 when a file cannot be read.
     """
@@ -124,7 +129,11 @@ def send(
     rate_hz: Annotated[float, typer.Option(min=0.1, help="Alerts per second.")] = 10.0,
     wait_s: Annotated[float, typer.Option(min=0.0, help="Wait this long (s) for a subscriber.")] = 10.0,
 ) -> None:
-    """Publish alert files on a road segment over zenoh (default: connect to tcp/127.0.0.1:7447)."""
+    """Publish alert files on a road segment.
+
+    Sends over zenoh, by default connecting to a car listening on tcp/127.0.0.1:7447. Prints one JSON
+    line: segment, key, count sent, whether a subscriber was found.
+    """
     from makeway.apps.v2x import DEFAULT_ENDPOINT
     from makeway.apps.v2x import send as run
 
@@ -155,9 +164,13 @@ def listen_cmd(
     ego_lon: Annotated[float | None, typer.Option(help="The car's longitude (WGS-84 degrees).")] = None,
     ego_heading_deg: Annotated[float, typer.Option(help="The car's heading, degrees from north.")] = 0.0,
     ego_speed_mps: Annotated[float, typer.Option(help="The car's speed (m/s).")] = 0.0,
+    hold_s: Annotated[
+        float, typer.Option(min=0.0, help="The belief keeps an alert this long (s) after its generation.")
+    ] = 1.0,
 ) -> None:
-    """Listen for alerts as a car: verify each, keep the EV belief from the valid ones.
+    """Listen for alerts as a car.
 
+    Verifies each alert and keeps the EV belief from the valid ones.
     Subscribes over zenoh (default: listens on tcp/127.0.0.1:7447). One JSON line per message:
     {"key", "valid", "reason", ...decoded fields, "belief"}; rejected messages never reach the
     belief. With --ego-lat/--ego-lon the belief has the EV's position in the car's frame. A summary
@@ -178,6 +191,7 @@ def listen_cmd(
             listen_on=listen if listen is not None else [DEFAULT_ENDPOINT],
             connect=connect or [],
             ego=ego,
+            hold_s=hold_s,
         ):
             print_json_line(row)
     except KeyboardInterrupt:
