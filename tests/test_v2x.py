@@ -24,6 +24,7 @@ from cryptography.hazmat.primitives.asymmetric.utils import decode_dss_signature
 from typer.testing import CliRunner
 
 from makeway.cli.main import app
+from makeway.fuse.source import BeliefSource
 from makeway.messages import EVRelation, VehicleState
 from makeway.v2x.belief import LocalFrame, V2XBeliefSource
 from makeway.v2x.message import (
@@ -255,6 +256,7 @@ def test_belief_from_alerts_puts_the_ev_behind_and_approaching() -> None:
     frame = LocalFrame(lat0, lon0)
     dlat = 200.0 / frame.to_local(lat0 + 0.01, lon0)[1] * 0.01  # 200 m south, by the frame's own scale
     src = V2XBeliefSource(frame, hold_s=1.0)
+    assert isinstance(src, BeliefSource)
     ego = VehicleState(time_s=0.0, x_m=0.0, y_m=0.0, yaw_rad=math.pi / 2, vx_mps=10.0)
     t0 = 1_000.0
     src.receive(
@@ -347,6 +349,9 @@ def test_cli_contract(tmp_path: Path) -> None:
 
     res = runner.invoke(app, ["v2x", "verify", str(a), str(tmp_path / "missing.msg"), "--trust", str(trust)])
     assert res.exit_code == 2 and res.stdout == "" and "missing.msg" in res.stderr
+
+    res = runner.invoke(app, ["v2x", "verify", str(a), "--trust", str(tmp_path / "nowhere")])
+    assert res.exit_code == 2 and len(res.stderr.strip().splitlines()) == 1 and "nowhere" in res.stderr
 
     cache = tmp_path / "replay.json"
     first = runner.invoke(app, ["v2x", "verify", str(b), "--trust", str(trust), "--replay-cache", str(cache)])
