@@ -7,7 +7,7 @@ DEV    := $(VENV)/.dev
 OUT    ?= reports/demo
 
 .PHONY: venv demo test lint typecheck bench bench-sort bench-video bench-crops bench-detection bench-pull-over \
-	bench-siren-loop bench-audio bench-rig clean
+	bench-siren-loop bench-audio bench-rig bench-v2x clean
 
 # `make demo` installs the runtime only; `make test` and the benchmarks add the dev extra (linters,
 # scikit-learn, XGBoost, torch for the training tests).
@@ -79,7 +79,12 @@ bench-audio: venv
 bench-rig: venv
 	$(BIN)/python benchmarks/bench_rig_azimuth.py
 
-bench: bench-sort bench-video bench-crops bench-detection bench-pull-over bench-siren-loop bench-audio bench-rig
+# signed V2X alerts: attack-suite counts, verification on one core, created → verified latency over zenoh
+bench-v2x: venv
+	$(BIN)/python benchmarks/bench_v2x.py
+
+bench: bench-sort bench-video bench-crops bench-detection bench-pull-over bench-siren-loop bench-audio bench-rig \
+	bench-v2x
 
 clean:
 	rm -rf $(VENV) reports .pytest_cache .mypy_cache .ruff_cache

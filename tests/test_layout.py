@@ -21,7 +21,7 @@ from pathlib import Path
 import makeway
 
 ROOT = Path(makeway.__file__).resolve().parent
-CAR_SIDE = {"sense", "perceive", "track", "fuse", "decide", "plan", "control"}
+CAR_SIDE = {"sense", "perceive", "track", "fuse", "decide", "plan", "control", "v2x"}
 OFF_CAR = {"sim", "eval", "pipeline", "apps", "train", "viz", "cli"}
 ENTRY_POINTS = {"makeway.__main__"}
 

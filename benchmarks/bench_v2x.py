@@ -1,0 +1,257 @@
+"""Signed V2X alerts: attack-suite counts, verification throughput on one core, and loopback latency
+from alert created to alert verified at the car over zenoh (issue 27, targets "Attack suite",
+"Latency", "Load").
+
+    .venv/bin/python benchmarks/bench_v2x.py [--alerts 10000] [--rate-hz 1000] [--verify-n 5000] [--json FILE]
+
+* **attacks** — forged, every byte tampered (3 masks per byte), wrong signer, revoked, replayed, stale,
+  future, truncated (every length), oversized, random bytes: counts of rejected / total, and how
+  many valid alerts were rejected (target: 100 % rejected, 0 valid rejected, 0 crashes);
+* **throughput** — :meth:`makeway.v2x.security.Verifier.verify` on distinct valid alerts in one
+  process pinned to one CPU (target ≥ 2,000 alerts/s);
+* **latency** — a unit process stamps each alert (monotonic clock, shared by processes on Linux),
+  signs it and publishes it at ``--rate-hz`` on a segment; this process, a zenoh peer on
+  127.0.0.1, receives, verifies and stamps it again. p50/p99/max over ``--alerts`` alerts (goal
+  p99 ≤ 5 ms; the V2X safety-application budget is 100 ms), plus lost and out-of-order counts.
+"""
+
+from __future__ import annotations
+
+import argparse
+import itertools
+import json
+import os
+import random
+import socket
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from cryptography.hazmat.primitives import hashes
+from cryptography.hazmat.primitives.asymmetric import ec
+from cryptography.hazmat.primitives.asymmetric.utils import decode_dss_signature
+
+from makeway.v2x.message import ALERT_SIZE, Alert, encode_alert
+from makeway.v2x.security import (
+    SIGNED_SIZE,
+    Identity,
+    TrustStore,
+    Verifier,
+    keygen,
+    load_identity,
+    revoke,
+    sign_alert,
+)
+from makeway.v2x.transport import AlertPublisher, AlertSubscriber, open_peer
+
+TARGET_VERIFY_PER_S = 2000.0
+GOAL_P99_MS = 5.0
+SEGMENT = "bench"
+
+
+def _alert(ident: Identity, seq: int, t: float) -> Alert:
+    return Alert.from_physical(
+        station_id=ident.station_id,
+        generation_time_s=t,
+        sequence=seq,
+        lat_deg=48.137,
+        lon_deg=11.575,
+        heading_deg=30.0,
+        speed_mps=16.7,
+    )
+
+
+def attack_counts(keys: Path) -> dict[str, Any]:
+    """Rejected / total per attack (a fresh verifier for each message) and valid alerts rejected."""
+    good = keygen(keys / "ours", "rsu")
+    stolen = keygen(keys / "ours", "stolen")
+    revoke(keys / "ours" / "trust", keys / "ours" / "stolen.crt")
+    outsider = keygen(keys / "theirs", "rsu")
+    store = TrustStore.load(keys / "ours" / "trust")
+    now, rng = time.time(), random.Random(27)
+    fresh = sign_alert(_alert(good, 1, now), good)
+    forger = ec.generate_private_key(ec.SECP256R1())
+    body = encode_alert(_alert(good, 2, now)) + good.signer
+    r, s = decode_dss_signature(forger.sign(body, ec.ECDSA(hashes.SHA256())))
+    forged = body + r.to_bytes(32, "big") + s.to_bytes(32, "big")
+    tampered = [
+        bytes(b ^ (mask if j == i else 0) for j, b in enumerate(fresh))
+        for i in range(SIGNED_SIZE)
+        for mask in (0x01, 0x80, 0xFF)
+    ]
+    attacks: dict[str, list[bytes]] = {
+        "forged": [forged],
+        "every byte tampered": tampered,
+        "wrong signer": [sign_alert(_alert(outsider, 1, now), outsider)],
+        "revoked": [sign_alert(_alert(stolen, 1, now), stolen)],
+        "stale": [sign_alert(_alert(good, 3, now - 60), good)],
+        "future": [sign_alert(_alert(good, 4, now + 30), good)],
+        "truncated": [fresh[:n] for n in range(SIGNED_SIZE)],
+        "oversized": [fresh + b"\0", fresh + bytes(1000)],
+        "random bytes": [rng.randbytes(rng.choice([SIGNED_SIZE, rng.randrange(400)])) for _ in range(3000)]
+        + [fresh[:8] + rng.randbytes(ALERT_SIZE - 8) + good.signer + rng.randbytes(64) for _ in range(300)],
+    }
+    out: dict[str, Any] = {}
+    crashes = 0
+    for name, messages in attacks.items():
+        rejected = 0
+        for m in messages:
+            try:
+                rejected += not Verifier(store).verify(m, now).valid
+            except Exception:
+                crashes += 1
+        out[name] = [rejected, len(messages)]
+    v = Verifier(store)
+    v.verify(fresh, now)
+    out["replayed"] = [int(not v.verify(fresh, now).valid), 1]
+    valid = [sign_alert(_alert(good, seq, now - seq * 0.01), good) for seq in range(10, 510)]
+    v = Verifier(store)
+    out["valid alerts rejected"] = [sum(not v.verify(m, now).valid for m in valid), len(valid)]
+    out["crashes"] = crashes
+    return out
+
+
+def verify_throughput(keys: Path, n: int) -> dict[str, Any]:
+    """Alerts verified per second in this process on one CPU (best of 3 passes over ``n`` alerts)."""
+    if hasattr(os, "sched_setaffinity"):
+        os.sched_setaffinity(0, {sorted(os.sched_getaffinity(0))[0]})
+    ident = keygen(keys / "tp", "rsu")
+    store = TrustStore.load(keys / "tp" / "trust")
+    now = time.time()
+    best = 0.0
+    for rep in range(3):
+        msgs = [sign_alert(_alert(ident, rep * n + i, now), ident) for i in range(n)]
+        v = Verifier(store)
+        t0 = time.perf_counter()
+        ok = sum(v.verify(m, now).valid for m in msgs)
+        dt = time.perf_counter() - t0
+        assert ok == n
+        best = max(best, n / dt)
+    return {"alerts_per_s": best, "us_per_alert": 1e6 / best, "n": n}
+
+
+def publisher(key: Path, port: int, n: int, rate_hz: float, created_out: Path) -> None:
+    """The unit: connect, wait for the car, then stamp, sign and publish ``n`` alerts at ``rate_hz``."""
+    ident = load_identity(key)
+    session = open_peer(connect=[f"tcp/127.0.0.1:{port}"])
+    pub = AlertPublisher(session, SEGMENT)
+    if not pub.wait_for_subscribers(20.0):
+        raise SystemExit("no subscriber")
+    time.sleep(0.2)
+    created = np.zeros(n, dtype=np.int64)
+    t0 = time.monotonic()
+    for i in range(n):
+        wait = t0 + i / rate_hz - time.monotonic()
+        if wait > 0:
+            time.sleep(wait)
+        created[i] = time.monotonic_ns()
+        pub.publish(sign_alert(_alert(ident, i, time.time()), ident))
+    time.sleep(0.5)
+    np.save(created_out, created)
+    session.close()
+
+
+def latency(keys: Path, n: int, rate_hz: float) -> dict[str, Any]:
+    """The car in this process, the unit in a child process; created → verified per alert."""
+    keygen(keys / "lat", "rsu")
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = int(s.getsockname()[1])
+    verifier = Verifier(TrustStore.load(keys / "lat" / "trust"))
+    session = open_peer(listen=[f"tcp/127.0.0.1:{port}"])
+    sub = AlertSubscriber(session, [SEGMENT])
+    created_file = keys / "created.npy"
+    child = subprocess.Popen(
+        [
+            sys.executable,
+            __file__,
+            "--role",
+            "publisher",
+            "--key",
+            str(keys / "lat" / "rsu.key"),
+            "--port",
+            str(port),
+            "--alerts",
+            str(n),
+            "--rate-hz",
+            str(rate_hz),
+            "--created",
+            str(created_file),
+        ],
+    )
+    verified = np.full(n, -1, dtype=np.int64)
+    order: list[int] = []
+    rejected = 0
+    deadline_s = n / rate_hz + 60.0
+    for got in sub.receive(deadline_s):
+        v = verifier.verify(got.payload, time.time())
+        t = time.monotonic_ns()
+        if not v.valid or v.alert is None:
+            rejected += 1
+            continue
+        verified[v.alert.sequence] = t
+        order.append(v.alert.sequence)
+        if len(order) == n:
+            break
+    child.wait(timeout=60)
+    session.close()
+    created = np.load(created_file)
+    ok = verified >= 0
+    lat_ms = (verified[ok] - created[ok]) / 1e6
+    return {
+        "alerts": n,
+        "rate_hz": rate_hz,
+        "received_verified": int(ok.sum()),
+        "lost": int((~ok).sum()),
+        "rejected": rejected,
+        "out_of_order": int(sum(b < a for a, b in itertools.pairwise(order))),
+        "p50_ms": float(np.percentile(lat_ms, 50)),
+        "p99_ms": float(np.percentile(lat_ms, 99)),
+        "max_ms": float(lat_ms.max()),
+    }
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--alerts", type=int, default=10000)
+    ap.add_argument("--rate-hz", type=float, default=1000.0)
+    ap.add_argument("--verify-n", type=int, default=5000)
+    ap.add_argument("--json", type=Path)
+    ap.add_argument("--role", default="car", help=argparse.SUPPRESS)
+    ap.add_argument("--key", type=Path, help=argparse.SUPPRESS)
+    ap.add_argument("--port", type=int, help=argparse.SUPPRESS)
+    ap.add_argument("--created", type=Path, help=argparse.SUPPRESS)
+    args = ap.parse_args()
+    if args.role == "publisher":
+        publisher(args.key, args.port, args.alerts, args.rate_hz, args.created)
+        return
+    with tempfile.TemporaryDirectory() as tmp:
+        keys = Path(tmp)
+        attacks = attack_counts(keys)
+        lat = latency(keys, args.alerts, args.rate_hz)
+        tp = verify_throughput(keys, args.verify_n)  # pins this process to one CPU: last
+    print("attack suite (rejected / total):")
+    for name, value in attacks.items():
+        print(f"  {name:24s} {value if isinstance(value, int) else f'{value[0]} / {value[1]}'}")
+    print(
+        f"verification, one core: {tp['alerts_per_s']:,.0f} alerts/s ({tp['us_per_alert']:.0f} µs each)"
+        f"   target ≥ {TARGET_VERIFY_PER_S:,.0f}"
+    )
+    print(
+        f"loopback latency created → verified over zenoh, {lat['received_verified']} alerts at "
+        f"{lat['rate_hz']:g} Hz: p50 {lat['p50_ms']:.2f} ms, p99 {lat['p99_ms']:.2f} ms, "
+        f"max {lat['max_ms']:.1f} ms"
+        f"   goal p99 ≤ {GOAL_P99_MS:g} ms; lost {lat['lost']}, out of order {lat['out_of_order']}"
+    )
+    if args.json:
+        args.json.write_text(
+            json.dumps({"attacks": attacks, "throughput": tp, "latency": lat}, indent=1) + "\n"
+        )
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,419 @@
+"""Signed alerts as IEEE 1609.2 / ETSI TS 103 097 sign them: ECDSA P-256 with SHA-256, unit
+certificates issued by a local root, a trust store and a revocation list on the car.
+
+A signed alert (:data:`SIGNED_SIZE` = 110 bytes) is the alert's canonical body
+(:mod:`makeway.v2x.message`, 38 bytes), the signer's HashedId8 (8 bytes: the first 8 bytes of the
+SHA-256 of the signer certificate's DER, as 1609.2 names a certificate by digest) and the signature
+``r ‖ s`` (2 × 32 bytes, big-endian, ``s`` at most n/2 so that each signature has one encoding). The
+signature covers body and HashedId8. A unit's station id is the first 4 bytes of its HashedId8 read
+big-endian; an alert must carry its signer's station id.
+
+On disk (``makeway v2x keygen --out DIR``):
+
+* ``DIR/root.key``, ``DIR/NAME.key`` — private keys (PKCS#8 PEM, mode 0600; never commit them);
+* ``DIR/NAME.crt`` — the unit's X.509 certificate, issued by the root;
+* ``DIR/trust/root.pem`` — the root certificate; ``DIR/trust/units/NAME.pem`` — the unit
+  certificates the car accepts (each checked against the root when the store is loaded);
+  ``DIR/trust/revoked.txt`` — the revocation list: one HashedId8 in hex per line, ``#`` comments.
+
+:class:`Verifier` rejects, each with a reason: input of the wrong length or not an alert, an unknown
+or revoked signer, a signer certificate not valid at the generation time, a station id that is not
+the signer's, a bad or non-canonical signature (so any changed byte), a generation time more than
+``max_future_s`` ahead of the car's clock or more than ``max_age_s`` behind it, and a replay (a
+signer and sequence already accepted within the freshness window).
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+import hashlib
+import json
+import os
+from collections.abc import Iterable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from cryptography import x509
+from cryptography.exceptions import InvalidSignature
+from cryptography.hazmat.primitives import hashes, serialization
+from cryptography.hazmat.primitives.asymmetric import ec
+from cryptography.hazmat.primitives.asymmetric.utils import decode_dss_signature, encode_dss_signature
+from cryptography.x509.oid import NameOID
+
+from makeway.errors import InputError
+from makeway.v2x.message import ALERT_SIZE, Alert, MalformedAlertError, decode_alert, encode_alert
+
+__all__ = [
+    "DEFAULT_MAX_AGE_S",
+    "DEFAULT_MAX_FUTURE_S",
+    "SIGNED_SIZE",
+    "Identity",
+    "ReplayCache",
+    "TrustStore",
+    "Verdict",
+    "Verifier",
+    "hashed_id8",
+    "keygen",
+    "load_identity",
+    "revoke",
+    "sign_alert",
+    "station_id_of",
+]
+
+SIGNED_SIZE = ALERT_SIZE + 8 + 64
+DEFAULT_MAX_AGE_S = 10.0
+"""Freshness window (s): older alerts are stale. Alerts repeat at 10 Hz, so a car never needs an
+old one; the window also bounds how long the replay cache remembers a sequence number."""
+DEFAULT_MAX_FUTURE_S = 1.0
+"""Clock-skew allowance (s): an alert generated further ahead of the car's clock is rejected."""
+
+_N = int("FFFFFFFF00000000FFFFFFFFFFFFFFFFBCE6FAADA7179E84F3B9CAC2FC632551", 16)  # P-256 group order
+_HALF_N = _N // 2
+_SIGNED_FIELDS = ALERT_SIZE + 8
+
+
+def hashed_id8(cert: x509.Certificate) -> bytes:
+    """1609.2's HashedId8 of a certificate: the first 8 bytes of SHA-256 over its DER."""
+    return hashlib.sha256(cert.public_bytes(serialization.Encoding.DER)).digest()[:8]
+
+
+def station_id_of(signer: bytes) -> int:
+    """The station id bound to a signer: the first 4 bytes of its HashedId8, big-endian."""
+    return int.from_bytes(signer[:4], "big")
+
+
+# ------------------------------------------------------------------------------------------- keys
+@dataclass(frozen=True)
+class Identity:
+    """A unit's signing key, its certificate, HashedId8 and station id."""
+
+    key: ec.EllipticCurvePrivateKey
+    cert: x509.Certificate
+    signer: bytes
+    station_id: int
+
+
+def _write_private(path: Path, key: ec.EllipticCurvePrivateKey) -> None:
+    pem = key.private_bytes(
+        serialization.Encoding.PEM, serialization.PrivateFormat.PKCS8, serialization.NoEncryption()
+    )
+    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+    with os.fdopen(fd, "wb") as f:
+        f.write(pem)
+
+
+def _cert(
+    subject: str,
+    key: ec.EllipticCurvePrivateKey,
+    issuer: x509.Name | None,
+    issuer_key: ec.EllipticCurvePrivateKey,
+    days: int,
+    ca: bool,
+) -> x509.Certificate:
+    name = x509.Name([x509.NameAttribute(NameOID.COMMON_NAME, subject)])
+    now = dt.datetime.now(dt.UTC)
+    return (
+        x509.CertificateBuilder()
+        .subject_name(name)
+        .issuer_name(issuer or name)
+        .public_key(key.public_key())
+        .serial_number(x509.random_serial_number())
+        .not_valid_before(now - dt.timedelta(minutes=5))
+        .not_valid_after(now + dt.timedelta(days=days))
+        .add_extension(x509.BasicConstraints(ca=ca, path_length=0 if ca else None), critical=True)
+        .sign(issuer_key, hashes.SHA256())
+    )
+
+
+def keygen(out: str | Path, name: str = "rsu", *, days: int = 365) -> Identity:
+    """Create (or reuse) the local root in ``out`` and issue a new unit identity ``name``.
+
+    Writes ``out/NAME.key``, ``out/NAME.crt`` and ``out/trust/units/NAME.pem``; the first call also
+    writes ``out/root.key``, ``out/trust/root.pem`` and an empty ``out/trust/revoked.txt``. An
+    existing ``NAME.key`` is an error (a key is never overwritten).
+    """
+    if not name or not all(c.isalnum() or c in "-_" for c in name):
+        raise ValueError(f"--name takes letters, digits, '-' and '_', not {name!r}")
+    out = Path(out)
+    if (out / f"{name}.key").exists():
+        raise InputError(out / f"{name}.key", "already exists; pick another --name or folder")
+    trust = out / "trust"
+    (trust / "units").mkdir(parents=True, exist_ok=True)
+    root_key_path, root_pem = out / "root.key", trust / "root.pem"
+    if root_key_path.exists() != root_pem.exists():
+        raise InputError(out, "has only one of root.key and trust/root.pem; use a fresh folder")
+    if root_key_path.exists():
+        root_key = _load_private(root_key_path)
+        root = _load_cert(root_pem)
+    else:
+        root_key = ec.generate_private_key(ec.SECP256R1())
+        root = _cert("makeway local root", root_key, None, root_key, days=3650, ca=True)
+        _write_private(root_key_path, root_key)
+        root_pem.write_bytes(root.public_bytes(serialization.Encoding.PEM))
+    revoked = trust / "revoked.txt"
+    if not revoked.exists():
+        revoked.write_text("# revoked signers: one HashedId8 (16 hex digits) per line\n", encoding="utf-8")
+    key = ec.generate_private_key(ec.SECP256R1())
+    cert = _cert(f"makeway unit {name}", key, root.subject, root_key, days=days, ca=False)
+    pem = cert.public_bytes(serialization.Encoding.PEM)
+    _write_private(out / f"{name}.key", key)
+    (out / f"{name}.crt").write_bytes(pem)
+    (trust / "units" / f"{name}.pem").write_bytes(pem)
+    signer = hashed_id8(cert)
+    return Identity(key, cert, signer, station_id_of(signer))
+
+
+def _load_private(path: Path) -> ec.EllipticCurvePrivateKey:
+    try:
+        key = serialization.load_pem_private_key(path.read_bytes(), password=None)
+    except OSError as exc:
+        raise InputError(path, f"cannot be read ({exc.strerror})") from None
+    except (ValueError, TypeError):
+        raise InputError(path, "is not an unencrypted PEM private key") from None
+    if not isinstance(key, ec.EllipticCurvePrivateKey) or key.curve.name != "secp256r1":
+        raise InputError(path, "is not a P-256 (secp256r1) key")
+    return key
+
+
+def _load_cert(path: Path) -> x509.Certificate:
+    try:
+        return x509.load_pem_x509_certificate(path.read_bytes())
+    except OSError as exc:
+        raise InputError(path, f"cannot be read ({exc.strerror})") from None
+    except ValueError:
+        raise InputError(path, "is not a PEM X.509 certificate") from None
+
+
+def load_identity(key_path: str | Path) -> Identity:
+    """A unit's key file and the certificate beside it (``NAME.key`` → ``NAME.crt``)."""
+    key_path = Path(key_path)
+    key = _load_private(key_path)
+    cert_path = key_path.with_suffix(".crt")
+    cert = _load_cert(cert_path)
+    pub = cert.public_key()
+    if not isinstance(pub, ec.EllipticCurvePublicKey) or pub.public_numbers() != (
+        key.public_key().public_numbers()
+    ):
+        raise InputError(cert_path, f"does not certify the key in {key_path.name}")
+    signer = hashed_id8(cert)
+    return Identity(key, cert, signer, station_id_of(signer))
+
+
+def sign_alert(alert: Alert, identity: Identity) -> bytes:
+    """The signed alert (:data:`SIGNED_SIZE` bytes). The alert's station id must be the signer's."""
+    if alert.station_id != identity.station_id:
+        raise ValueError(f"alert station id {alert.station_id} is not the signer's ({identity.station_id})")
+    signed = encode_alert(alert) + identity.signer
+    r, s = decode_dss_signature(identity.key.sign(signed, ec.ECDSA(hashes.SHA256())))
+    if s > _HALF_N:
+        s = _N - s
+    return signed + r.to_bytes(32, "big") + s.to_bytes(32, "big")
+
+
+# ---------------------------------------------------------------------------------------- trust
+@dataclass
+class TrustStore:
+    """What a car trusts: unit certificates issued by the root, minus the revoked ones.
+
+    ``units`` maps HashedId8 → (public key, not-valid-before, not-valid-after as Unix s);
+    ``refused`` lists unit certificate files that did not chain to the root, with the reason.
+    """
+
+    root: x509.Certificate
+    units: dict[bytes, tuple[ec.EllipticCurvePublicKey, float, float]]
+    revoked: set[bytes]
+    refused: list[tuple[str, str]] = field(default_factory=list)
+
+    @staticmethod
+    def load(trust_dir: str | Path) -> TrustStore:
+        """Read ``root.pem``, ``units/*.pem`` and ``revoked.txt`` from ``trust_dir``."""
+        trust_dir = Path(trust_dir)
+        if not (trust_dir / "root.pem").is_file():
+            raise InputError(
+                trust_dir, "is not a trust store (no root.pem; make one with makeway v2x keygen)"
+            )
+        root = _load_cert(trust_dir / "root.pem")
+        root_pub = root.public_key()
+        if not isinstance(root_pub, ec.EllipticCurvePublicKey):
+            raise InputError(trust_dir / "root.pem", "holds no EC public key")
+        units: dict[bytes, tuple[ec.EllipticCurvePublicKey, float, float]] = {}
+        refused: list[tuple[str, str]] = []
+        for path in sorted((trust_dir / "units").glob("*.pem")):
+            cert = _load_cert(path)
+            pub = cert.public_key()
+            try:
+                if cert.issuer != root.subject:
+                    raise InvalidSignature
+                root_pub.verify(cert.signature, cert.tbs_certificate_bytes, ec.ECDSA(hashes.SHA256()))
+            except InvalidSignature:
+                refused.append((str(path), "not issued by this root"))
+                continue
+            if not isinstance(pub, ec.EllipticCurvePublicKey) or pub.curve.name != "secp256r1":
+                refused.append((str(path), "not a P-256 key"))
+                continue
+            units[hashed_id8(cert)] = (
+                pub,
+                cert.not_valid_before_utc.timestamp(),
+                cert.not_valid_after_utc.timestamp(),
+            )
+        return TrustStore(root, units, _read_revoked(trust_dir / "revoked.txt"), refused)
+
+
+def _read_revoked(path: Path) -> set[bytes]:
+    if not path.exists():
+        return set()
+    out: set[bytes] = set()
+    for i, line in enumerate(path.read_text(encoding="utf-8").splitlines(), 1):
+        text = line.split("#", 1)[0].strip()
+        if not text:
+            continue
+        try:
+            value = bytes.fromhex(text)
+        except ValueError:
+            value = b""
+        if len(value) != 8:
+            raise InputError(path, f"line {i}: {text!r} is not a HashedId8 (16 hex digits)")
+        out.add(value)
+    return out
+
+
+def revoke(trust_dir: str | Path, cert_path: str | Path) -> str:
+    """Add a unit certificate's HashedId8 to ``trust_dir/revoked.txt``; return it in hex."""
+    signer = hashed_id8(_load_cert(Path(cert_path))).hex()
+    path = Path(trust_dir) / "revoked.txt"
+    known = {s.hex() for s in _read_revoked(path)}
+    if signer not in known:
+        with path.open("a", encoding="utf-8") as f:
+            f.write(f"{signer}  # {Path(cert_path).name}\n")
+    return signer
+
+
+# ---------------------------------------------------------------------------------------- replay
+class ReplayCache:
+    """Signer and sequence pairs accepted within the freshness window, with their generation time."""
+
+    def __init__(self, entries: Iterable[tuple[bytes, int, int]] = ()) -> None:
+        self._seen: dict[tuple[bytes, int], int] = {(s, q): g for s, q, g in entries}
+
+    def __len__(self) -> int:
+        return len(self._seen)
+
+    def seen(self, signer: bytes, sequence: int) -> bool:
+        return (signer, sequence) in self._seen
+
+    def add(self, signer: bytes, sequence: int, generation_time_ms: int) -> None:
+        self._seen[(signer, sequence)] = generation_time_ms
+
+    def prune(self, oldest_ms: int) -> None:
+        """Forget pairs generated before ``oldest_ms`` (they are stale anyway)."""
+        self._seen = {k: g for k, g in self._seen.items() if g >= oldest_ms}
+
+    @staticmethod
+    def load(path: str | Path) -> ReplayCache:
+        """A cache file written by :meth:`save`; a missing file is an empty cache."""
+        path = Path(path)
+        if not path.exists():
+            return ReplayCache()
+        try:
+            rows = json.loads(path.read_text(encoding="utf-8"))["seen"]
+            return ReplayCache((bytes.fromhex(s), int(q), int(g)) for s, q, g in rows)
+        except (OSError, ValueError, KeyError, TypeError) as exc:
+            raise InputError(path, f"is not a replay cache ({type(exc).__name__})") from None
+
+    def save(self, path: str | Path) -> None:
+        from makeway.atomic import write_text_atomic
+
+        rows = [[s.hex(), q, g] for (s, q), g in sorted(self._seen.items())]
+        write_text_atomic(path, json.dumps({"seen": rows}) + "\n")
+
+
+# ---------------------------------------------------------------------------------------- verify
+@dataclass(frozen=True, slots=True)
+class Verdict:
+    """The result of checking one message: ``reason`` is ``"ok"`` when ``valid``."""
+
+    valid: bool
+    reason: str
+    alert: Alert | None = None
+    signer: bytes | None = None
+
+    def to_json(self) -> dict[str, Any]:
+        out: dict[str, Any] = {"valid": self.valid, "reason": self.reason}
+        if self.signer is not None:
+            out["signer"] = self.signer.hex()
+        if self.alert is not None:
+            out.update(self.alert.to_json())
+        return out
+
+
+class Verifier:
+    """Checks signed alerts against a trust store, the car's clock and a replay cache.
+
+    Args:
+        store: the car's trust store.
+        max_age_s: freshness window (s).
+        max_future_s: clock-skew allowance (s).
+        replay: pairs already accepted (shared across calls; a new empty cache by default).
+    """
+
+    def __init__(
+        self,
+        store: TrustStore,
+        *,
+        max_age_s: float = DEFAULT_MAX_AGE_S,
+        max_future_s: float = DEFAULT_MAX_FUTURE_S,
+        replay: ReplayCache | None = None,
+    ) -> None:
+        self.store = store
+        self.max_age_ms = round(max_age_s * 1000)
+        self.max_future_ms = round(max_future_s * 1000)
+        self.replay = ReplayCache() if replay is None else replay
+        self._prune_at = 4096
+
+    def verify(self, data: bytes, now_s: float) -> Verdict:
+        """Check one message received at ``now_s`` (Unix s, the car's clock); an accepted alert's
+        signer and sequence enter the replay cache."""
+        if len(data) < SIGNED_SIZE:
+            return Verdict(False, f"truncated: {len(data)} bytes, a signed alert has {SIGNED_SIZE}")
+        if len(data) > SIGNED_SIZE:
+            return Verdict(False, f"oversized: {len(data)} bytes, a signed alert has {SIGNED_SIZE}")
+        data = bytes(data)
+        try:
+            alert = decode_alert(data[:ALERT_SIZE])
+        except MalformedAlertError as exc:
+            return Verdict(False, f"malformed: {exc}")
+        signer = data[ALERT_SIZE:_SIGNED_FIELDS]
+        unit = self.store.units.get(signer)
+        if unit is None:
+            return Verdict(False, "unknown signer", alert, signer)
+        if signer in self.store.revoked:
+            return Verdict(False, "revoked signer", alert, signer)
+        r = int.from_bytes(data[_SIGNED_FIELDS : _SIGNED_FIELDS + 32], "big")
+        s = int.from_bytes(data[_SIGNED_FIELDS + 32 :], "big")
+        if not (0 < r < _N and 0 < s <= _HALF_N):
+            return Verdict(False, "bad signature (not a canonical r, s)", alert, signer)
+        pub, valid_from, valid_to = unit
+        try:
+            pub.verify(encode_dss_signature(r, s), data[:_SIGNED_FIELDS], ec.ECDSA(hashes.SHA256()))
+        except InvalidSignature:
+            return Verdict(False, "bad signature", alert, signer)
+        if alert.station_id != station_id_of(signer):
+            return Verdict(False, "station id is not the signer's", alert, signer)
+        gen_ms = alert.generation_time_ms
+        now_ms = round(now_s * 1000)
+        if gen_ms > now_ms + self.max_future_ms:
+            ahead = (gen_ms - now_ms) / 1000
+            return Verdict(False, f"future: generated {ahead:.3f} s ahead of the clock", alert, signer)
+        if gen_ms < now_ms - self.max_age_ms:
+            age = (now_ms - gen_ms) / 1000
+            return Verdict(False, f"stale: generated {age:.3f} s ago", alert, signer)
+        if not valid_from * 1000 <= gen_ms <= valid_to * 1000:
+            return Verdict(False, "signer certificate not valid at the generation time", alert, signer)
+        if self.replay.seen(signer, alert.sequence):
+            return Verdict(False, "replay: this signer's sequence was already accepted", alert, signer)
+        self.replay.add(signer, alert.sequence, gen_ms)
+        if len(self.replay) >= self._prune_at:
+            self.replay.prune(now_ms - self.max_age_ms)
+            self._prune_at = max(4096, 2 * len(self.replay))
+        return Verdict(True, "ok", alert, signer)
