@@ -391,7 +391,15 @@ def cross_source(
     ] = None,
     train: Annotated[
         list[str] | None,
-        typer.Option("--train", help="Recipe(s) to retrain leave-one-source-out: head (the default head's)."),
+        typer.Option(
+            "--train",
+            help="Recipe(s) to retrain leave-one-source-out: head (the default head's), effnet_ft "
+            "(EfficientNet-Lite0 fine-tuned; needs torch).",
+        ),
+    ] = None,
+    held_out: Annotated[
+        list[str] | None,
+        typer.Option("--held-out", help="--train: only these folds (held-out sources), in this order."),
     ] = None,
     source: Annotated[
         list[str] | None,
@@ -447,6 +455,7 @@ def cross_source(
         cache=cache,
         every=every,
         threads=threads,
+        held_out=_split_names(held_out, []) or None,
         progress=not quiet,
         on_score=lambda score: print_json_line(score.as_dict()),
         log=_log,

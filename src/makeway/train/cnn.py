@@ -262,7 +262,14 @@ ARCHS: dict[str, Callable[[int, int], nn.Module]] = {
     "small_cnn": lambda input_size, width: small_cnn(input_size, width),
     "yolox_ft": lambda input_size, width: _backbone_ft("yolox_nano", input_size),
     "nanodet_ft": lambda input_size, width: _backbone_ft("nanodet_m", input_size),
+    "effnet_ft": lambda input_size, width: _effnet_ft(input_size),
 }
+
+
+def _effnet_ft(input_size: int) -> nn.Module:
+    from makeway.train.effnet import effnet_binary
+
+    return effnet_binary(input_size)
 
 
 def _backbone_ft(backbone: str, input_size: int) -> nn.Module:
