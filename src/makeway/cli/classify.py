@@ -226,7 +226,9 @@ def train(
         typer.Option(
             help="logreg (pooled backbone features, --block, + logistic head); CNNs: resnet18, "
             "small_cnn, or yolox_ft / nanodet_ft "
-            "(a detector's backbone fine-tuned after a linear probe; --input-size a multiple of 32)."
+            "(a detector's backbone fine-tuned after a linear probe; --input-size a multiple of 32), "
+            "effnet_ft (EfficientNet-Lite0's tail fine-tuned from its ImageNet package; writes a "
+            ".npz delta)."
         ),
     ] = "logreg",
     pretrained: Annotated[
