@@ -388,7 +388,7 @@ def effnet_crop_trainer(
     work_dir: str | Path,
     *,
     input_size: int = 128,
-    epochs: int = 6,
+    epochs: int = 3,
     lr: float = 3e-4,
     batch_size: int = 32,
     patience: int = 1,
@@ -403,7 +403,8 @@ def effnet_crop_trainer(
     validation part is ``val_fraction`` of the training crops by group, never the held-out source),
     writes the delta into ``work_dir`` (named by the training crops) and returns it loaded as the
     runtime classifier (:func:`~makeway.perceive.vision.efficientnet_lite.load_effnet_delta`), so
-    the protocol scores what would ship."""
+    the protocol scores what would ship. ``epochs = 3``: in the first fold run (held out
+    ``ev_crops``, 6 epochs) the validation loss was lowest after epoch 2 and never lower later."""
     import hashlib
 
     from makeway.perceive.vision.efficientnet_lite import load_effnet_delta
