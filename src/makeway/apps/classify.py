@@ -387,6 +387,7 @@ def cross_source_evaluation(
     every: int = 5,
     threads: int = 1,
     held_out: Sequence[str] | None = None,
+    input_size: int = 128,
     progress: bool = True,
     on_score: Callable[[Any], None] | None = None,
     log: Callable[[str], None] | None = None,
@@ -398,7 +399,7 @@ def cross_source_evaluation(
     ``ev_crops`` only its committed held-out part, as the shipped models learnt the rest. ``train``
     names trainers (:data:`CROSS_SOURCE_TRAINERS`), each fitted leave-one-source-out and scored on
     the whole held-out source (``held_out``: only these folds, in this order; default: every
-    source). ``extra`` adds ``(name, crop folder)`` sources (e.g. one you
+    source; ``input_size``: the ``effnet_ft`` trainer's crop side in px). ``extra`` adds ``(name, crop folder)`` sources (e.g. one you
     labelled; a ``group`` column keeps related crops together); ``sources`` picks among
     :data:`CROSS_SOURCES` and those (default: all). ``ambulance_yolo`` and ``road_clips`` are built
     on first use into ``cache`` (default ``~/.cache/makeway/cross_source``; ``every`` = the frame
@@ -526,7 +527,7 @@ def cross_source_evaluation(
         if trainer_name == "effnet_ft":
             from makeway.train.effnet import effnet_crop_trainer
 
-            trainer = effnet_crop_trainer(root / "effnet_ft", threads=threads, log=log)
+            trainer = effnet_crop_trainer(root / "effnet_ft", input_size=input_size, threads=threads, log=log)
         else:
             trainer = head_trainer(
                 cache=FeatureCache(folder=features_dir, num_threads=threads, progress=progress)

@@ -403,6 +403,9 @@ def cross_source(
         list[str] | None,
         typer.Option("--held-out", help="--train: only these folds (held-out sources), in this order."),
     ] = None,
+    input_size: Annotated[
+        int, typer.Option(min=32, help="--train effnet_ft: crop side in pixels.")
+    ] = 128,
     source: Annotated[
         list[str] | None,
         typer.Option(
@@ -458,6 +461,7 @@ def cross_source(
         every=every,
         threads=threads,
         held_out=_split_names(held_out, []) or None,
+        input_size=input_size,
         progress=not quiet,
         on_score=lambda score: print_json_line(score.as_dict()),
         log=_log,
