@@ -399,8 +399,9 @@ def cross_source_evaluation(
     ``ev_crops`` only its committed held-out part, as the shipped models learnt the rest. ``train``
     names trainers (:data:`CROSS_SOURCE_TRAINERS`), each fitted leave-one-source-out and scored on
     the whole held-out source (``held_out``: only these folds, in this order; default: every
-    source; ``input_size``: the ``effnet_ft`` trainer's crop side in px). ``extra`` adds ``(name, crop folder)`` sources (e.g. one you
-    labelled; a ``group`` column keeps related crops together); ``sources`` picks among
+    source; ``input_size``: the ``effnet_ft`` trainer's crop side in px). ``extra`` adds
+    ``(name, crop folder)`` sources (e.g. one you labelled; a ``group`` column keeps related crops
+    together); ``sources`` picks among
     :data:`CROSS_SOURCES` and those (default: all). ``ambulance_yolo`` and ``road_clips`` are built
     on first use into ``cache`` (default ``~/.cache/makeway/cross_source``; ``every`` = the frame
     step between a track's crops), as are the backbone features of the heads. ``data`` is the
