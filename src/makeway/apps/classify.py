@@ -348,7 +348,7 @@ CROSS_SOURCES = ("ev_crops", "ambulance_yolo", "road_clips")
 
 #: Trainers the protocol can fit leave-one-source-out: ``head`` = the shipped ``default`` head's
 #: recipe (YOLOX-nano + NanoDet-m backbone features, mirror images, logistic regression);
-#: ``effnet_ft`` = EfficientNet-Lite0 fine-tuned at 128 px (:mod:`makeway.train.effnet`; needs torch).
+#: ``effnet_ft`` = EfficientNet-Lite0 fine-tuned at 224 px (:mod:`makeway.train.effnet`; needs torch).
 CROSS_SOURCE_TRAINERS = ("head", "effnet_ft")
 
 
@@ -387,7 +387,7 @@ def cross_source_evaluation(
     every: int = 5,
     threads: int = 1,
     held_out: Sequence[str] | None = None,
-    input_size: int = 128,
+    input_size: int = 224,
     progress: bool = True,
     on_score: Callable[[Any], None] | None = None,
     log: Callable[[str], None] | None = None,

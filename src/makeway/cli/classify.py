@@ -403,7 +403,7 @@ def cross_source(
         list[str] | None,
         typer.Option("--held-out", help="--train: only these folds (held-out sources), in this order."),
     ] = None,
-    input_size: Annotated[int, typer.Option(min=32, help="--train effnet_ft: crop side in pixels.")] = 128,
+    input_size: Annotated[int, typer.Option(min=32, help="--train effnet_ft: crop side in pixels.")] = 224,
     source: Annotated[
         list[str] | None,
         typer.Option(

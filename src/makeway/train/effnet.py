@@ -387,7 +387,7 @@ def effnet_arch(input_size: int, width: int) -> nn.Module:
 def effnet_crop_trainer(
     work_dir: str | Path,
     *,
-    input_size: int = 128,
+    input_size: int = 224,
     epochs: int = 3,
     lr: float = 3e-4,
     batch_size: int = 32,
@@ -404,7 +404,8 @@ def effnet_crop_trainer(
     writes the delta into ``work_dir`` (named by the training crops) and returns it loaded as the
     runtime classifier (:func:`~makeway.perceive.vision.efficientnet_lite.load_effnet_delta`), so
     the protocol scores what would ship. ``epochs = 3``: in the first fold run (held out
-    ``ev_crops``, 6 epochs) the validation loss was lowest after epoch 2 and never lower later."""
+    ``ev_crops``, 6 epochs) the validation loss was lowest after epoch 2 and never lower later;
+    ``input_size = 224``: lower validation loss than 128 px in each of the three folds."""
     import hashlib
 
     from makeway.perceive.vision.efficientnet_lite import load_effnet_delta
