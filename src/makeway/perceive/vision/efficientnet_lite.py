@@ -15,7 +15,9 @@ The runtime never imports torch, so this module:
 * builds the network as an ONNX graph (:func:`efficientnet_lite0_graph`) with batch norm folded
   into the convolutions, TensorFlow "same" padding (asymmetric at stride 2, as the weights were
   trained) and a BGR input (the stem's input channels are reversed, so crops go in as OpenCV
-  reads them). Inputs are ``(pixel − 127) / 128``, the Lite models' preprocessing.
+  reads them). Inputs are ``(pixel − 127) / 128``, the Lite models' preprocessing;
+* loads a fine-tuned crop classifier shipped as a *delta* on the package's weights
+  (:func:`load_effnet_delta`; written by :func:`makeway.train.effnet.export_delta`).
 
 Named outputs, for :class:`~makeway.perceive.vision.backbone.BackboneFeatures`:
 
