@@ -31,7 +31,13 @@ import numpy as np
 from makeway.eval.classification import precision_recall_f1, threshold_metrics
 from makeway.paths import data_dir
 from makeway.perceive.vision.cnn_classifier import OnnxCropClassifier
-from makeway.perceive.vision.ev_classifier import DEFAULT_MODEL, FAST_MODEL, FASTEST_MODEL, EVCropClassifier
+from makeway.perceive.vision.ev_classifier import (
+    DEFAULT_MODEL,
+    FAST_MODEL,
+    FASTEST_MODEL,
+    EVCropClassifier,
+    load_crop_classifier,
+)
 from makeway.sense.crops import EV_CROPS_HOLDOUT, holdout_split, read_crop_folder, read_holdout
 
 TARGET_MS = 10.0
@@ -71,7 +77,7 @@ def main() -> int:
         "models",
         nargs="*",
         type=Path,
-        help=f"ONNX crop CNNs (default: the shipped {shipped})",
+        help=f"ONNX crop CNNs or fine-tuned EfficientNet-Lite0 .npz deltas (default: the shipped {shipped})",
     )
     ap.add_argument("--threads", type=int, default=2, help="ONNX Runtime intra-op threads")
     ap.add_argument("--repeats", type=int, default=50, help="timed runs per model (median reported)")
@@ -110,7 +116,8 @@ def main() -> int:
     print(header)
     print("-" * len(header))
     for path in models:
-        clf = OnnxCropClassifier(path, num_threads=args.threads)
+        clf = load_crop_classifier(path, num_threads=args.threads)
+        assert isinstance(clf, OnnxCropClassifier)
         x = clf.preprocess(batch)
         # the pipeline cuts crops straight to the input size (crops_for_tracks), so e2e starts there
         small = held.load_images(clf.input_size)[np.arange(args.batch) % len(held)]

@@ -347,8 +347,9 @@ def evaluate_crop_classifier(
 CROSS_SOURCES = ("ev_crops", "ambulance_yolo", "road_clips")
 
 #: Trainers the protocol can fit leave-one-source-out: ``head`` = the shipped ``default`` head's
-#: recipe (YOLOX-nano + NanoDet-m backbone features, mirror images, logistic regression).
-CROSS_SOURCE_TRAINERS = ("head",)
+#: recipe (YOLOX-nano + NanoDet-m backbone features, mirror images, logistic regression);
+#: ``effnet_ft`` = EfficientNet-Lite0 fine-tuned at 224 px (:mod:`makeway.train.effnet`; needs torch).
+CROSS_SOURCE_TRAINERS = ("head", "effnet_ft")
 
 
 @dataclass(frozen=True)
@@ -385,6 +386,8 @@ def cross_source_evaluation(
     cache: str | Path | None = None,
     every: int = 5,
     threads: int = 1,
+    held_out: Sequence[str] | None = None,
+    input_size: int = 224,
     progress: bool = True,
     on_score: Callable[[Any], None] | None = None,
     log: Callable[[str], None] | None = None,
@@ -395,8 +398,10 @@ def cross_source_evaluation(
     ``imagenet`` or head ``.npz`` / CNN ``.onnx`` files), each scored on every source — on
     ``ev_crops`` only its committed held-out part, as the shipped models learnt the rest. ``train``
     names trainers (:data:`CROSS_SOURCE_TRAINERS`), each fitted leave-one-source-out and scored on
-    the whole held-out source. ``extra`` adds ``(name, crop folder)`` sources (e.g. one you
-    labelled; a ``group`` column keeps related crops together); ``sources`` picks among
+    the whole held-out source (``held_out``: only these folds, in this order; default: every
+    source; ``input_size``: the ``effnet_ft`` trainer's crop side in px). ``extra`` adds
+    ``(name, crop folder)`` sources (e.g. one you labelled; a ``group`` column keeps related crops
+    together); ``sources`` picks among
     :data:`CROSS_SOURCES` and those (default: all). ``ambulance_yolo`` and ``road_clips`` are built
     on first use into ``cache`` (default ``~/.cache/makeway/cross_source``; ``every`` = the frame
     step between a track's crops), as are the backbone features of the heads. ``data`` is the
@@ -516,12 +521,19 @@ def cross_source_evaluation(
             model = cached_head(clf, features_dir, num_threads=threads, progress=progress)
         say(f"{name}: scoring each source (ev_crops: the committed held-out part)")
         worst[name] = worst_source(score_sources(model, fixed_sets, model=name, on_score=emit))
+    folds = None if held_out is None else [known[s] for s in held_out]
     for trainer_name in train:
         label = f"{trainer_name} (leave-one-source-out)"
-        trainer = head_trainer(
-            cache=FeatureCache(folder=features_dir, num_threads=threads, progress=progress)
-        )
+        trainer: Callable[[CropSet], Any]
+        if trainer_name == "effnet_ft":
+            from makeway.train.effnet import effnet_crop_trainer
+
+            trainer = effnet_crop_trainer(root / "effnet_ft", input_size=input_size, threads=threads, log=log)
+        else:
+            trainer = head_trainer(
+                cache=FeatureCache(folder=features_dir, num_threads=threads, progress=progress)
+            )
         worst[label] = worst_source(
-            leave_one_source_out(crop_sets, trainer, model=label, on_score=emit, log=log)
+            leave_one_source_out(crop_sets, trainer, model=label, held_out=folds, on_score=emit, log=log)
         )
     return CrossSourceRun(scores=scores, worst=worst, sources=info)

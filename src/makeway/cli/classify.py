@@ -226,7 +226,9 @@ def train(
         typer.Option(
             help="logreg (pooled backbone features, --block, + logistic head); CNNs: resnet18, "
             "small_cnn, or yolox_ft / nanodet_ft "
-            "(a detector's backbone fine-tuned after a linear probe; --input-size a multiple of 32)."
+            "(a detector's backbone fine-tuned after a linear probe; --input-size a multiple of 32), "
+            "effnet_ft (EfficientNet-Lite0's tail fine-tuned from its ImageNet package; writes a "
+            ".npz delta)."
         ),
     ] = "logreg",
     pretrained: Annotated[
@@ -391,8 +393,17 @@ def cross_source(
     ] = None,
     train: Annotated[
         list[str] | None,
-        typer.Option("--train", help="Recipe(s) to retrain leave-one-source-out: head (the default head's)."),
+        typer.Option(
+            "--train",
+            help="Recipe(s) to retrain leave-one-source-out: head (the default head's), effnet_ft "
+            "(EfficientNet-Lite0 fine-tuned; needs torch).",
+        ),
     ] = None,
+    held_out: Annotated[
+        list[str] | None,
+        typer.Option("--held-out", help="--train: only these folds (held-out sources), in this order."),
+    ] = None,
+    input_size: Annotated[int, typer.Option(min=32, help="--train effnet_ft: crop side in pixels.")] = 224,
     source: Annotated[
         list[str] | None,
         typer.Option(
@@ -447,6 +458,8 @@ def cross_source(
         cache=cache,
         every=every,
         threads=threads,
+        held_out=_split_names(held_out, []) or None,
+        input_size=input_size,
         progress=not quiet,
         on_score=lambda score: print_json_line(score.as_dict()),
         log=_log,

@@ -262,7 +262,14 @@ ARCHS: dict[str, Callable[[int, int], nn.Module]] = {
     "small_cnn": lambda input_size, width: small_cnn(input_size, width),
     "yolox_ft": lambda input_size, width: _backbone_ft("yolox_nano", input_size),
     "nanodet_ft": lambda input_size, width: _backbone_ft("nanodet_m", input_size),
+    "effnet_ft": lambda input_size, width: _effnet_ft(input_size),
 }
+
+
+def _effnet_ft(input_size: int) -> nn.Module:
+    from makeway.train.effnet import effnet_binary
+
+    return effnet_binary(input_size)
 
 
 def _backbone_ft(backbone: str, input_size: int) -> nn.Module:
@@ -1042,7 +1049,9 @@ def train_crop_cnn(
     """Train a CNN crop classifier (``arch`` of :data:`ARCHS`; :class:`CNNClassifier` explains the
     settings: ``input_size`` and ``width`` in px and channels, Adam ``lr`` with a plateau schedule
     stopping below ``min_lr``, positive-only box jitter, over/undersampling) on the crop folders
-    ``data``; write ``out`` (``.onnx``) and the checkpoint beside it (``.pt``). On ev_crops only the
+    ``data``; write ``out`` (``.onnx``; for ``effnet_ft`` a ``.npz`` delta on the package's
+    ImageNet weights, :func:`makeway.train.effnet.export_delta`, trained with
+    :class:`~makeway.train.effnet.StrongAugment`) and the checkpoint beside it (``.pt``). On ev_crops only the
     training part is used, and the committed held-out part is scored afterwards through ONNX Runtime.
     With ``unlabelled`` crop folders, the ``teacher``'s probabilities on them are trained on too
     (:func:`teacher_targets`). ``log`` receives a line per data set, per epoch (with ``progress``)
@@ -1069,8 +1078,17 @@ def train_crop_cnn(
 
         teacher_model = load_crop_classifier(teacher)
     out = Path(out)
-    onnx_path = out if out.suffix.lower() == ".onnx" else out.with_suffix(".onnx")
+    delta = arch == "effnet_ft"  # shipped as a delta on the package's weights (train.effnet)
+    if delta:
+        onnx_path = out.with_suffix(".npz")
+    else:
+        onnx_path = out if out.suffix.lower() == ".onnx" else out.with_suffix(".onnx")
     ckpt_path = onnx_path.with_suffix(".pt")
+    augment = None if box_jitter else Augment(box_jitter=None)
+    if delta:
+        from makeway.train.effnet import StrongAugment
+
+        augment = StrongAugment() if box_jitter else StrongAugment(box_jitter=None)
     clf = CNNClassifier(
         arch,
         input_size=input_size,
@@ -1080,7 +1098,7 @@ def train_crop_cnn(
         lr=lr,
         min_lr=min_lr,
         patience=patience,
-        augment=None if box_jitter else Augment(box_jitter=None),
+        augment=augment,
         pos_oversample=pos_oversample,
         neg_downsample=neg_downsample,
         threshold=threshold,
@@ -1136,12 +1154,20 @@ def train_crop_cnn(
         on_epoch=show,
     )
     clf.save(ckpt_path)
-    clf.export_onnx(onnx_path)
+    if delta:
+        from makeway.perceive.vision.efficientnet_lite import load_effnet_delta
+        from makeway.train.effnet import EfficientNetLite0Binary, export_delta
+
+        assert isinstance(clf.model_, EfficientNetLite0Binary)
+        export_delta(clf.model_, onnx_path, input_size=input_size, threshold=threshold, training=clf.training)
+        runtime = load_effnet_delta(onnx_path, num_threads=threads)
+    else:
+        clf.export_onnx(onnx_path)
+        runtime = OnnxCropClassifier(onnx_path, num_threads=threads)
     say(
-        f"{len(clf.history)} epochs; checkpoint → {ckpt_path}; ONNX → {onnx_path} "
+        f"{len(clf.history)} epochs; checkpoint → {ckpt_path}; model → {onnx_path} "
         f"({onnx_path.stat().st_size} bytes)"
     )
-    runtime = OnnxCropClassifier(onnx_path, num_threads=threads)
     scores = []
     for test_set, folder in held:
         probs = runtime.predict_proba(test_set.load_images(runtime.input_size, cache=False))

@@ -45,6 +45,8 @@ class OnnxCropClassifier:
         path: the ``.onnx`` file.
         threshold: decision threshold of :meth:`predict` (``None``: the one stored in the file).
         num_threads: ONNX Runtime intra-op threads (``None``: ONNX Runtime's default, all cores).
+        model: the serialized ONNX model, when it is built in memory (e.g. a fine-tuned delta
+            applied to installed weights); ``path`` then only names it.
 
     Raises:
         InputError: the file is missing, not an ONNX model ONNX Runtime can load, lacks the
@@ -53,12 +55,17 @@ class OnnxCropClassifier:
     """
 
     def __init__(
-        self, path: str | Path, *, threshold: float | None = None, num_threads: int | None = None
+        self,
+        path: str | Path,
+        *,
+        threshold: float | None = None,
+        num_threads: int | None = None,
+        model: bytes | None = None,
     ) -> None:
         import onnxruntime as ort
 
         self.path = Path(path)
-        if not self.path.is_file():
+        if model is None and not self.path.is_file():
             raise InputError(
                 self.path, "ONNX crop classifier not found (export one: makeway classify export)"
             )
@@ -71,7 +78,9 @@ class OnnxCropClassifier:
             options.inter_op_num_threads = 1
         try:
             self._session = ort.InferenceSession(
-                str(self.path), sess_options=options, providers=["CPUExecutionProvider"]
+                model if model is not None else str(self.path),
+                sess_options=options,
+                providers=["CPUExecutionProvider"],
             )
         except Exception as exc:  # onnxruntime raises its own types on a garbage file
             first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__

@@ -15,7 +15,9 @@ The runtime never imports torch, so this module:
 * builds the network as an ONNX graph (:func:`efficientnet_lite0_graph`) with batch norm folded
   into the convolutions, TensorFlow "same" padding (asymmetric at stride 2, as the weights were
   trained) and a BGR input (the stem's input channels are reversed, so crops go in as OpenCV
-  reads them). Inputs are ``(pixel − 127) / 128``, the Lite models' preprocessing.
+  reads them). Inputs are ``(pixel − 127) / 128``, the Lite models' preprocessing;
+* loads a fine-tuned crop classifier shipped as a *delta* on the package's weights
+  (:func:`load_effnet_delta`; written by :func:`makeway.train.effnet.export_delta`).
 
 Named outputs, for :class:`~makeway.perceive.vision.backbone.BackboneFeatures`:
 
@@ -41,7 +43,7 @@ import io
 import pickle
 import zipfile
 from collections import OrderedDict
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -337,13 +339,20 @@ class _GraphBuilder:
         return name
 
 
-def efficientnet_lite0_graph(weights: Mapping[str, np.ndarray] | str | Path, input_size: int = 224) -> Any:
+def efficientnet_lite0_graph(
+    weights: Mapping[str, np.ndarray] | str | Path,
+    input_size: int = 224,
+    *,
+    block_outputs: Sequence[int] = (),
+) -> Any:
     """EfficientNet-Lite0 as an ONNX model for ``input_size`` squares (module docstring).
 
     Args:
         weights: the state dict (``efficientnet_pytorch`` key names: ``_conv_stem``, ``_blocks.N``,
             ``_conv_head``, ``_fc``) or the path of its ``.pth`` file.
         input_size: side of the square input the padding is computed for (any batch runs).
+        block_outputs: MBConv blocks (0 … 15) whose outputs are also graph outputs, named
+            ``block<N>`` (e.g. the input of a fine-tuned tail).
 
     Input ``input``: ``float32 (n, 3, S, S)``, BGR, ``(pixel − 127) / 128``. Outputs: :data:`LAYERS`.
 
@@ -379,6 +388,8 @@ def efficientnet_lite0_graph(weights: Mapping[str, np.ndarray] | str | Path, inp
                 )
                 x = g.add(y, x) if (s == 1 and c_in == cout) else y
                 size = new_size
+                if block in block_outputs:
+                    g.identity(x, f"block{block}")
                 block += 1
             if f"stage{stage}" in LAYERS:
                 x = g.identity(x, f"stage{stage}")
@@ -400,9 +411,126 @@ def efficientnet_lite0_graph(weights: Mapping[str, np.ndarray] | str | Path, inp
         g.nodes,
         "efficientnet_lite0",
         [helper.make_tensor_value_info("input", TensorProto.FLOAT, ["batch", 3, input_size, input_size])],
-        [helper.make_tensor_value_info(name, TensorProto.FLOAT, None) for name in LAYERS],
+        [
+            helper.make_tensor_value_info(name, TensorProto.FLOAT, None)
+            for name in (*LAYERS, *(f"block{b}" for b in sorted(set(block_outputs))))
+        ],
         initializer=g.inits,
     )
     model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", _OPSET)], producer_name="makeway")
     model.ir_version = 8
     return model
+
+
+# ------------------------------------------------------------------------------ fine-tuned deltas
+
+#: ``delta_format`` of a fine-tuned EfficientNet-Lite0 crop classifier shipped as a delta
+#: (written by :func:`makeway.train.effnet.export_delta`, read by :func:`load_effnet_delta`).
+DELTA_FORMAT = "ev_effnet_delta/1"
+
+
+def apply_effnet_delta(path: str | Path) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+    """The installed package's ImageNet state dict with the delta file ``path`` added, and the
+    delta's metadata (``input_size``, ``threshold``, ``training``, ``base_sha256``).
+
+    The file is an ``.npz``: ``delta_format`` (:data:`DELTA_FORMAT`), the metadata above and
+    ``delta/<key>`` arrays: for ``_fc.*`` the tensor itself (one output), for every other key the
+    difference to the package's tensor (float16), added in float32.
+
+    Raises:
+        InputError: the file is missing or unreadable, not a delta of this format, made for another
+            weights file than the installed one, or its tensors do not fit EfficientNet-Lite0.
+    """
+    import hashlib
+
+    path = Path(path)
+    try:
+        with np.load(path, allow_pickle=False) as npz:
+            arrays = {k: npz[k] for k in npz.files}
+    except FileNotFoundError:
+        raise InputError(path, "delta file not found") from None
+    except (OSError, ValueError, zipfile.BadZipFile, EOFError) as exc:
+        raise InputError(path, f"not a readable .npz file ({exc})") from None
+    fmt = str(arrays.get("delta_format", ""))
+    if fmt != DELTA_FORMAT:
+        raise InputError(
+            path, f"not an EfficientNet-Lite0 delta (delta_format {fmt!r}, expected {DELTA_FORMAT})"
+        )
+    try:
+        meta = {
+            "input_size": int(arrays["input_size"]),
+            "threshold": float(arrays["threshold"]),
+            "training": str(arrays.get("training", "")),
+            "base_sha256": str(arrays["base_sha256"]),
+        }
+    except (KeyError, ValueError, TypeError) as exc:
+        raise InputError(path, f"malformed delta metadata ({exc})") from None
+    weights = efficientnet_lite0_weights()
+    if hashlib.sha256(weights.read_bytes()).hexdigest() != meta["base_sha256"]:
+        raise InputError(path, f"made for other EfficientNet-Lite0 weights than the installed {weights.name}")
+    state = read_torch_state_dict(weights)
+    deltas = {k[len("delta/") :]: v for k, v in arrays.items() if k.startswith("delta/")}
+    if "_fc.weight" not in deltas or "_fc.bias" not in deltas:
+        raise InputError(path, "the delta lacks the classifier layer _fc")
+    for key, value in deltas.items():
+        if key.startswith("_fc."):
+            state[key] = np.asarray(value, dtype=np.float32)
+            continue
+        if key not in state or state[key].shape != value.shape:
+            raise InputError(path, f"delta tensor {key} does not fit EfficientNet-Lite0")
+        state[key] = state[key].astype(np.float32) + value.astype(np.float32)
+    if state["_fc.weight"].shape != (1, 1280) or state["_fc.bias"].shape != (1,):
+        raise InputError(path, "the delta's _fc is not one output on the 1280 head features")
+    return state, meta
+
+
+def effnet_delta_onnx(path: str | Path) -> tuple[bytes, dict[str, Any]]:
+    """The serialized ONNX crop classifier of a delta file (:func:`apply_effnet_delta`): input
+    ``input`` BGR ``(n, 3, S, S)`` = ``(pixel − 127)/128``, output ``probability`` ``(n, 1)``, with
+    the :class:`~makeway.perceive.vision.cnn_classifier.OnnxCropClassifier` metadata; and the
+    delta's metadata.
+
+    Raises:
+        InputError: as :func:`apply_effnet_delta`.
+    """
+    from onnx import TensorProto, helper
+
+    from makeway.perceive.vision.cnn_classifier import ONNX_FORMAT
+
+    state, meta = apply_effnet_delta(path)
+    model = efficientnet_lite0_graph(state, meta["input_size"])
+    graph = model.graph
+    graph.node.append(helper.make_node("Sigmoid", ["logits"], ["probability"]))
+    del graph.output[:]
+    graph.output.append(helper.make_tensor_value_info("probability", TensorProto.FLOAT, ["batch", 1]))
+    props = {
+        "makeway.format": ONNX_FORMAT,
+        "input_size": str(meta["input_size"]),
+        "threshold": repr(meta["threshold"]),
+        "channel_order": "BGR",
+        "layout": "NCHW",
+        "scale": "1.0",
+        "mean": ",".join([repr(PIXEL_MEAN)] * 3),
+        "std": ",".join([repr(1.0 / PIXEL_SCALE)] * 3),
+        "arch": "effnet_ft",
+        "width": "0",
+        "training": meta["training"],
+    }
+    for key, value in props.items():
+        entry = model.metadata_props.add()
+        entry.key, entry.value = key, value
+    return model.SerializeToString(), meta
+
+
+def load_effnet_delta(path: str | Path, **kwargs: Any) -> Any:
+    """A fine-tuned EfficientNet-Lite0 delta file as an
+    :class:`~makeway.perceive.vision.cnn_classifier.OnnxCropClassifier` (``kwargs``: its
+    ``threshold``, ``num_threads``).
+
+    Raises:
+        InputError: as :func:`apply_effnet_delta`.
+    """
+    from makeway.perceive.vision.cnn_classifier import OnnxCropClassifier
+
+    data, _ = effnet_delta_onnx(path)
+    return OnnxCropClassifier(path, model=data, **kwargs)

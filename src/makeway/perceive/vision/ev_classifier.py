@@ -445,13 +445,26 @@ class CropClassifier(Protocol):
     def predict_proba(self, images: np.ndarray) -> np.ndarray: ...
 
 
+def _is_effnet_delta(path: Path) -> bool:
+    """Whether the ``.npz`` file is a fine-tuned EfficientNet-Lite0 delta (it has ``delta_format``)."""
+    import zipfile
+
+    try:
+        with zipfile.ZipFile(path) as archive:
+            return "delta_format.npy" in archive.namelist()
+    except (OSError, zipfile.BadZipFile):
+        return False  # the head loader names the problem
+
+
 def load_crop_classifier(
     model: str | Path = "default", *, single_view: bool = False, **kwargs: Any
 ) -> CropClassifier:
     """Load a crop classifier: a shipped one by name (:data:`SHIPPED_MODELS`: ``default``, the head on
     detector-backbone features; ``fast``, the 64 px CNN; ``fastest``, the 32 px CNN; ``imagenet``, the
-    head on EfficientNet-Lite0 features) or a model file by suffix — ``.npz``: :meth:`EVCropClassifier.load`;
-    ``.onnx``: :class:`~makeway.perceive.vision.cnn_classifier.OnnxCropClassifier`.
+    head on EfficientNet-Lite0 features) or a model file by suffix — ``.npz``: :meth:`EVCropClassifier.load`,
+    or :func:`~makeway.perceive.vision.efficientnet_lite.load_effnet_delta` for a fine-tuned
+    EfficientNet-Lite0 delta (the file holds ``delta_format``); ``.onnx``:
+    :class:`~makeway.perceive.vision.cnn_classifier.OnnxCropClassifier`.
 
     ``single_view`` makes a head judge each crop without its mirror image
     (:attr:`EVCropClassifier.mirror_at_test`; CNNs have none). ``kwargs`` (e.g. ``num_threads``) go
@@ -464,8 +477,12 @@ def load_crop_classifier(
     key = str(model).strip().lower()
     path = SHIPPED_MODELS[key] if key in SHIPPED_MODELS else Path(model)
     suffix = path.suffix.lower()
-    if suffix == ".npz":
-        clf: CropClassifier = EVCropClassifier.load(path, **kwargs)
+    if suffix == ".npz" and _is_effnet_delta(path):
+        from makeway.perceive.vision.efficientnet_lite import load_effnet_delta
+
+        clf: CropClassifier = load_effnet_delta(path, **kwargs)
+    elif suffix == ".npz":
+        clf = EVCropClassifier.load(path, **kwargs)
     elif suffix == ".onnx":
         from makeway.perceive.vision.cnn_classifier import OnnxCropClassifier
 
