@@ -28,16 +28,23 @@ position ``(x_e, y_e)`` and yaw ``ψ`` and ``Δ = (x − x_e, y − y_e)``, ``r 
 later ones meet tracks already corrected). For each sense, the squared Mahalanobis distance
 ``d² = νᵀS⁻¹ν`` of every track × observation pair; pairs beyond the chi-square gate (``gate_prob``
 quantile for the measurement's dimension) are barred; global nearest neighbour
-(:func:`scipy.optimize.linear_sum_assignment`, minimum total ``d²``) picks at most one observation
-per track and one track per observation.
+(:func:`scipy.optimize.linear_sum_assignment`) picks at most one observation per track and one track
+per observation, minimising the total negative log-likelihood ``d² + ln det(2πS)`` (``d²`` alone
+would hand a new, broad track the observations of an established, sharp one on the same EV).
 
-**Birth and death.** An observation inside no track's gate starts a *tentative* track: from V2X the
+**Birth and death.** An observation outside every track's birth gate (the ``birth_gate_prob``
+quantile, wider than the association gate, so that a rare outlier of a tracked EV does not start a
+second track) starts a *tentative* track: from V2X the
 observed state; from bearing and range the polar fix with zero velocity (``initial_speed_sigma_mps``);
 from a bearing only, a point at ``prior_range_m`` along the bearing with the wide range prior
 ``prior_range_sigma_m``. A *scan* is a step with at least one observation; a tentative track is
-confirmed once ``confirm_m`` of its last ``confirm_n`` scans supported it and dropped when its first
-``confirm_n`` scans did not. Any track without support for ``lost_after_s`` is dropped. Two tracks
-whose states are within ``merge_chi2`` (Mahalanobis², 4 d.o.f.) become the older one.
+confirmed once ``confirm_m`` of its last ``confirm_n`` scans supported it, or at once by a verified
+V2X alert (signed by a trusted EV: not clutter), and dropped when its first ``confirm_n`` scans did
+not confirm it. The default 7 of 9 keeps a listener that reports a siren at a random bearing in every
+window from confirming any track (none in 10 runs of 30 s at 6 Hz; 4 of 6 confirmed 1.7 per run);
+a real siren alone is confirmed after 7 windows (1.2 s), with lights at 10 Hz in 0.7 s. Any track
+without support for ``lost_after_s`` is dropped. Two tracks whose states are within ``merge_chi2``
+(Mahalanobis², 4 d.o.f.) become the older one.
 
 **Belief** per confirmed track, in the ego's vehicle frame: position, distance and bearing (position
 and distance NaN while the range is unknown: radial standard deviation above ``placed_sigma_frac`` of
@@ -180,8 +187,9 @@ class MultiEVFusion:
         prior_range_m: float = 50.0,
         prior_range_sigma_m: float = 40.0,
         gate_prob: float = 0.99,
-        confirm_m: int = 4,
-        confirm_n: int = 6,
+        birth_gate_prob: float = 0.9999,
+        confirm_m: int = 7,
+        confirm_n: int = 9,
         lost_after_s: float = 2.0,
         merge_chi2: float = 3.0,
         sense_hold_s: float = 1.0,
@@ -193,8 +201,14 @@ class MultiEVFusion:
         noises = (accel_noise_mps2, siren_bearing_sigma_deg, siren_distance_sigma_frac, prior_range_sigma_m)
         if min(noises) <= 0:
             raise ValueError("noise levels must be > 0")
-        if not 0.0 < gate_prob < 1.0 or not 1 <= confirm_m <= confirm_n or lost_after_s <= 0:
-            raise ValueError("gate_prob in (0, 1), 1 <= confirm_m <= confirm_n, lost_after_s > 0")
+        if (
+            not 0.0 < gate_prob <= birth_gate_prob < 1.0
+            or not 1 <= confirm_m <= confirm_n
+            or lost_after_s <= 0
+        ):
+            raise ValueError(
+                "0 < gate_prob <= birth_gate_prob < 1, 1 <= confirm_m <= confirm_n, lost_after_s > 0"
+            )
         self.accel_noise_mps2 = accel_noise_mps2
         self.siren_bearing_sigma_rad = math.radians(siren_bearing_sigma_deg)
         self.siren_distance_sigma_frac = siren_distance_sigma_frac
@@ -204,6 +218,7 @@ class MultiEVFusion:
         self.prior_range_m = prior_range_m
         self.prior_range_sigma_m = prior_range_sigma_m
         self.gate_chi2 = {m: float(chi2.ppf(gate_prob, m)) for m in (1, 2, 4)}
+        self.birth_chi2 = {m: float(chi2.ppf(birth_gate_prob, m)) for m in (1, 2, 4)}
         self.confirm_m = confirm_m
         self.confirm_n = confirm_n
         self.lost_after_s = lost_after_s
@@ -297,7 +312,7 @@ class MultiEVFusion:
                 t.scans.append(i in supported)
                 if len(t.scans) > self.confirm_n:
                     t.scans.popleft()
-                if not t.confirmed and sum(t.scans) >= self.confirm_m:
+                if not t.confirmed and (sum(t.scans) >= self.confirm_m or t.sense_time_s.get(V2X) == time_s):
                     t.confirmed = True
         self._prune(time_s)
         return [self._belief(i, time_s, ego) for i, t in enumerate(self.tracks) if t.confirmed]
@@ -326,8 +341,9 @@ class MultiEVFusion:
                     nu[..., 0] = _wrap(nu[..., 0])
                 d2 = np.einsum("toi,toi->to", nu, np.linalg.solve(s, nu[..., None])[..., 0])
                 inside = d2 <= self.gate_chi2[kind]
-                cost[:, cols] = np.where(inside, d2, _BARRED)
-                gated[cols] = inside.any(axis=0)
+                nll2 = d2 + np.linalg.slogdet(s)[1] + kind * math.log(2.0 * math.pi)
+                cost[:, cols] = np.where(inside, nll2, _BARRED)
+                gated[cols] = (d2 <= self.birth_chi2[kind]).any(axis=0)
                 cache[kind] = (h, s, nu, cols)
         rows, cols_a = linear_sum_assignment(cost) if n_t else (np.zeros(0, int), np.zeros(0, int))
         pairs = [(int(i), int(j)) for i, j in zip(rows, cols_a, strict=True) if cost[i, j] < _BARRED]
