@@ -272,6 +272,50 @@ class SirenObservation:
         }
 
 
+# ------------------------------------------------------------------------------------- lights / v2x
+
+
+@dataclass(frozen=True, slots=True)
+class LightObservation:
+    """One lit emergency light seen by the camera rig at ``time_s`` (s), vehicle frame.
+
+    ``azimuth_rad`` (0 ahead, positive to the left) with standard deviation ``azimuth_sigma_rad``;
+    ``range_m`` in the ground plane (from box size or elevation) with ``range_sigma_m``, ``None``
+    when the rig gives none. ``probability`` is the detector's P(active EV light) in ``[0, 1]``.
+    """
+
+    time_s: float
+    azimuth_rad: float
+    azimuth_sigma_rad: float = math.radians(1.5)
+    range_m: float | None = None
+    range_sigma_m: float | None = None
+    probability: float = 1.0
+
+
+@dataclass(frozen=True, slots=True)
+class V2XObservation:
+    """One emergency vehicle's alert at ``time_s`` (s), world frame (the car's local plane).
+
+    Position ``(x_m, y_m)`` with isotropic standard deviation ``position_sigma_m``; ``heading_rad``
+    (yaw, counter-clockwise from +x) with ``heading_sigma_rad``; ``speed_mps`` with
+    ``speed_sigma_mps``. ``verified`` says the alert passed signature, trust and freshness checks
+    (fusion ignores any other); ``siren``/``lights`` what the alert says is on.
+    """
+
+    time_s: float
+    station_id: int
+    x_m: float
+    y_m: float
+    heading_rad: float
+    speed_mps: float
+    verified: bool
+    position_sigma_m: float = 2.0
+    heading_sigma_rad: float = math.radians(5.0)
+    speed_sigma_mps: float = 1.0
+    siren: bool = True
+    lights: bool = True
+
+
 # ------------------------------------------------------------------------------- decide / plan / control
 #
 # World frame: metres, x and y on the road plane (right-handed, z up), yaw counter-clockwise from +x.
@@ -364,7 +408,9 @@ class EVBelief:
     ``detected`` is the smoothed yes/no; ``confidence`` in ``[0, 1]``. Position is relative to the
     ego vehicle in the vehicle frame (``rel_x_m`` forward, ``rel_y_m`` left), with ``distance_m`` and
     ``bearing_rad`` (0 ahead, positive to the left). ``approaching`` is ``None`` when unknown.
-    ``lights``/``siren`` say which signals are perceived now. ``source`` names the producer.
+    ``lights``/``siren`` say which signals are perceived now. ``source`` names the producer;
+    ``sources`` the senses supporting a fused belief (``"siren"``, ``"light"``, ``"v2x"``) and
+    ``track_id`` its EV track (``None`` for a single-sense belief).
     """
 
     time_s: float
@@ -379,6 +425,8 @@ class EVBelief:
     lights: bool = False
     siren: bool = False
     source: str = "simulated"
+    sources: tuple[str, ...] = ()
+    track_id: int | None = None
 
     @staticmethod
     def nothing(time_s: float, source: str = "simulated") -> EVBelief:

@@ -3,11 +3,13 @@ reads (SPEC §7).
 
 * :class:`BeliefSource` — the one interface every source of the belief implements;
 * :class:`SirenTrackFusion` — the EV track from what the siren listener hears;
+* :class:`MultiEVFusion` — several EVs' tracks from siren, light and V2X observations at once;
 * :func:`classify_relation` — behind / ahead / oncoming / crossing from position and heading.
 """
 
+from makeway.fuse.multi_ev import FusedBeliefSource, MultiEVFusion
 from makeway.fuse.relation import classify_relation
 from makeway.fuse.siren_track import SirenTrackFusion
 from makeway.fuse.source import BeliefSource
 
-__all__ = ["BeliefSource", "SirenTrackFusion", "classify_relation"]
+__all__ = ["BeliefSource", "FusedBeliefSource", "MultiEVFusion", "SirenTrackFusion", "classify_relation"]
