@@ -11,6 +11,7 @@ camera's pole.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -21,8 +22,17 @@ from makeway.sense.camera import PinholeCamera
 from makeway.sim.traffic import Camera as SimCamera
 from makeway.sim.traffic import TrafficConfig, simulate_scene
 
-__all__ = ["SIM_ORIGIN", "SimObservations", "sim_observations", "sim_pairs", "sim_road_camera"]
+__all__ = [
+    "CALIBRATION_SEEDS",
+    "SIM_ORIGIN",
+    "SimObservations",
+    "sim_observations",
+    "sim_pairs",
+    "sim_road_camera",
+]
 
+#: Traffic seeds of the simulated calibration drive (scenes without EVs; together they cover every lane).
+CALIBRATION_SEEDS = (101, 102, 103)
 #: WGS-84 origin given to the simulated road frame (a point on Texas A&M's RELLIS campus, seed 001).
 SIM_ORIGIN = LocalFrame(30.6280, -96.4818, 0.0)
 
@@ -94,7 +104,7 @@ def sim_observations(
 
 
 def sim_pairs(
-    config: TrafficConfig,
+    seeds: Sequence[int] = CALIBRATION_SEEDS,
     *,
     kind: str = "car",
     every: int = 5,
@@ -102,10 +112,17 @@ def sim_pairs(
     gnss_sigma_m: float = 0.02,
     seed: int = 0,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Pixel ↔ road pairs of a calibration drive: the detector's box bottom centre of every vehicle of
-    ``kind`` (the probe cars), paired with its footprint centre plus GNSS noise (σ = ``gnss_sigma_m``
-    per axis, RTK class). Returns pixels ``(n, 2)`` and road points ``(n, 2)`` metres."""
-    obs = sim_observations(config, max_range_m=max_range_m, every=every)
-    obs = obs.select(obs.kind == kind)
+    """Pixel ↔ road pairs of a calibration drive: in the default scene without EVs, one per traffic
+    ``seeds`` (so every lane is driven), the detector's box bottom centre of every vehicle of ``kind``
+    (the probe cars) on every ``every``-th frame, paired with its footprint centre plus GNSS noise
+    (σ = ``gnss_sigma_m`` per axis, RTK class; ``seed``). Returns pixels ``(n, 2)`` and road points
+    ``(n, 2)`` metres."""
+    pixels, xy = [], []
+    for s in seeds:
+        obs = sim_observations(TrafficConfig(seed=s, evs=()), max_range_m=max_range_m, every=every)
+        obs = obs.select(obs.kind == kind)
+        pixels.append(box_ground_pixel(obs.boxes))
+        xy.append(obs.truth_xy)
+    truth = np.concatenate(xy)
     rng = np.random.default_rng(seed)
-    return box_ground_pixel(obs.boxes), obs.truth_xy + rng.normal(0.0, gnss_sigma_m, obs.truth_xy.shape)
+    return np.concatenate(pixels), truth + rng.normal(0.0, gnss_sigma_m, truth.shape)

@@ -171,12 +171,12 @@ def read_transform_calibration(path: str | Path) -> RoadCamera:
 
     if not isinstance(doc, dict):
         raise fail("must be a YAML mapping of calibration fields (model, width, …, rotation, position_m)")
-    unknown = sorted(str(k) for k in doc if k not in _KNOWN)
-    if unknown:
-        raise fail(f"unknown field(s) {', '.join(unknown)}")
     missing = [k for k in _REQUIRED if k not in doc]
     if missing:
         raise fail(f"missing field(s) {', '.join(missing)}")
+    unknown = sorted(str(k) for k in doc if k not in _KNOWN)
+    if unknown:
+        raise fail(f"unknown field(s) {', '.join(unknown)}")
     model = doc["model"]
     try:
         factory = CAMERA_MODELS[str(model)]
