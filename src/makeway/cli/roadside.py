@@ -16,7 +16,7 @@ from makeway.cli.common import friendly_errors, new_app, print_json_line
 roadside_app = new_app(
     "roadside",
     "Roadside camera: pixel → road position.\n\n"
-    "Two methods (seed 001): transformation-based — a box's bottom centre back-projected through the "
+    "Two methods: transformation-based — a box's bottom centre back-projected through the "
     "calibrated camera onto the road plane (a YAML calibration); location reference — a thin-plate "
     "spline through pixel ↔ GNSS pairs recorded while a car drives the corridor (a CSV of pairs, fitted "
     "into an .npz). Positions are metres east and north of the calibration's origin, and lat/lon.",
@@ -36,7 +36,7 @@ def calibrate_transform(
         bool, typer.Option("--sim", help="Write the simulated traffic camera's calibration to the file.")
     ] = False,
 ) -> None:
-    """Check a transformation calibration, or write the simulated camera's.
+    """Check a camera calibration, or write the simulated one.
 
     Prints one JSON line: model, image size, camera height, downward tilt, the nearest road distance
     in view and the horizon row. A missing or unknown field, a non-orthonormal rotation or a camera
@@ -61,7 +61,9 @@ def fit_reference(
         float, typer.Option(min=0.0, help="Spline smoothing (0: through every pair).")
     ] = 1e-3,
 ) -> None:
-    """Fit a location reference (thin-plate spline) to pixel ↔ GNSS pairs.
+    """Fit a location reference to pixel ↔ GNSS pairs.
+
+    A thin-plate spline through the pairs, in metres east and north of their origin.
 
     Prints one JSON line: the number of pairs and the k-fold held-out error (median, 95th percentile,
     max; metres). Fewer than 10 pairs, pairs on one line or a malformed row is one error line, exit
@@ -90,7 +92,9 @@ def locate(
         ),
     ] = 0.0,
 ) -> None:
-    """Road positions of pixels or boxes (a box is located by its bottom centre).
+    """Road positions of pixels or boxes.
+
+    A box is located by its bottom centre, the point where it meets the road.
 
     Prints one JSON line per row: u, v, x_m, y_m (metres east and north of the origin; null when the
     pixel looks above the horizon), lat and lon when the origin is known, and for a reference whether
