@@ -7,7 +7,7 @@ DEV    := $(VENV)/.dev
 OUT    ?= reports/demo
 
 .PHONY: venv demo test lint typecheck bench bench-sort bench-video bench-crops bench-detection bench-pull-over \
-	bench-siren-loop bench-audio bench-rig bench-v2x clean
+	bench-siren-loop bench-audio bench-rig bench-v2x bench-roadside clean
 
 # `make demo` installs the runtime only; `make test` and the benchmarks add the dev extra (linters,
 # scikit-learn, XGBoost, torch for the training tests).
@@ -83,8 +83,11 @@ bench-rig: venv
 bench-v2x: venv
 	$(BIN)/python benchmarks/bench_v2x.py
 
+bench-roadside: venv
+	$(BIN)/python benchmarks/bench_pixel_to_road.py
+
 bench: bench-sort bench-video bench-crops bench-detection bench-pull-over bench-siren-loop bench-audio bench-rig \
-	bench-v2x
+	bench-v2x bench-roadside
 
 clean:
 	rm -rf $(VENV) reports .pytest_cache .mypy_cache .ruff_cache
