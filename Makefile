@@ -7,7 +7,7 @@ DEV    := $(VENV)/.dev
 OUT    ?= reports/demo
 
 .PHONY: venv demo test lint typecheck bench bench-sort bench-video bench-crops bench-detection bench-pull-over \
-	bench-siren-loop bench-audio bench-rig bench-v2x bench-fusion clean
+	bench-siren-loop bench-audio bench-rig bench-v2x bench-fusion bench-roadside clean
 
 # `make demo` installs the runtime only; `make test` and the benchmarks add the dev extra (linters,
 # scikit-learn, XGBoost, torch for the training tests).
@@ -86,8 +86,11 @@ bench-v2x: venv
 bench-fusion: venv
 	$(BIN)/python benchmarks/bench_fusion_step.py
 
+bench-roadside: venv
+	$(BIN)/python benchmarks/bench_pixel_to_road.py
+
 bench: bench-sort bench-video bench-crops bench-detection bench-pull-over bench-siren-loop bench-audio bench-rig \
-	bench-v2x bench-fusion
+	bench-v2x bench-fusion bench-roadside
 
 clean:
 	rm -rf $(VENV) reports .pytest_cache .mypy_cache .ruff_cache

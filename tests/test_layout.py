@@ -22,7 +22,7 @@ import makeway
 
 ROOT = Path(makeway.__file__).resolve().parent
 CAR_SIDE = {"sense", "perceive", "track", "fuse", "decide", "plan", "control", "v2x"}
-OFF_CAR = {"sim", "eval", "pipeline", "apps", "train", "viz", "cli"}
+OFF_CAR = {"sim", "eval", "pipeline", "apps", "train", "viz", "cli", "roadside"}
 ENTRY_POINTS = {"makeway.__main__"}
 
 

@@ -1,0 +1,158 @@
+"""The roadside commands' library calls: check a transformation calibration, fit a location
+reference from a pairs file, and locate pixels or boxes with either.
+
+Each function does the whole of one command and returns what it prints (JSON-ready dicts); inputs
+are checked first, and a bad one raises :class:`~makeway.errors.InputError` before anything is
+written.
+"""
+
+from __future__ import annotations
+
+import csv
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+from makeway.atomic import atomic_path, write_text_atomic
+from makeway.errors import InputError
+from makeway.roadside.reference import (
+    DEFAULT_SMOOTHING,
+    LocationReference,
+    kfold_errors,
+    load_reference,
+    read_pairs,
+)
+from makeway.roadside.transform import RoadCamera, box_ground_pixel, read_transform_calibration
+
+__all__ = ["check_transform", "fit_reference", "locate_file", "read_pixel_rows", "write_sim_calibration"]
+
+
+def check_transform(calibration: str | Path) -> dict[str, Any]:
+    """Read and check a transformation calibration file; its :meth:`RoadCamera.summary`."""
+    return {"calibration": str(calibration), **read_transform_calibration(calibration).summary()}
+
+
+def write_sim_calibration(out: str | Path) -> dict[str, Any]:
+    """Write the simulated traffic camera's calibration (:mod:`makeway.roadside.simulated`) to ``out``;
+    its summary."""
+    from makeway.roadside.simulated import sim_road_camera
+
+    camera = sim_road_camera()
+    write_text_atomic(out, yaml.safe_dump(camera.to_dict(), sort_keys=False))
+    return {"calibration": str(out), **camera.summary()}
+
+
+def fit_reference(
+    pairs: str | Path, out: str | Path, *, folds: int = 5, smoothing: float = DEFAULT_SMOOTHING
+) -> dict[str, Any]:
+    """Fit a location reference to a pairs file and save it to ``out`` (``.npz``); the number of
+    pairs and the ``folds``-fold held-out error (median, 95th percentile, max; metres)."""
+    if Path(out).suffix.lower() != ".npz":
+        raise ValueError(f"--out must name a .npz file, not {str(out)!r}")
+    p = read_pairs(pairs)
+    if smoothing < 0:
+        raise ValueError(f"--smoothing must be ≥ 0, not {smoothing}")
+    err = kfold_errors(p.pixels, p.xy, folds=min(folds, len(p.pixels)), smoothing=smoothing)
+    stats = {
+        "heldout_median_m": float(np.median(err)),
+        "heldout_p95_m": float(np.percentile(err, 95)),
+        "heldout_max_m": float(err.max()),
+    }
+    ref = LocationReference(p.pixels, p.xy, p.origin, smoothing)
+    with atomic_path(Path(out)) as tmp, open(tmp, "wb") as fh:
+        ref.save(fh, folds=folds, **stats)
+    return {"pairs": len(p.pixels), "out": str(out), "folds": folds, "smoothing": smoothing, **stats}
+
+
+def read_pixel_rows(path: str | Path) -> tuple[np.ndarray, np.ndarray, str]:
+    """A CSV of pixels ``u,v`` or boxes ``x1,y1,x2,y2`` (header optional, ``#`` comments) → the rows
+    ``(n, 2 or 4)``, the pixels to locate ``(n, 2)`` (a box's bottom centre), and ``"pixel"`` or
+    ``"box"``; InputError naming the file and line otherwise."""
+    path = Path(path)
+    try:
+        lines = path.read_text(encoding="utf-8").splitlines()
+    except FileNotFoundError:
+        raise InputError(path, "pixels file not found") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputError(path, f"cannot be read as a CSV of pixels ({exc})") from None
+    rows: list[list[float]] = []
+    first = True
+    for n, line in enumerate(lines, start=1):
+        text = line.strip()
+        if not text or text.startswith("#"):
+            continue
+        cells = [c.strip() for c in next(csv.reader([text]))]
+        try:
+            vals = [float(c) for c in cells]
+        except ValueError:
+            if first:  # a header
+                first = False
+                continue
+            raise InputError(path, f"line {n}: expected numbers (u,v or x1,y1,x2,y2), got {text!r}") from None
+        first = False
+        if len(vals) not in (2, 4) or (rows and len(vals) != len(rows[0])):
+            raise InputError(path, f"line {n}: every row must be u,v or every row x1,y1,x2,y2, got {text!r}")
+        if not np.isfinite(vals).all():
+            raise InputError(path, f"line {n}: a value is not finite: {text!r}")
+        rows.append(vals)
+    if not rows:
+        raise InputError(path, "has no pixels (rows u,v or x1,y1,x2,y2)")
+    data = np.array(rows, np.float64)
+    if data.shape[1] == 4:
+        return data, box_ground_pixel(data), "box"
+    return data, data, "pixel"
+
+
+def locate_file(
+    calibration: str | Path, pixels: str | Path, *, behind_m: float = 0.0
+) -> list[dict[str, Any]]:
+    """Locate every row of a pixels file (:func:`read_pixel_rows`) with a transformation calibration
+    (``.yaml``/``.yml``) or a location reference (``.npz``): one dict per row with the pixel used,
+    ``x_m``, ``y_m`` (road frame; ``null`` when the ray misses the road) and, when the origin is
+    known, ``lat``, ``lon``. ``behind_m`` applies to the transformation method only
+    (:meth:`RoadCamera.locate`); the reference reports ``inside`` (the pixel lies in its pairs' hull)."""
+    cal = Path(calibration)
+    model: RoadCamera | LocationReference
+    if cal.suffix.lower() == ".npz":
+        model = load_reference(cal)
+    elif cal.suffix.lower() in (".yaml", ".yml"):
+        model = read_transform_calibration(cal)
+    else:
+        raise InputError(cal, "must be a transformation calibration (.yaml) or a location reference (.npz)")
+    _, px, kind = read_pixel_rows(pixels)
+    if isinstance(model, RoadCamera):
+        bad = ~model.camera.in_image(px)
+        if bad.any():
+            u, v = px[bad][0]
+            raise InputError(
+                pixels,
+                f"pixel ({u:g}, {v:g}) is outside the {model.camera.width}×"
+                f"{model.camera.height} image of {cal}",
+            )
+        xy, method, inside = model.locate(px, behind_m), "transform", None
+    else:
+        xy, method, inside = model.locate(px), "reference", model.inside(px)
+    origin = model.origin
+    lat = lon = None
+    if origin is not None:
+        lat, lon, _ = origin.to_geodetic(np.nan_to_num(xy))
+    out: list[dict[str, Any]] = []
+    for i in range(len(px)):
+        hit = bool(np.isfinite(xy[i]).all())
+        row: dict[str, Any] = {
+            "method": method,
+            "input": kind,
+            "u": float(px[i, 0]),
+            "v": float(px[i, 1]),
+            "x_m": float(xy[i, 0]) if hit else None,
+            "y_m": float(xy[i, 1]) if hit else None,
+        }
+        if lat is not None and lon is not None:
+            row["lat"] = float(lat[i]) if hit else None
+            row["lon"] = float(lon[i]) if hit else None
+        if inside is not None:
+            row["inside"] = bool(inside[i])
+        out.append(row)
+    return out
