@@ -52,6 +52,13 @@ from makeway.errors import InputError
 from makeway.registry import UnknownNameError
 from makeway.roadside.geodesy import LocalFrame
 from makeway.sense.camera import CAMERA_MODELS, Camera
+from makeway.sense.fields import (
+    ORTHONORMAL_TOLERANCE,
+    number_field,
+    rotation_field,
+    vector_field,
+    whole_field,
+)
 
 __all__ = [
     "ORTHONORMAL_TOLERANCE",
@@ -62,7 +69,6 @@ __all__ = [
 ]
 
 #: Largest ``|RᵀR − I|`` entry a calibration's rotation may have.
-ORTHONORMAL_TOLERANCE = 1e-6
 _REQUIRED = ("model", "width", "height", "fx", "fy", "cx", "cy", "rotation", "position_m")
 _KNOWN = {*_REQUIRED, "k", "origin"}
 
@@ -182,22 +188,17 @@ def read_transform_calibration(path: str | Path) -> RoadCamera:
         factory = CAMERA_MODELS[str(model)]
     except UnknownNameError as exc:
         raise fail(str(exc)) from None
-    width, height = (_whole(doc[key], key, fail) for key in ("width", "height"))
-    fx, fy = (_number(doc[key], key, fail, positive=True) for key in ("fx", "fy"))
-    cx, cy = (_number(doc[key], key, fail) for key in ("cx", "cy"))
+    width, height = (whole_field(doc[key], key, fail) for key in ("width", "height"))
+    fx, fy = (number_field(doc[key], key, fail, positive=True) for key in ("fx", "fy"))
+    cx, cy = (number_field(doc[key], key, fail) for key in ("cx", "cy"))
     if "k" in doc:
-        k = _vector(doc["k"], "k", 4, fail)
+        k = vector_field(doc["k"], "k", 4, fail)
     elif model == "pinhole":
         k = np.zeros(4)
     else:
         raise fail(f"missing field k (4 distortion coefficients k1..k4 for model {model})")
-    rot = _matrix(doc["rotation"], fail)
-    err = float(np.abs(rot.T @ rot - np.eye(3)).max())
-    if err > ORTHONORMAL_TOLERANCE:
-        raise fail(f"rotation is not orthonormal (max |RᵀR − I| = {err:.3g} > {ORTHONORMAL_TOLERANCE:g})")
-    if float(np.linalg.det(rot)) < 0:
-        raise fail("rotation is a reflection (det = −1), not a rotation")
-    pos = _vector(doc["position_m"], "position_m", 3, fail)
+    rot = rotation_field(doc["rotation"], fail)
+    pos = vector_field(doc["position_m"], "position_m", 3, fail)
     if pos[2] <= 0:
         raise fail(f"position_m: the camera must be above the road (z > 0 m), not z = {pos[2]:g}")
     origin = None
@@ -216,9 +217,9 @@ def read_transform_calibration(path: str | Path) -> RoadCamera:
             raise fail("origin must be a mapping with lat_deg, lon_deg and optionally height_m")
         try:
             origin = LocalFrame(
-                _number(o["lat_deg"], "origin.lat_deg", fail),
-                _number(o["lon_deg"], "origin.lon_deg", fail),
-                _number(o.get("height_m", 0.0), "origin.height_m", fail),
+                number_field(o["lat_deg"], "origin.lat_deg", fail),
+                number_field(o["lon_deg"], "origin.lon_deg", fail),
+                number_field(o.get("height_m", 0.0), "origin.height_m", fail),
             )
         except ValueError as exc:
             raise fail(str(exc)) from None
@@ -231,29 +232,3 @@ def read_transform_calibration(path: str | Path) -> RoadCamera:
     if road.summary()["nearest_road_m"] is None:
         raise fail("the camera sees no road: no pixel of the image's centre column looks below the horizon")
     return road
-
-
-def _number(value: Any, key: str, fail: Any, *, positive: bool = False) -> float:
-    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
-        raise fail(f"{key} must be a finite number, not {value!r}")
-    if positive and value <= 0:
-        raise fail(f"{key} must be positive, not {value!r}")
-    return float(value)
-
-
-def _whole(value: Any, key: str, fail: Any) -> int:
-    if isinstance(value, bool) or not isinstance(value, int) or value <= 0:
-        raise fail(f"{key} must be a positive whole number of pixels, not {value!r}")
-    return value
-
-
-def _vector(value: Any, key: str, n: int, fail: Any) -> np.ndarray:
-    if not isinstance(value, list) or len(value) != n:
-        raise fail(f"{key} must be a list of {n} numbers, not {value!r}")
-    return np.array([_number(v, key, fail) for v in value])
-
-
-def _matrix(value: Any, fail: Any) -> np.ndarray:
-    if not isinstance(value, list) or len(value) != 3 or not all(isinstance(r, list) for r in value):
-        raise fail(f"rotation must be 3 rows of 3 numbers, not {value!r}")
-    return np.stack([_vector(row, "rotation", 3, fail) for row in value])

@@ -66,6 +66,13 @@ import yaml
 from makeway.errors import InputError
 from makeway.registry import UnknownNameError
 from makeway.sense.camera import CAMERA_MODELS, Camera
+from makeway.sense.fields import (
+    ORTHONORMAL_TOLERANCE,
+    number_field,
+    rotation_field,
+    vector_field,
+    whole_field,
+)
 
 __all__ = [
     "DEFAULT_RIG",
@@ -83,7 +90,6 @@ __all__ = [
 #: ``makeway rig … default`` and :func:`load_rig` ("default") read this shipped 4-camera rig.
 DEFAULT_RIG = "default"
 #: Largest ``|RᵀR − I|`` entry a rig's rotation may have.
-ORTHONORMAL_TOLERANCE = 1e-6
 #: Camera → vehicle rotation of a camera looking straight ahead (x right, y down, z forward → vehicle).
 R0 = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
 
@@ -271,11 +277,11 @@ def _read_camera(path: Path, index: int, entry: Any) -> RigCamera:
         factory = CAMERA_MODELS[model]
     except UnknownNameError as exc:
         raise fail(str(exc)) from None
-    width, height = (_integer(entry, key, fail) for key in ("width", "height"))
-    fx, fy = (_number(entry[key], key, fail, positive=True) for key in ("fx", "fy"))
-    cx, cy = (_number(entry[key], key, fail) for key in ("cx", "cy"))
+    width, height = (whole_field(entry[key], key, fail) for key in ("width", "height"))
+    fx, fy = (number_field(entry[key], key, fail, positive=True) for key in ("fx", "fy"))
+    cx, cy = (number_field(entry[key], key, fail) for key in ("cx", "cy"))
     if "k" in entry:
-        k = _vector(entry["k"], "k", 4, fail)
+        k = vector_field(entry["k"], "k", 4, fail)
     elif model == "pinhole":
         k = np.zeros(4)
     else:
@@ -284,44 +290,11 @@ def _read_camera(path: Path, index: int, entry: Any) -> RigCamera:
     if has_r == has_ypr:
         raise fail("give exactly one of rotation (3×3) and yaw_pitch_roll_deg ([yaw, pitch, roll])")
     if has_r:
-        rot = _matrix(entry["rotation"], fail)
-        err = float(np.abs(rot.T @ rot - np.eye(3)).max())
-        if err > ORTHONORMAL_TOLERANCE:
-            raise fail(f"rotation is not orthonormal (max |RᵀR − I| = {err:.3g} > {ORTHONORMAL_TOLERANCE:g})")
-        det = float(np.linalg.det(rot))
-        if det < 0:
-            raise fail(f"rotation is a reflection (det = {det:.6g}), not a rotation (det = +1)")
+        rot = rotation_field(entry["rotation"], fail)
     else:
-        ypr = _vector(entry["yaw_pitch_roll_deg"], "yaw_pitch_roll_deg", 3, fail)
+        ypr = vector_field(entry["yaw_pitch_roll_deg"], "yaw_pitch_roll_deg", 3, fail)
         rot = rotation_from_yaw_pitch_roll(*ypr)
-    t = _vector(entry["translation_m"], "translation_m", 3, fail)
+    t = vector_field(entry["translation_m"], "translation_m", 3, fail)
     k1, k2, k3, k4 = (float(c) for c in k)
     camera = factory(width, height, fx, fy, cx, cy, (k1, k2, k3, k4))
     return RigCamera(name, camera, rot, t)
-
-
-def _number(value: Any, key: str, fail: Any, *, positive: bool = False) -> float:
-    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
-        raise fail(f"{key} must be a finite number, not {value!r}")
-    if positive and value <= 0:
-        raise fail(f"{key} must be positive, not {value!r}")
-    return float(value)
-
-
-def _integer(entry: dict[str, Any], key: str, fail: Any) -> int:
-    value = entry[key]
-    if isinstance(value, bool) or not isinstance(value, int) or value <= 0:
-        raise fail(f"{key} must be a positive whole number of pixels, not {value!r}")
-    return value
-
-
-def _vector(value: Any, key: str, n: int, fail: Any) -> np.ndarray:
-    if not isinstance(value, list) or len(value) != n:
-        raise fail(f"{key} must be a list of {n} numbers, not {value!r}")
-    return np.array([_number(v, key, fail) for v in value])
-
-
-def _matrix(value: Any, fail: Any) -> np.ndarray:
-    if not isinstance(value, list) or len(value) != 3 or not all(isinstance(r, list) for r in value):
-        raise fail(f"rotation must be 3 rows of 3 numbers, not {value!r}")
-    return np.stack([_vector(row, "rotation", 3, fail) for row in value])
