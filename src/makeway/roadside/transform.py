@@ -49,15 +49,14 @@ import numpy as np
 import yaml
 
 from makeway.errors import InputError
-from makeway.registry import UnknownNameError
 from makeway.roadside.geodesy import LocalFrame
-from makeway.sense.camera import CAMERA_MODELS, Camera
+from makeway.sense.camera import Camera
 from makeway.sense.fields import (
     ORTHONORMAL_TOLERANCE,
+    camera_fields,
     number_field,
     rotation_field,
     vector_field,
-    whole_field,
 )
 
 __all__ = [
@@ -183,20 +182,7 @@ def read_transform_calibration(path: str | Path) -> RoadCamera:
     unknown = sorted(str(k) for k in doc if k not in _KNOWN)
     if unknown:
         raise fail(f"unknown field(s) {', '.join(unknown)}")
-    model = doc["model"]
-    try:
-        factory = CAMERA_MODELS[str(model)]
-    except UnknownNameError as exc:
-        raise fail(str(exc)) from None
-    width, height = (whole_field(doc[key], key, fail) for key in ("width", "height"))
-    fx, fy = (number_field(doc[key], key, fail, positive=True) for key in ("fx", "fy"))
-    cx, cy = (number_field(doc[key], key, fail) for key in ("cx", "cy"))
-    if "k" in doc:
-        k = vector_field(doc["k"], "k", 4, fail)
-    elif model == "pinhole":
-        k = np.zeros(4)
-    else:
-        raise fail(f"missing field k (4 distortion coefficients k1..k4 for model {model})")
+    camera = camera_fields(doc, fail)
     rot = rotation_field(doc["rotation"], fail)
     pos = vector_field(doc["position_m"], "position_m", 3, fail)
     if pos[2] <= 0:
@@ -223,11 +209,6 @@ def read_transform_calibration(path: str | Path) -> RoadCamera:
             )
         except ValueError as exc:
             raise fail(str(exc)) from None
-    try:
-        k1, k2, k3, k4 = (float(c) for c in k)
-        camera = factory(width, height, fx, fy, cx, cy, (k1, k2, k3, k4))
-    except ValueError as exc:
-        raise fail(str(exc)) from None
     road = RoadCamera(camera, rot, pos, origin)
     if road.summary()["nearest_road_m"] is None:
         raise fail("the camera sees no road: no pixel of the image's centre column looks below the horizon")

@@ -12,7 +12,17 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["ORTHONORMAL_TOLERANCE", "number_field", "rotation_field", "vector_field", "whole_field"]
+from makeway.registry import UnknownNameError
+from makeway.sense.camera import CAMERA_MODELS, Camera
+
+__all__ = [
+    "ORTHONORMAL_TOLERANCE",
+    "camera_fields",
+    "number_field",
+    "rotation_field",
+    "vector_field",
+    "whole_field",
+]
 
 ORTHONORMAL_TOLERANCE = 1e-6
 """A rotation ``R`` is accepted when ``max|RᵀR − I|`` is at most this."""
@@ -54,3 +64,30 @@ def rotation_field(value: Any, fail: Any, key: str = "rotation") -> np.ndarray:
     if det < 0:
         raise fail(f"{key} is a reflection (det = {det:.6g}), not a rotation (det = +1)")
     return rot
+
+
+def camera_fields(doc: dict[str, Any], fail: Any) -> Camera:
+    """The camera of a calibration entry: ``model`` (a name of
+    :data:`~makeway.sense.camera.CAMERA_MODELS`), ``width``, ``height`` (pixels), ``fx``, ``fy``,
+    ``cx``, ``cy`` (pixels) and ``k`` (4 Kannala–Brandt coefficients; optional for ``pinhole``)."""
+    model = doc["model"]
+    if not isinstance(model, str):
+        raise fail("model must be a string")
+    try:
+        factory = CAMERA_MODELS[model]
+    except UnknownNameError as exc:
+        raise fail(str(exc)) from None
+    width, height = (whole_field(doc[key], key, fail) for key in ("width", "height"))
+    fx, fy = (number_field(doc[key], key, fail, positive=True) for key in ("fx", "fy"))
+    cx, cy = (number_field(doc[key], key, fail) for key in ("cx", "cy"))
+    if "k" in doc:
+        k = vector_field(doc["k"], "k", 4, fail)
+    elif model == "pinhole":
+        k = np.zeros(4)
+    else:
+        raise fail(f"missing field k (4 distortion coefficients k1..k4 for model {model})")
+    k1, k2, k3, k4 = (float(c) for c in k)
+    try:
+        return factory(width, height, fx, fy, cx, cy, (k1, k2, k3, k4))
+    except ValueError as exc:
+        raise fail(str(exc)) from None

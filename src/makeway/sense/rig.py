@@ -64,14 +64,12 @@ import numpy as np
 import yaml
 
 from makeway.errors import InputError
-from makeway.registry import UnknownNameError
-from makeway.sense.camera import CAMERA_MODELS, Camera
+from makeway.sense.camera import Camera
 from makeway.sense.fields import (
     ORTHONORMAL_TOLERANCE,
-    number_field,
+    camera_fields,
     rotation_field,
     vector_field,
-    whole_field,
 )
 
 __all__ = [
@@ -270,22 +268,7 @@ def _read_camera(path: Path, index: int, entry: Any) -> RigCamera:
     name = entry["name"]
     if not isinstance(name, str) or not name.strip():
         raise fail("name must be a non-empty string")
-    model = entry["model"]
-    if not isinstance(model, str):
-        raise fail("model must be a string")
-    try:
-        factory = CAMERA_MODELS[model]
-    except UnknownNameError as exc:
-        raise fail(str(exc)) from None
-    width, height = (whole_field(entry[key], key, fail) for key in ("width", "height"))
-    fx, fy = (number_field(entry[key], key, fail, positive=True) for key in ("fx", "fy"))
-    cx, cy = (number_field(entry[key], key, fail) for key in ("cx", "cy"))
-    if "k" in entry:
-        k = vector_field(entry["k"], "k", 4, fail)
-    elif model == "pinhole":
-        k = np.zeros(4)
-    else:
-        raise fail(f"missing field k (4 distortion coefficients k1..k4 for model {model})")
+    camera = camera_fields(entry, fail)
     has_r, has_ypr = "rotation" in entry, "yaw_pitch_roll_deg" in entry
     if has_r == has_ypr:
         raise fail("give exactly one of rotation (3×3) and yaw_pitch_roll_deg ([yaw, pitch, roll])")
@@ -295,6 +278,4 @@ def _read_camera(path: Path, index: int, entry: Any) -> RigCamera:
         ypr = vector_field(entry["yaw_pitch_roll_deg"], "yaw_pitch_roll_deg", 3, fail)
         rot = rotation_from_yaw_pitch_roll(*ypr)
     t = vector_field(entry["translation_m"], "translation_m", 3, fail)
-    k1, k2, k3, k4 = (float(c) for c in k)
-    camera = factory(width, height, fx, fy, cx, cy, (k1, k2, k3, k4))
     return RigCamera(name, camera, rot, t)
