@@ -36,7 +36,7 @@ def calibrate_transform(
         bool, typer.Option("--sim", help="Write the simulated traffic camera's calibration to the file.")
     ] = False,
 ) -> None:
-    """Check a camera calibration, or write the simulated one.
+    """Check or write a camera calibration.
 
     Prints one JSON line: model, image size, camera height, downward tilt, the nearest road distance
     in view and the horizon row. A missing or unknown field, a non-orthonormal rotation or a camera
