@@ -9,27 +9,35 @@
 Labels and scoring of recordings live in :mod:`makeway.eval` (``siren_labels``, ``siren``).
 """
 
-from makeway.perceive.audio.doa import DOA_METHODS, SirenEnergyDetector
-from makeway.perceive.audio.motion import APPROACH_METHODS, ApproachEstimator, TrendApproach
-from makeway.perceive.audio.multisource import SourceSeparator
-from makeway.perceive.audio.siren_model import SirenModel, SirenPrediction
-from makeway.perceive.audio.stream import SirenListener, listen
-from makeway.perceive.audio.windows import HOP_S, LISTEN_SMOOTH, WINDOW_S, smoothed_probability, window_starts
+from __future__ import annotations
 
-__all__ = [
-    "APPROACH_METHODS",
-    "DOA_METHODS",
-    "HOP_S",
-    "LISTEN_SMOOTH",
-    "WINDOW_S",
-    "ApproachEstimator",
-    "SirenEnergyDetector",
-    "SirenListener",
-    "SirenModel",
-    "SirenPrediction",
-    "SourceSeparator",
-    "TrendApproach",
-    "listen",
-    "smoothed_probability",
-    "window_starts",
-]
+import importlib
+from typing import Any
+
+# the face is loaded on first use (PEP 562): importing one light module of the package (the window
+# rule, say) does not pull in ONNX Runtime and SciPy's signal processing
+_WHERE = {
+    "DOA_METHODS": "doa",
+    "SirenEnergyDetector": "doa",
+    "APPROACH_METHODS": "motion",
+    "ApproachEstimator": "motion",
+    "TrendApproach": "motion",
+    "SourceSeparator": "multisource",
+    "SirenModel": "siren_model",
+    "SirenPrediction": "siren_model",
+    "SirenListener": "stream",
+    "listen": "stream",
+    "HOP_S": "windows",
+    "LISTEN_SMOOTH": "windows",
+    "WINDOW_S": "windows",
+    "smoothed_probability": "windows",
+    "window_starts": "windows",
+}
+
+__all__ = sorted(_WHERE)
+
+
+def __getattr__(name: str) -> Any:
+    if name in _WHERE:
+        return getattr(importlib.import_module(f"{__name__}.{_WHERE[name]}"), name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
