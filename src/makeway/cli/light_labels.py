@@ -125,7 +125,17 @@ def check(
         print_json_line(counts)
         return
     for name, c in counts.items():
-        console.print(f"{name}: {c}", highlight=False, soft_wrap=True)
+        per_colour = c["boxes_per_colour"]
+        assert isinstance(per_colour, dict)
+        colours = ", ".join(f"{k} {v}" for k, v in per_colour.items() if v)
+        console.print(
+            f"{name}: {c['checked_frames']} of {c['frames']} frames checked "
+            f"({c['positive_frames']} with lit lights, {c['negative_frames']} without), "
+            f"{c['boxes']} boxes ({colours or 'none'}), {c['vehicles']} vehicles, "
+            f"{c['hard_negatives']} hard negatives",
+            highlight=False,
+            soft_wrap=True,
+        )
 
 
 @light_labels_app.command()
