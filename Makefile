@@ -82,6 +82,7 @@ bench-rig: venv
 # signed V2X alerts: attack-suite counts, verification on one core, created → verified latency over zenoh
 bench-v2x: venv
 	$(BIN)/python benchmarks/bench_v2x.py
+	$(BIN)/python benchmarks/bench_v2x_load.py
 
 bench-fusion: venv
 	$(BIN)/python benchmarks/bench_fusion_step.py

@@ -1,0 +1,345 @@
+"""V2X load on loopback: 20 roadside units × 10 Hz to 50 subscribed cars over zenoh (issue 27, target
+"Load": no loss, flat memory).
+
+    .venv/bin/python benchmarks/bench_v2x_load.py [--minutes 10] [--units 20] [--cars 50] [--car-procs 5]
+        [--rate-hz 10] [--json FILE]
+
+Layout (all zenoh peers on 127.0.0.1, TCP, scouting off):
+
+* **one publisher process** with all units: it listens on one port; each unit has its own identity
+  (key and certificate from one local root) and publishes on its own segment ``load-UU``; every
+  ``1/rate`` s each unit stamps, signs and publishes one alert (units staggered evenly over the
+  period);
+* **``--car-procs`` subscriber processes** with ``cars / car-procs`` cars each: every car has its own
+  zenoh session (connected to the publisher), its own :class:`~makeway.v2x.transport.AlertSubscriber`
+  on all unit segments, its own :class:`~makeway.v2x.security.Verifier` (replay cache included) and
+  its own thread that verifies every payload — so each car does the verification work a real car
+  would.
+
+Per car: alerts lost (published by the units minus distinct (unit, sequence) verified by the car —
+so an alert still queued unverified at the end counts as lost), verification failures (by reason),
+duplicates, and payloads taken off the queue; per process: resident memory (VmRSS, MiB) sampled
+every 10 s. Memory is called flat when the mean of the last minute's samples exceeds the first
+minute's by less than ``FLAT_MIB`` in every process (a steady leak of one cached alert per car per
+verification would grow a car process by tens of MiB per minute). Also the lag from an alert's
+generation time to its arrival (zenoh's callback) and to its verification at the car (p50/p99/max,
+wall clock shared by the processes): a gap between the two is the car's verification queue.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import socket
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from collections import Counter
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from makeway.v2x.message import Alert
+from makeway.v2x.security import TrustStore, Verifier, keygen, load_identity, sign_alert
+from makeway.v2x.transport import AlertPublisher, AlertSubscriber, open_peer
+
+FLAT_MIB = 5.0
+RSS_EVERY_S = 10.0
+SETTLE_S = 3.0  # after the last alert, how long cars keep listening
+
+
+def rss_mib() -> float:
+    """This process's resident set size (MiB), from /proc/self/status."""
+    for line in Path("/proc/self/status").read_text().splitlines():
+        if line.startswith("VmRSS:"):
+            return int(line.split()[1]) / 1024
+    raise RuntimeError("no VmRSS in /proc/self/status")
+
+
+class RssSampler(threading.Thread):
+    """Samples :func:`rss_mib` every ``RSS_EVERY_S`` s as (seconds since start, MiB)."""
+
+    def __init__(self, t0: float) -> None:
+        super().__init__(daemon=True)
+        self.t0 = t0
+        self.samples: list[tuple[float, float]] = []
+        self.stop = threading.Event()
+
+    def run(self) -> None:
+        while True:
+            self.samples.append((time.time() - self.t0, rss_mib()))
+            if self.stop.wait(RSS_EVERY_S):
+                return
+
+
+def _wait_file(path: Path, timeout_s: float) -> None:
+    deadline = time.monotonic() + timeout_s
+    while not path.exists():
+        if time.monotonic() > deadline:
+            raise SystemExit(f"timed out waiting for {path}")
+        time.sleep(0.05)
+
+
+def publisher(keys: Path, port: int, units: int, rate_hz: float, duration_s: float, work: Path) -> None:
+    """All units in one process: listen, wait for ``go`` (its content: the start time, Unix s), then
+    publish until start + ``duration_s``; write the per-unit counts and RSS samples to ``pub.json``."""
+    idents = [load_identity(keys / f"rsu{u:02d}.key") for u in range(units)]
+    session = open_peer(listen=[f"tcp/127.0.0.1:{port}"])
+    pubs = [AlertPublisher(session, f"load-{u:02d}") for u in range(units)]
+    (work / "pub.ready").touch()
+    _wait_file(work / "go", 120.0)
+    t0 = float((work / "go").read_text())
+    sampler = RssSampler(t0)
+    published = [0] * units
+    period = 1.0 / rate_hz
+    ticks = round(duration_s * rate_hz)
+    while time.time() < t0:
+        time.sleep(0.01)
+    sampler.start()
+    late = 0
+    for k in range(ticks):
+        for u in range(units):
+            at = t0 + k * period + u * period / units
+            wait = at - time.time()
+            if wait > 0:
+                time.sleep(wait)
+            elif wait < -period:
+                late += 1
+            alert = Alert.from_physical(
+                station_id=idents[u].station_id,
+                generation_time_s=time.time(),
+                sequence=k,
+                lat_deg=48.137 + 0.0005 * u,
+                lon_deg=11.575,
+                heading_deg=30.0,
+                speed_mps=16.7,
+            )
+            pubs[u].publish(sign_alert(alert, idents[u]))
+            published[u] += 1
+    sampler.stop.set()
+    sampler.join()
+    time.sleep(SETTLE_S)
+    (work / "pub.json").write_text(
+        json.dumps({"published": published, "late_over_one_period": late, "rss": sampler.samples})
+    )
+    session.close()
+
+
+def cars(
+    keys: Path, port: int, units: int, n_cars: int, proc: int, rate_hz: float, duration_s: float, work: Path
+) -> None:
+    """``n_cars`` cars in one process, each its own session, subscriber, verifier and thread; write
+    per-car counts and this process's RSS samples to ``cars-P.json``."""
+    store = TrustStore.load(keys / "trust")
+    segments = [f"load-{u:02d}" for u in range(units)]
+    sessions = [open_peer(connect=[f"tcp/127.0.0.1:{port}"]) for _ in range(n_cars)]
+    subs = [AlertSubscriber(s, segments) for s in sessions]
+    time.sleep(1.0)
+    (work / f"cars-{proc}.ready").touch()
+    _wait_file(work / "go", 120.0)
+    t0 = float((work / "go").read_text())
+    sampler = RssSampler(t0)
+    end = t0 + duration_s + SETTLE_S
+    results: list[dict[str, Any]] = [{} for _ in range(n_cars)]
+    ticks = round(duration_s * rate_hz)
+    # the bookkeeping is allocated and touched before the run (np.full writes every page), so the
+    # RSS samples see only what the transport, the verifiers and the queues add
+    got_seq = [np.full((units, ticks), False) for _ in range(n_cars)]
+    lags = [np.full(units * ticks, np.nan, dtype=np.float32) for _ in range(n_cars)]
+    arrivals = [np.full(units * ticks, np.nan, dtype=np.float32) for _ in range(n_cars)]
+
+    def car(i: int) -> None:
+        verifier = Verifier(store)
+        by_station: dict[int, int] = {}
+        failures: Counter[str] = Counter()
+        duplicates = 0
+        handled = 0
+        for got in subs[i].receive(max(0.0, end - time.time())):
+            now = time.time()
+            handled += 1
+            v = verifier.verify(got.payload, now)
+            if not v.valid or v.alert is None:
+                failures[v.reason.split(":")[0]] += 1
+                continue
+            u = by_station.setdefault(v.alert.station_id, int(got.key.rsplit("-", 1)[1]))
+            k = v.alert.sequence
+            duplicates += bool(got_seq[i][u, k])
+            got_seq[i][u, k] = True
+            lags[i][u * ticks + k] = now - v.alert.generation_time_s
+            arrivals[i][u * ticks + k] = got.time_s - v.alert.generation_time_s
+        results[i] = {
+            "received": got_seq[i].sum(axis=1).tolist(),
+            "failures": dict(failures),
+            "duplicates": duplicates,
+            "handled": handled,
+        }
+
+    threads = [threading.Thread(target=car, args=(i,)) for i in range(n_cars)]
+    while time.time() < t0:
+        time.sleep(0.01)
+    sampler.start()
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    sampler.stop.set()
+    sampler.join()
+    all_lags = np.concatenate(lags).astype(np.float64) * 1000
+    all_lags = all_lags[np.isfinite(all_lags)]
+    all_arrivals = np.concatenate(arrivals).astype(np.float64) * 1000
+    all_arrivals = all_arrivals[np.isfinite(all_arrivals)]
+    (work / f"cars-{proc}.json").write_text(
+        json.dumps(
+            {
+                "cars": results,
+                "rss": sampler.samples,
+                "lag_ms": [float(np.percentile(all_lags, q)) for q in (50, 99, 100)] if all_lags.size else [],
+                "arrival_ms": [float(np.percentile(all_arrivals, q)) for q in (50, 99, 100)]
+                if all_arrivals.size
+                else [],
+            }
+        )
+    )
+    for sub, s in zip(subs, sessions, strict=True):
+        sub.close()
+        s.close()
+
+
+def _flat(samples: list[tuple[float, float]], duration_s: float) -> tuple[float, float]:
+    """Mean RSS (MiB) over the first minute and over the last minute of the run."""
+    first = [m for t, m in samples if t < 60.0]
+    last = [m for t, m in samples if t >= duration_s - 60.0]
+    return float(np.mean(first)), float(np.mean(last))
+
+
+def run(minutes: float, units: int, n_cars: int, car_procs: int, rate_hz: float) -> dict[str, Any]:
+    duration_s = minutes * 60.0
+    if n_cars % car_procs:
+        raise SystemExit(f"--cars {n_cars} is not a multiple of --car-procs {car_procs}")
+    with tempfile.TemporaryDirectory() as tmp:
+        root = Path(tmp)
+        keys, work = root / "keys", root / "work"
+        work.mkdir()
+        for u in range(units):
+            keygen(keys, f"rsu{u:02d}")
+        with socket.socket() as s:
+            s.bind(("127.0.0.1", 0))
+            port = int(s.getsockname()[1])
+        common = ["--keys", str(keys), "--port", str(port), "--work", str(work), "--units", str(units)]
+        common += ["--minutes", str(minutes), "--rate-hz", str(rate_hz)]
+        procs = [subprocess.Popen([sys.executable, __file__, "--role", "publisher", *common])]
+        _wait_file(work / "pub.ready", 60.0)
+        per = n_cars // car_procs
+        for p in range(car_procs):
+            procs.append(
+                subprocess.Popen(
+                    [
+                        sys.executable,
+                        __file__,
+                        "--role",
+                        "cars",
+                        "--proc",
+                        str(p),
+                        "--cars",
+                        str(per),
+                        *common,
+                    ]
+                )
+            )
+        for p in range(car_procs):
+            _wait_file(work / f"cars-{p}.ready", 120.0)
+        time.sleep(1.0)  # let the last subscriptions propagate to the publisher
+        (work / "go").write_text(repr(time.time() + 1.0))
+        for proc in procs:
+            if proc.wait(timeout=duration_s + 120.0) != 0:
+                raise SystemExit(f"a child process failed: {proc.args!r}")
+        pub = json.loads((work / "pub.json").read_text())
+        car_out = [json.loads((work / f"cars-{p}.json").read_text()) for p in range(car_procs)]
+    published = pub["published"]
+    lost_per_car = [
+        sum(p - r for p, r in zip(published, c["received"], strict=True))
+        for co in car_out
+        for c in co["cars"]
+    ]
+    failures: Counter[str] = Counter()
+    for co in car_out:
+        for c in co["cars"]:
+            failures.update(c["failures"])
+    rss = {"publisher": _flat(pub["rss"], duration_s)}
+    for p, co in enumerate(car_out):
+        rss[f"cars-{p}"] = _flat(co["rss"], duration_s)
+    return {
+        "minutes": minutes,
+        "units": units,
+        "cars": n_cars,
+        "car_processes": car_procs,
+        "rate_hz": rate_hz,
+        "published": sum(published),
+        "expected_per_car": sum(published),
+        "lost_total": sum(lost_per_car),
+        "lost_max_per_car": max(lost_per_car),
+        "cars_with_loss": sum(x > 0 for x in lost_per_car),
+        "verification_failures": dict(failures),
+        "duplicates": sum(c["duplicates"] for co in car_out for c in co["cars"]),
+        "handled_total": sum(c["handled"] for co in car_out for c in co["cars"]),
+        "publisher_late_over_one_period": pub["late_over_one_period"],
+        "rss_first_last_min_mib": rss,
+        "rss_flat": all(last - first < FLAT_MIB for first, last in rss.values()),
+        "lag_ms_p50_p99_max_per_proc": [co["lag_ms"] for co in car_out],
+        "arrival_ms_p50_p99_max_per_proc": [co["arrival_ms"] for co in car_out],
+    }
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--minutes", type=float, default=10.0)
+    ap.add_argument("--units", type=int, default=20)
+    ap.add_argument("--cars", type=int, default=50)
+    ap.add_argument("--car-procs", type=int, default=5)
+    ap.add_argument("--rate-hz", type=float, default=10.0)
+    ap.add_argument("--json", type=Path)
+    ap.add_argument("--role", default="main", help=argparse.SUPPRESS)
+    ap.add_argument("--keys", type=Path, help=argparse.SUPPRESS)
+    ap.add_argument("--port", type=int, help=argparse.SUPPRESS)
+    ap.add_argument("--work", type=Path, help=argparse.SUPPRESS)
+    ap.add_argument("--proc", type=int, help=argparse.SUPPRESS)
+    args = ap.parse_args()
+    duration_s = args.minutes * 60.0
+    if args.role == "publisher":
+        publisher(args.keys, args.port, args.units, args.rate_hz, duration_s, args.work)
+        return
+    if args.role == "cars":
+        cars(args.keys, args.port, args.units, args.cars, args.proc, args.rate_hz, duration_s, args.work)
+        return
+    r = run(args.minutes, args.units, args.cars, args.car_procs, args.rate_hz)
+    print(
+        f"load: {r['units']} units × {r['rate_hz']:g} Hz → {r['cars']} cars ({r['car_processes']} car "
+        f"processes), {r['minutes']:g} min: {r['published']:,} alerts published, each car expects all"
+    )
+    print(
+        f"  lost: {r['lost_total']} in total, at most {r['lost_max_per_car']} per car, "
+        f"{r['cars_with_loss']} cars with any loss; verification failures {r['verification_failures'] or 0}; "
+        f"duplicates {r['duplicates']}; publisher ticks > 1 period late {r['publisher_late_over_one_period']}"
+    )
+    for name, (first, last) in r["rss_first_last_min_mib"].items():
+        print(f"  RSS {name:9s} first min {first:7.1f} MiB, last min {last:7.1f} MiB ({last - first:+.1f})")
+    print(f"  memory flat (every process grew < {FLAT_MIB:g} MiB): {r['rss_flat']}")
+    lags = r["lag_ms_p50_p99_max_per_proc"]
+    print(
+        "  generated → verified lag per car process, p50/p99/max ms: "
+        + "; ".join("/".join(f"{x:.1f}" for x in lag) for lag in lags)
+    )
+    print(
+        "  generated → arrived (zenoh callback) per car process, p50/p99/max ms: "
+        + "; ".join("/".join(f"{x:.1f}" for x in lag) for lag in r["arrival_ms_p50_p99_max_per_proc"])
+    )
+    print(f"  payloads taken off the cars' queues (verified or rejected): {r['handled_total']:,}")
+    if args.json:
+        args.json.write_text(json.dumps(r, indent=1) + "\n")
+
+
+if __name__ == "__main__":
+    main()
