@@ -69,6 +69,7 @@ from scipy.optimize import linear_sum_assignment
 from scipy.stats import chi2
 
 from makeway.frames import to_vehicle_frame
+from makeway.fuse.kalman import cv_predict
 from makeway.fuse.relation import classify_relation
 from makeway.messages import (
     EVBelief,
@@ -96,20 +97,6 @@ SOURCE = "fused"
 Observation = SirenObservation | LightObservation | V2XObservation
 
 _BARRED = 1e12
-
-
-def cv_predict(
-    state: np.ndarray, cov: np.ndarray, dt: float, accel_noise_mps2: float
-) -> tuple[np.ndarray, np.ndarray]:
-    """Constant-velocity prediction by ``dt`` (s) of states ``(…, 4)`` and covariances ``(…, 4, 4)``
-    (world frame ``x, y, v_x, v_y``) under white acceleration noise (m/s², per axis)."""
-    f = np.eye(4)
-    f[0, 2] = f[1, 3] = dt
-    q1 = accel_noise_mps2**2 * np.array([[dt**4 / 4, dt**3 / 2], [dt**3 / 2, dt**2]])
-    q = np.zeros((4, 4))
-    q[np.ix_([0, 2], [0, 2])] = q1
-    q[np.ix_([1, 3], [1, 3])] = q1
-    return state @ f.T, f @ cov @ f.T + q
 
 
 def polar_model(

@@ -52,6 +52,7 @@ import math
 import numpy as np
 
 from makeway.frames import to_vehicle_frame
+from makeway.fuse.kalman import cv_predict
 from makeway.fuse.relation import classify_relation
 from makeway.messages import EVBelief, EVRelation, SirenObservation
 
@@ -144,14 +145,7 @@ class SirenTrackFusion:
     def _predict(self, time_s: float) -> None:
         assert self.state_ is not None and self.cov_ is not None
         dt = max(0.0, time_s - self.time_s_)
-        f = np.eye(4)
-        f[0, 2] = f[1, 3] = dt
-        q1 = self.accel_noise_mps2**2 * np.array([[dt**4 / 4, dt**3 / 2], [dt**3 / 2, dt**2]])
-        q = np.zeros((4, 4))
-        q[np.ix_([0, 2], [0, 2])] = q1
-        q[np.ix_([1, 3], [1, 3])] = q1
-        self.state_ = f @ self.state_
-        self.cov_ = f @ self.cov_ @ f.T + q
+        self.state_, self.cov_ = cv_predict(self.state_, self.cov_, dt, self.accel_noise_mps2)
         self.time_s_ = time_s
 
     def _start(self, time_s: float, z: np.ndarray, r: np.ndarray) -> None:
