@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import hashlib
 import json
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -21,7 +21,7 @@ from makeway.perceive.vision.ev_classifier import EVTrackClassifier, load_crop_c
 from makeway.pipeline.video import run_video
 from makeway.track.sort import Sort
 
-__all__ = ["cached_clip", "record_clip"]
+__all__ = ["cached_clip", "cached_record", "record_clip"]
 
 
 class _Recorder:
@@ -116,29 +116,59 @@ def cached_clip(
     The cache key covers the clip (name and size), the head file's contents, :data:`RECORD_CONFIG`,
     ``max_frames`` and ``single_view``; returns ``(record, from_cache)``.
     """
-    video, head = Path(video), Path(head)
+    head = Path(head)
+
+    def record() -> ClipRecord:
+        clf = EVTrackClassifier(
+            load_crop_classifier(head, single_view=single_view, num_threads=1),
+            margin=RECORD_CONFIG["crop_margin"],
+            min_width=RECORD_CONFIG["min_width_px"],
+        )
+        return record_clip(video, clf, max_frames=max_frames, progress=progress)
+
+    key = {
+        "head": _sha256(head) if head.is_file() else str(head),
+        **({"single_view": True} if single_view else {}),
+    }
+    return cached_record(video, cache_dir, record, key=key, max_frames=max_frames)
+
+
+def cached_record(
+    video: str | Path,
+    cache_dir: str | Path,
+    record: Callable[[], ClipRecord],
+    *,
+    key: dict[str, Any],
+    max_frames: int | None = None,
+    tag: str = "",
+) -> tuple[ClipRecord, bool]:
+    """The :class:`ClipRecord` that ``record()`` makes of ``video``, cached in ``cache_dir`` as
+    ``<stem>.<tag><key>.npz``; returns ``(record, from_cache)``.
+
+    The cache key covers the clip (name and size), :data:`RECORD_CONFIG`, ``max_frames`` and the
+    caller's ``key`` entries (e.g. the classifier's file digest).
+
+    Raises:
+        InputError: the video is missing.
+    """
+    video = Path(video)
     if not video.is_file():
         raise InputError(video, "video not found")
     key_src = json.dumps(
         {
             "clip": video.name,
             "size": video.stat().st_size,
-            "head": _sha256(head) if head.is_file() else str(head),
             "config": RECORD_CONFIG,
             "max_frames": max_frames,
-            **({"single_view": True} if single_view else {}),
+            **key,
         },
         sort_keys=True,
     )
-    key = hashlib.sha256(key_src.encode()).hexdigest()[:16]
-    target = Path(cache_dir) / f"{video.stem}.{key}.npz"
+    digest = hashlib.sha256(key_src.encode()).hexdigest()[:16]
+    target = Path(cache_dir) / f"{video.stem}.{tag}{digest}.npz"
     if target.is_file():
         return ClipRecord.load(target), True
-    clf = EVTrackClassifier(
-        load_crop_classifier(head, single_view=single_view, num_threads=1),
-        margin=RECORD_CONFIG["crop_margin"],
-        min_width=RECORD_CONFIG["min_width_px"],
-    )
-    rec = record_clip(video, clf, max_frames=max_frames, progress=progress)
+    rec = record()
+    target.parent.mkdir(parents=True, exist_ok=True)
     rec.save(target)
     return rec, False

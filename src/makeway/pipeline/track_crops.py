@@ -13,8 +13,6 @@ near-identical frames of one vehicle never straddle a split.
 
 from __future__ import annotations
 
-import hashlib
-import json
 from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import Any
@@ -25,7 +23,7 @@ from makeway.errors import InputError
 from makeway.eval.actor_sweep import RECORD_CONFIG, TRACK_LABELS, ClipRecord, read_track_labels
 from makeway.messages import Box, EVObservation, Track
 from makeway.perceive.vision.crops import square_crop
-from makeway.pipeline.clip_record import record_clip
+from makeway.pipeline.clip_record import cached_record, record_clip
 from makeway.progress import progress_bar
 from makeway.sense.crops import write_crop_folder
 from makeway.sense.video import VideoReader
@@ -60,27 +58,14 @@ def cached_track_boxes(
     Raises:
         InputError: the video is missing or unreadable.
     """
-    video = Path(video)
-    if not video.is_file():
-        raise InputError(video, "video not found")
-    key_src = json.dumps(
-        {
-            "clip": video.name,
-            "size": video.stat().st_size,
-            "config": RECORD_CONFIG,
-            "max_frames": max_frames,
-            "boxes_only": True,
-        },
-        sort_keys=True,
+    return cached_record(
+        video,
+        cache_dir,
+        lambda: record_clip(video, _NoJudgement(), max_frames=max_frames, progress=progress),
+        key={"boxes_only": True},
+        max_frames=max_frames,
+        tag="boxes.",
     )
-    key = hashlib.sha256(key_src.encode()).hexdigest()[:16]
-    target = Path(cache_dir) / f"{video.stem}.boxes.{key}.npz"
-    if target.is_file():
-        return ClipRecord.load(target), True
-    rec = record_clip(video, _NoJudgement(), max_frames=max_frames, progress=progress)
-    target.parent.mkdir(parents=True, exist_ok=True)
-    rec.save(target)
-    return rec, False
 
 
 def _sampled_rows(rec: ClipRecord, every: int) -> dict[int, list[int]]:
