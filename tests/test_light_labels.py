@@ -10,16 +10,12 @@ import numpy as np
 import pytest
 
 from makeway.errors import InputError
+from makeway.perceive.vision.light_colour import Proposal, ProposalConfig, flash_score, lit_maps, propose
 from makeway.train.light_labels import (
     LabelRow,
-    Proposal,
-    ProposalConfig,
     export_yolo,
-    flash_score,
     image_name,
     link_tracklets,
-    lit_maps,
-    propose,
     read_labels,
     read_yolo,
     write_labels,
@@ -197,7 +193,7 @@ def test_wide_hue_preset_proposes_magenta_as_red_and_orange_glow_as_amber() -> N
     """A lit pink lamp (OpenCV hue 155) falls between the default red and blue ranges and is red under
     ``wide``; an orange glow (hue 12) is past the default red range (0-7) and is amber under ``wide``
     with amber proposed. Default settings propose neither."""
-    from makeway.train.light_labels import HSV_PRESETS, ProposalConfig, propose
+    from makeway.perceive.vision.light_colour import HSV_PRESETS, ProposalConfig, propose
 
     frame = np.zeros((120, 200, 3), np.uint8)
     hsv = np.zeros((20, 20, 3), np.uint8)

@@ -113,6 +113,28 @@ class Detection:
 
 
 @dataclass(frozen=True, slots=True)
+class LightDetection:
+    """One lit emergency light found in one image (pixels of that image, see :class:`Box`).
+
+    ``colour`` is one of ``blue``, ``red``, ``amber``, ``white``; ``score`` the detector's
+    confidence in ``[0, 1]``; ``frame`` the 0-based frame index in its video (0 for a still image).
+    """
+
+    box: Box
+    colour: str
+    score: float
+    frame: int = 0
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "frame": self.frame,
+            "box": self.box.to_dict(),
+            "colour": self.colour,
+            "score": round(self.score, 4),
+        }
+
+
+@dataclass(frozen=True, slots=True)
 class EVObservation:
     """A per-frame judgement that one tracked vehicle is an active emergency vehicle (SPEC §1).
 

@@ -48,14 +48,8 @@ def propose(
     Each proposal becomes an unchecked 'light' row (vehicle 0, its cues and score in the note); a
     frame without proposals gets a 'frame' row. The file is a starting point for a person to correct.
     """
-    from makeway.train.light_labels import (
-        COLOURS,
-        HSV_PRESETS,
-        ProposalConfig,
-        proposals_to_rows,
-        propose_video,
-        write_labels,
-    )
+    from makeway.perceive.vision.light_colour import COLOURS, HSV_PRESETS, ProposalConfig
+    from makeway.train.light_labels import proposals_to_rows, propose_video, write_labels
 
     chosen = tuple(c.strip() for c in colours.split(",") if c.strip())
     bad = [c for c in chosen if c not in COLOURS or c == "white"]
