@@ -43,7 +43,7 @@ from __future__ import annotations
 import csv
 import math
 import re
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -289,6 +289,45 @@ def _parse_row(where: str, lineno: int, fields: list[str], width: int, height: i
 
 
 # ------------------------------------------------------------------------------------------ YOLO export
+def source_path(source: str, data_root: str | Path) -> Path:
+    """Where a label file's ``source`` lives: a video (``*.mp4`` …) under ``<data_root>/video/``, an
+    image folder (such as ``ambulance_yolo/valid/images``) under ``<data_root>/vision/``."""
+    root = Path(data_root)
+    if Path(source).suffix.lower() in {".mp4", ".avi", ".mov", ".mkv", ".webm"}:
+        return root / "video" / source
+    return root / "vision" / source
+
+
+def iter_label_frames(
+    labels: LabelFile, data_root: str | Path, *, keys: Iterable[str] | None = None
+) -> Iterator[tuple[str, np.ndarray]]:
+    """``(frame key, BGR image)`` for the frames of a label file, in source order.
+
+    A video source is decoded once, yielding the frames whose index is in ``keys`` (default: every
+    frame the label file has rows for); an image-folder source yields each named image. A missing
+    source or image, or one that cannot be decoded, raises :class:`InputError` naming it.
+    """
+    from makeway.sense.video import VideoReader
+
+    wanted = set(labels.frames()) if keys is None else set(keys)
+    path = source_path(labels.source, data_root)
+    if not path.exists():
+        raise InputError(str(labels.path), f"source {labels.source!r} not found at {path}")
+    if path.is_dir():
+        for key in sorted(wanted):
+            img_path = path / key
+            img = cv2.imread(str(img_path), cv2.IMREAD_COLOR)
+            if img is None:
+                raise InputError(str(img_path), "missing or not a decodable image")
+            yield key, img
+        return
+    last = max((int(k) for k in wanted if k.isdigit()), default=-1)
+    with VideoReader(path, max_frames=last + 1 if last >= 0 else None) as reader:
+        for index, _t, frame in reader:
+            if str(index) in wanted:
+                yield str(index), frame
+
+
 def image_name(source: str, frame: str) -> str:
     """The image stem for a frame of a source: ``<source stem>_<frame:06d>`` for a video frame index,
     ``<image stem>`` for an image name."""

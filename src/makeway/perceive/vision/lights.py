@@ -21,7 +21,14 @@ from makeway.messages import Box, LightDetection
 from makeway.perceive.vision.light_colour import COLOURS, HSV_PRESETS, ProposalConfig, propose
 from makeway.registry import Registry
 
-__all__ = ["COLOUR_SETS", "LIGHT_DETECTORS", "ColourLightDetector", "LightDetector", "colour_set"]
+__all__ = [
+    "COLOUR_SETS",
+    "DEFAULT_LIGHT_DETECTOR",
+    "LIGHT_DETECTORS",
+    "ColourLightDetector",
+    "LightDetector",
+    "colour_set",
+]
 
 #: Emergency-light colours per jurisdiction. ``eu`` (the default, as seed 004): blue, and the bluish
 #: white of blue LEDs; ``us``: red, blue and white; ``uk_amber`` adds amber (recovery and
@@ -63,6 +70,9 @@ class LightDetector(Protocol):
 
 
 LIGHT_DETECTORS: Registry[type[LightDetector]] = Registry("light detector")
+
+#: The detector a command uses when none is named.
+DEFAULT_LIGHT_DETECTOR = "colour"
 
 
 @LIGHT_DETECTORS.register("colour")
