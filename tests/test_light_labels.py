@@ -267,5 +267,5 @@ def test_label_frames_name_a_missing_image(tmp_path: Path) -> None:
 
     (tmp_path / "vision" / "set").mkdir(parents=True)
     lab = LabelFile(tmp_path / "x.csv", "set", 0, 0, [LabelRow("a.jpg", True, "frame", None, "", None)])
-    with pytest.raises(InputError, match="a.jpg"):
+    with pytest.raises(InputError, match=r"a\.jpg"):
         list(iter_label_frames(lab, tmp_path))
