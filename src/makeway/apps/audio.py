@@ -262,7 +262,7 @@ def evaluate_recordings(
     localizer: str | Path | None = None,
     ranger: Sequence[str | Path] | None = None,
     threads: int | None = None,
-    smooth: int = 1,
+    smooth: int = LISTEN_SMOOTH,
     average: str = SMOOTH_AVERAGE,
     full_scale_db_spl: float | None = None,
     approach: bool = False,
@@ -272,9 +272,11 @@ def evaluate_recordings(
     (:func:`makeway.eval.siren.evaluate`): the siren networks (shipped unless named), or with
     ``baseline`` a classical bearing method with the band-energy detector (its constants fitted on
     the recordings under ``fit`` when given). ``smooth`` windows are averaged for each decision
-    (``average``: their logits or probabilities); ``full_scale_db_spl`` is the calibration assumed
-    for recordings whose ``array.yaml`` states none. With ``approach``, the approaching/receding
-    call is scored too (the networks run a second time).
+    (``average``: their logits or probabilities; the default is ``audio listen``'s, so the score is
+    that of the decision a user gets, and ``smooth=1`` scores each window alone);
+    ``full_scale_db_spl`` is the calibration assumed for recordings whose ``array.yaml`` states
+    none. With ``approach``, the approaching/receding call is scored too (the networks run a second
+    time).
 
     Returns the scores of :func:`makeway.eval.siren.evaluate` with ``data``, ``seconds`` (wall), the
     localizer and rangers used, ``approach`` and the fitted ``detector`` constants where they apply.

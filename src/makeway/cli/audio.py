@@ -271,9 +271,10 @@ def eval_cmd(
         typer.Option(
             min=1,
             help="Decide on the mean of each window and the K-1 before it, as "
-            "'audio listen --smooth K' does live (default: 1, each window decided alone).",
+            "'audio listen --smooth K' does live. The default is listen's own, so the score is that "
+            "of the decision a user gets; --smooth 1 scores each window alone.",
         ),
-    ] = 1,
+    ] = LISTEN_SMOOTH,
     average: AverageOption = SMOOTH_AVERAGE,
     full_scale_db_spl: FullScaleOption = None,
     approach: Annotated[
