@@ -376,3 +376,17 @@ def test_cli_proposes_and_draws_sheets_on_an_image_folder(data_root: Path, tmp_p
     assert sorted(p.stem for p in (tmp_path / "y/labels").glob("*.txt")) == sorted(
         Path(n).stem for n in names
     )
+
+
+def test_ambulance_yolo_labels_cover_the_folder_and_fit_their_images(data_root: Path) -> None:
+    """The shipped ambulance_yolo/valid labels: one row group per image of the folder, per-image sizes,
+    and every box of a checked positive image inside that image (docs/data_card_lights.md)."""
+    from makeway.train.light_labels import folder_images, iter_label_frames
+
+    lab = read_labels(LABELS / "ambulance_yolo.csv")
+    assert (lab.source, lab.per_image) == (YOLO_VALID, True)
+    assert set(lab.frames()) == set(folder_images(data_root / "vision" / YOLO_VALID))
+    counts = lab.counts()
+    assert counts["positive_frames"] >= 50 and counts["negative_frames"] >= 300
+    positive = [k for k, v in lab.frames().items() if v[0].checked and any(r.kind == "light" for r in v)]
+    assert len(list(iter_label_frames(lab, data_root, keys=positive))) == len(positive)
