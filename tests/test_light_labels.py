@@ -269,3 +269,124 @@ def test_label_frames_name_a_missing_image(tmp_path: Path) -> None:
     lab = LabelFile(tmp_path / "x.csv", "set", 0, 0, [LabelRow("a.jpg", True, "frame", None, "", None)])
     with pytest.raises(InputError, match=r"a\.jpg"):
         list(iter_label_frames(lab, tmp_path))
+
+
+# ------------------------------------------------------------------------------------------ image folders
+YOLO_VALID = "ambulance_yolo/valid/images"
+
+
+def _folder_of_two_sizes(root: Path) -> Path:
+    """``root/vision/set`` with a 200×100 and a 80×120 image (black, one lit blue square each)."""
+    folder = root / "vision" / "set"
+    folder.mkdir(parents=True)
+    wide = np.zeros((100, 200, 3), np.uint8)
+    wide[40:52, 150:170] = (255, 80, 0)
+    tall = np.zeros((120, 80, 3), np.uint8)
+    tall[10:22, 10:30] = (255, 80, 0)
+    cv2.imwrite(str(folder / "wide.png"), wide)
+    cv2.imwrite(str(folder / "tall.png"), tall)
+    return folder
+
+
+def test_per_image_size_reads_and_rejects_negative_boxes(tmp_path: Path) -> None:
+    head = "# source: set\n# width: 0\n# height: 0\nframe,checked,kind,x1,y1,x2,y2,colour,vehicle,note\n"
+    good = tmp_path / "good.csv"
+    good.write_text(head + "a.png,1,light,900,10,920,20,blue,1,\n", encoding="utf-8")
+    lab = read_labels(good)
+    assert lab.per_image and lab.rows[0].box == (900, 10, 920, 20)  # checked against the image later
+    for n, row in enumerate(("a.png,1,light,-1,10,20,20,blue,1,\n", "a.png,1,light,30,10,20,20,blue,1,\n")):
+        bad = tmp_path / f"bad{n}.csv"
+        bad.write_text(head + row, encoding="utf-8")
+        with pytest.raises(InputError, match=rf"bad{n}\.csv:5: .*empty or negative"):
+            read_labels(bad)
+    half = tmp_path / "half.csv"
+    half.write_text(head.replace("# height: 0", "# height: 360"), encoding="utf-8")
+    with pytest.raises(InputError, match="both 0"):
+        read_labels(half)
+
+
+def test_label_frames_check_boxes_against_each_image(tmp_path: Path) -> None:
+    from makeway.train.light_labels import iter_label_frames
+
+    _folder_of_two_sizes(tmp_path)
+    rows = [
+        LabelRow("wide.png", True, "light", (150, 40, 170, 52), "blue", 1),
+        LabelRow("tall.png", True, "light", (10, 10, 90, 22), "blue", 2),  # 90 > 80: outside
+    ]
+    write_labels(tmp_path / "l.csv", "set", 0, 0, rows)
+    lab = read_labels(tmp_path / "l.csv")
+    got = iter_label_frames(lab, tmp_path, keys=["wide.png"])
+    assert [(k, img.shape) for k, img in got] == [("wide.png", (100, 200, 3))]
+    with pytest.raises(InputError) as err:
+        list(iter_label_frames(lab, tmp_path))
+    message = str(err.value)
+    assert message.startswith(f"{tmp_path / 'l.csv'}:6: frame tall.png: ") and "80x120" in message
+    from makeway.train.light_labels import LabelFile
+
+    empty = LabelFile(tmp_path / "e.csv", "set", 0, 0, [])
+    every = [k for k, _ in iter_label_frames(empty, None, source=tmp_path / "vision" / "set", every=True)]
+    assert every == ["tall.png", "wide.png"]
+
+
+def test_export_normalises_each_image_by_its_own_size(tmp_path: Path) -> None:
+    _folder_of_two_sizes(tmp_path)
+    rows = [
+        LabelRow("wide.png", True, "light", (150, 40, 170, 52), "blue", 1),
+        LabelRow("tall.png", True, "light", (10, 10, 30, 22), "blue", 2),
+    ]
+    write_labels(tmp_path / "l.csv", "set", 0, 0, rows)
+    lab = read_labels(tmp_path / "l.csv")
+    with pytest.raises(InputError, match="data root"):
+        export_yolo([lab], tmp_path / "y")
+    assert export_yolo([lab], tmp_path / "y", data_root=tmp_path) == {"images": 2, "boxes": 2}
+    assert (tmp_path / "y/labels/wide.txt").read_text() == "0 0.800000 0.460000 0.100000 0.120000\n"
+    assert (tmp_path / "y/labels/tall.txt").read_text() == "0 0.250000 0.133333 0.250000 0.100000\n"
+    assert read_yolo(tmp_path / "y/labels/tall.txt", 80, 120) == [(0, (10, 10, 30, 22), None)]
+
+
+def test_cli_proposes_and_draws_sheets_on_an_image_folder(data_root: Path, tmp_path: Path) -> None:
+    """`propose` on the real ambulance_yolo folder limited to three names writes a per-image file
+    whose source is the folder under vision/; `sheets` draws those images; `export` writes them."""
+    from typer.testing import CliRunner
+
+    from makeway.cli.main import app
+
+    folder = data_root / "vision" / YOLO_VALID
+    names = sorted(p.name for p in folder.glob("*.jpg"))[:3]
+    (tmp_path / "names.txt").write_text("# three\n" + "\n".join(names) + "\n", encoding="utf-8")
+    out = tmp_path / "p.csv"
+    args = ["light-labels", "propose", str(folder), str(out), "--names", str(tmp_path / "names.txt")]
+    result = CliRunner().invoke(app, [*args, "--colours", "blue,red,amber", "--hue", "wide"])
+    assert result.exit_code == 0, result.output
+    lab = read_labels(out)
+    assert (lab.source, lab.width, lab.height) == (YOLO_VALID, 0, 0)
+    assert list(lab.frames()) == names and not any(r.checked for r in lab.rows)
+    result = CliRunner().invoke(
+        app, ["light-labels", "sheets", str(folder), str(out), str(tmp_path / "s"), "--tile", "320x240"]
+    )
+    assert result.exit_code == 0, result.output
+    sheet = cv2.imread(str(tmp_path / "s" / "sheet_000.png"))
+    assert sheet.shape == (3 * 240, 2 * 320, 3)
+    checked = [
+        LabelRow(r.frame, True, r.kind, r.box, r.colour, 1 if r.kind == "light" else None) for r in lab.rows
+    ]
+    write_labels(out, lab.source, 0, 0, checked)
+    result = CliRunner().invoke(app, ["light-labels", "export", str(out), "-o", str(tmp_path / "y")])
+    assert result.exit_code == 0, result.output
+    assert sorted(p.stem for p in (tmp_path / "y/labels").glob("*.txt")) == sorted(
+        Path(n).stem for n in names
+    )
+
+
+def test_ambulance_yolo_labels_cover_the_folder_and_fit_their_images(data_root: Path) -> None:
+    """The shipped ambulance_yolo/valid labels: one row group per image of the folder, per-image sizes,
+    and every box of a checked positive image inside that image (docs/data_card_lights.md)."""
+    from makeway.train.light_labels import folder_images, iter_label_frames
+
+    lab = read_labels(LABELS / "ambulance_yolo.csv")
+    assert (lab.source, lab.per_image) == (YOLO_VALID, True)
+    assert set(lab.frames()) == set(folder_images(data_root / "vision" / YOLO_VALID))
+    counts = lab.counts()
+    assert counts["positive_frames"] >= 50 and counts["negative_frames"] >= 300
+    positive = [k for k, v in lab.frames().items() if v[0].checked and any(r.kind == "light" for r in v)]
+    assert len(list(iter_label_frames(lab, data_root, keys=positive))) == len(positive)

@@ -34,7 +34,11 @@ The label file is CSV, one file per source (video or image folder)::
 colour and vehicle required), ``negative`` (a rejected proposal or other lit non-emergency light:
 box required, colour optional) or ``frame`` (a frame with no boxes, to record that it was seen).
 Boxes are integer pixels ``x1,y1`` (top-left, inclusive) to ``x2,y2`` (exclusive) in the source
-image, ``0 <= x1 < x2 <= width``, ``0 <= y1 < y2 <= height``. ``vehicle`` is an integer id unique
+image, ``0 <= x1 < x2 <= width``, ``0 <= y1 < y2 <= height``. An image folder whose images differ in
+size (``# source: ambulance_yolo/valid/images``, a folder under the data root's ``vision/``) writes
+``# width: 0`` and ``# height: 0``, meaning "per image": the reader then checks only that boxes are
+non-empty and non-negative, and :func:`iter_label_frames` checks them against each image's size when
+it opens the image. ``vehicle`` is an integer id unique
 within the source: the same physical vehicle keeps its id across frames.
 """
 
@@ -89,6 +93,11 @@ class LabelFile:
     width: int
     height: int
     rows: list[LabelRow]
+
+    @property
+    def per_image(self) -> bool:
+        """Whether the image size is per image (``width``/``height`` 0 in the header)."""
+        return self.width == 0 and self.height == 0
 
     def frames(self) -> dict[str, list[LabelRow]]:
         """Frame key → its rows, in first-appearance order."""
@@ -154,20 +163,24 @@ def propose_video(
 
 
 # ------------------------------------------------------------------------------------------ label file
-def proposals_to_rows(proposals: Iterable[Proposal], frames: Iterable[int]) -> list[LabelRow]:
+def proposals_to_rows(
+    proposals: Iterable[Proposal], frames: Iterable[int], *, keys: Sequence[str] | None = None
+) -> list[LabelRow]:
     """Unchecked label rows from proposals: each proposal a ``light`` row with vehicle 0 (to be
-    corrected by a person), and a ``frame`` row for each frame without proposals."""
+    corrected by a person), and a ``frame`` row for each frame without proposals. The frame key is
+    the frame index, or ``keys[index]`` (an image name) when ``keys`` is given."""
     by_frame: dict[int, list[Proposal]] = {}
     for p in proposals:
         by_frame.setdefault(p.frame, []).append(p)
     rows = []
     for f in frames:
         props = by_frame.get(f, [])
+        key = keys[f] if keys is not None else str(f)
         if not props:
-            rows.append(LabelRow(str(f), False, "frame", None, "", None))
+            rows.append(LabelRow(key, False, "frame", None, "", None))
         for p in props:
             note = "+".join(p.cues) + f" {p.score:.2f}"
-            rows.append(LabelRow(str(f), False, "light", p.box, p.colour, 0, note))
+            rows.append(LabelRow(key, False, "light", p.box, p.colour, 0, note))
     return rows
 
 
@@ -195,7 +208,8 @@ def read_labels(path: str | Path) -> LabelFile:
     Raises :class:`~makeway.errors.InputError` naming ``file:line`` and the problem for: a missing
     ``width``/``height``/``source`` comment, a wrong header, a row with the wrong number of fields, a
     non-integer frame index for a video source, ``checked`` not 0/1, an unknown kind or colour, a
-    missing or non-integer box, a box outside the image or empty, a light without a vehicle id, a
+    missing or non-integer box, a box outside the image or empty (with a per-image size, ``width``
+    and ``height`` 0: a negative or empty box), a light without a vehicle id, a
     frame whose rows disagree on ``checked``, a ``frame`` row beside boxes of the same frame.
     """
     p = Path(path)
@@ -230,8 +244,8 @@ def read_labels(path: str | Path) -> LabelFile:
                 width, height = int(meta["width"]), int(meta["height"])
             except ValueError:
                 raise InputError(where, "width and height must be integers") from None
-            if width <= 0 or height <= 0:
-                raise InputError(where, "width and height must be positive")
+            if (width, height) != (0, 0) and (width <= 0 or height <= 0):
+                raise InputError(where, "width and height must be positive (or both 0: per image)")
             continue
         rows.append(_parse_row(where, lineno, fields, width, height, meta["source"]))
     if not header_seen:
@@ -269,7 +283,10 @@ def _parse_row(where: str, lineno: int, fields: list[str], width: int, height: i
             x1, y1, x2, y2 = (int(v) for v in box_s)
         except ValueError:
             raise InputError(where, f"box x1,y1,x2,y2 must be integers, not {','.join(box_s)!r}") from None
-        if not (0 <= x1 < x2 <= width and 0 <= y1 < y2 <= height):
+        if width == 0 and height == 0:
+            if not (0 <= x1 < x2 and 0 <= y1 < y2):
+                raise InputError(where, f"box ({x1},{y1},{x2},{y2}) is empty or negative")
+        elif not (0 <= x1 < x2 <= width and 0 <= y1 < y2 <= height):
             raise InputError(
                 where, f"box ({x1},{y1},{x2},{y2}) is empty or outside the {width}x{height} image"
             )
@@ -298,34 +315,136 @@ def source_path(source: str, data_root: str | Path) -> Path:
     return root / "vision" / source
 
 
+IMAGE_SUFFIXES: tuple[str, ...] = (".jpg", ".jpeg", ".png", ".bmp")
+
+
+def folder_images(folder: str | Path) -> list[str]:
+    """The image file names (``*.jpg``, ``*.jpeg``, ``*.png``, ``*.bmp``) of a folder, sorted."""
+    return sorted(q.name for q in Path(folder).iterdir() if q.suffix.lower() in IMAGE_SUFFIXES)
+
+
 def iter_label_frames(
-    labels: LabelFile, data_root: str | Path, *, keys: Iterable[str] | None = None
+    labels: LabelFile,
+    data_root: str | Path | None,
+    *,
+    keys: Iterable[str] | None = None,
+    source: str | Path | None = None,
+    every: bool = False,
 ) -> Iterator[tuple[str, np.ndarray]]:
     """``(frame key, BGR image)`` for the frames of a label file, in source order.
 
-    A video source is decoded once, yielding the frames whose index is in ``keys`` (default: every
-    frame the label file has rows for); an image-folder source yields each named image. A missing
-    source or image, or one that cannot be decoded, raises :class:`InputError` naming it.
+    The source is ``source`` when given, else the label file's ``source`` resolved under
+    ``data_root`` (:func:`source_path`). A video is decoded once, yielding the frames whose index is
+    in ``keys`` (default: every frame the label file has rows for; ``every``: all frames); an image
+    folder yields each named image (``every``: all images of the folder, sorted by name). With a
+    per-image size (``width``/``height`` 0) each box of an image is checked against that image's size.
+    A missing source or image, one that cannot be decoded, or a box outside its image raises
+    :class:`InputError` naming the file, the frame and the problem.
     """
     from makeway.sense.video import VideoReader
 
     wanted = set(labels.frames()) if keys is None else set(keys)
-    path = source_path(labels.source, data_root)
+    if source is not None:
+        path = Path(source)
+    elif data_root is not None:
+        path = source_path(labels.source, data_root)
+    else:
+        raise InputError(str(labels.path), "no data root to find the source in")
     if not path.exists():
         raise InputError(str(labels.path), f"source {labels.source!r} not found at {path}")
+    by_frame = labels.frames()
     if path.is_dir():
-        for key in sorted(wanted):
+        for key in folder_images(path) if every else sorted(wanted):
             img_path = path / key
             img = cv2.imread(str(img_path), cv2.IMREAD_COLOR)
             if img is None:
-                raise InputError(str(img_path), "missing or not a decodable image")
+                raise InputError(str(img_path), f"frame {key}: missing or not a decodable image")
+            _check_boxes_fit(labels, key, by_frame.get(key, []), img.shape[1], img.shape[0])
             yield key, img
         return
     last = max((int(k) for k in wanted if k.isdigit()), default=-1)
-    with VideoReader(path, max_frames=last + 1 if last >= 0 else None) as reader:
+    limit = None if every or last < 0 else last + 1
+    with VideoReader(path, max_frames=limit) as reader:
         for index, _t, frame in reader:
-            if str(index) in wanted:
+            if every or str(index) in wanted:
                 yield str(index), frame
+
+
+def _check_boxes_fit(labels: LabelFile, key: str, rows: Sequence[LabelRow], width: int, height: int) -> None:
+    for r in rows:
+        if r.box is None:
+            continue
+        x1, y1, x2, y2 = r.box
+        if not (0 <= x1 < x2 <= width and 0 <= y1 < y2 <= height):
+            raise InputError(
+                f"{labels.path}:{r.line}",
+                f"frame {key}: box ({x1},{y1},{x2},{y2}) is outside the {width}x{height} image",
+            )
+
+
+def propose_folder(
+    folder: str | Path, config: ProposalConfig | None = None, *, names: Sequence[str] | None = None
+) -> tuple[list[Proposal], list[str]]:
+    """Proposals for each image of a folder (or only the images in ``names``), in name order.
+
+    A proposal's ``frame`` is the index of its image in the returned name list (no flashing cue:
+    a still image has no time). An image that is missing or cannot be decoded raises
+    :class:`InputError` naming it.
+    """
+    cfg = config or ProposalConfig()
+    root = Path(folder)
+    available = folder_images(root)
+    if names is not None:
+        missing = sorted(set(names) - set(available))
+        if missing:
+            raise InputError(root / missing[0], f"not an image of the folder ({len(missing)} names missing)")
+        chosen = sorted(set(names))
+    else:
+        chosen = available
+    out: list[Proposal] = []
+    for i, name in enumerate(chosen):
+        img = cv2.imread(str(root / name), cv2.IMREAD_COLOR)
+        if img is None:
+            raise InputError(root / name, "not a decodable image")
+        out.extend(propose(img, cfg, frame=i))
+    return out, chosen
+
+
+def propose_to_file(
+    source: str | Path,
+    out: str | Path,
+    config: ProposalConfig | None = None,
+    *,
+    stride: int = 1,
+    window_s: float = 0.6,
+    names: Sequence[str] | None = None,
+    data_root: str | Path | None = None,
+) -> dict[str, int]:
+    """Propose lit lights on a video (every ``stride``-th frame, with the flashing cue) or an image
+    folder (each image, or the ``names`` given) and write an unchecked label file to ``out``.
+
+    A video's ``# source`` is its file name; a folder's is its path relative to
+    ``<data_root>/vision`` when it lies there (else its absolute path), with ``width``/``height`` 0
+    (per image). Returns counts: proposals, frames.
+    """
+    src = Path(source)
+    if not src.exists():
+        raise InputError(src, "no such video or image folder")
+    if src.is_dir():
+        props, keys = propose_folder(src, config, names=names)
+        label_source = str(src.resolve())
+        if data_root is not None:
+            vision = (Path(data_root) / "vision").resolve()
+            if src.resolve().is_relative_to(vision):
+                label_source = src.resolve().relative_to(vision).as_posix()
+        rows = proposals_to_rows(props, range(len(keys)), keys=keys)
+        write_labels(out, label_source, 0, 0, rows)
+        return {"proposals": len(props), "frames": len(keys)}
+    if names is not None:
+        raise InputError(src, "a list of image names needs an image folder, not a video")
+    vprops, width, height, frames = propose_video(src, config, stride=stride, window_s=window_s)
+    write_labels(out, src.name, width, height, proposals_to_rows(vprops, frames))
+    return {"proposals": len(vprops), "frames": len(frames)}
 
 
 def image_name(source: str, frame: str) -> str:
@@ -337,7 +456,11 @@ def image_name(source: str, frame: str) -> str:
 
 
 def export_yolo(
-    labels: Sequence[LabelFile], out: str | Path, *, single_class: bool = False
+    labels: Sequence[LabelFile],
+    out: str | Path,
+    *,
+    single_class: bool = False,
+    data_root: str | Path | None = None,
 ) -> dict[str, int]:
     """Write the checked frames of ``labels`` in YOLO layout, ABLDataset style.
 
@@ -346,6 +469,8 @@ def export_yolo(
     without lights gets an empty file (a negative image). ``out/test_id/<image>.txt``: the light's
     vehicle id row by row in the same order (ABLDataset's ``test_id`` grouping: rows with equal ids
     belong to the same vehicle). ``out/classes.txt`` names the classes. Unchecked frames are skipped.
+    A label file with a per-image size (``width``/``height`` 0) normalises by each image's size, read
+    from its source under ``data_root`` (:func:`iter_label_frames`, which also checks the boxes fit).
     Returns counts: images, boxes.
     """
     root = Path(out)
@@ -355,9 +480,18 @@ def export_yolo(
     (root / "classes.txt").write_text("\n".join(classes) + "\n", encoding="utf-8")
     images = boxes = 0
     for lf in labels:
-        for frame, rows in lf.frames().items():
+        frames = lf.frames()
+        sizes: dict[str, tuple[int, int]] = {}
+        if lf.per_image:
+            checked = [k for k, v in frames.items() if v[0].checked]
+            if data_root is None and checked:
+                raise InputError(str(lf.path), "per-image sizes (width 0): the export needs the data root")
+            for key, img in iter_label_frames(lf, data_root, keys=checked):
+                sizes[key] = (img.shape[1], img.shape[0])
+        for frame, rows in frames.items():
             if not rows[0].checked:
                 continue
+            width, height = sizes.get(frame, (lf.width, lf.height))
             name = image_name(lf.source, frame)
             lines, ids = [], []
             for r in rows:
@@ -365,8 +499,8 @@ def export_yolo(
                     continue
                 x1, y1, x2, y2 = r.box
                 cls = 0 if single_class else COLOURS.index(r.colour)
-                cx, cy = (x1 + x2) / 2 / lf.width, (y1 + y2) / 2 / lf.height
-                bw, bh = (x2 - x1) / lf.width, (y2 - y1) / lf.height
+                cx, cy = (x1 + x2) / 2 / width, (y1 + y2) / 2 / height
+                bw, bh = (x2 - x1) / width, (y2 - y1) / height
                 lines.append(f"{cls} {cx:.6f} {cy:.6f} {bw:.6f} {bh:.6f}")
                 ids.append(str(r.vehicle))
             (root / "labels" / f"{name}.txt").write_text("".join(s + "\n" for s in lines), encoding="utf-8")
@@ -450,11 +584,15 @@ def contact_sheets(
     columns: int = 2,
     rows_per_sheet: int = 3,
     scale: float = 0.5,
+    tile: tuple[int, int] | None = None,
 ) -> list[Path]:
     """Write PNG grids of frames with their label rows drawn (:func:`draw_boxes`), each frame
     captioned with its key, its number of lights and negatives and ``checked``/``unchecked``.
     ``frames`` yields ``(frame key, BGR image)``; frames absent from ``labels`` are drawn without
-    boxes. Returns the sheet paths (``sheet_000.png``, … in frame order)."""
+    boxes. Each frame is scaled by ``scale``, or, with ``tile`` (width, height in sheet pixels),
+    fitted into that tile keeping its aspect ratio and padded with black (for image folders whose
+    images differ in size; without ``tile`` a frame whose size differs from the first is fitted to
+    the first's tile). Returns the sheet paths (``sheet_000.png``, … in frame order)."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     by_frame = labels.frames()
@@ -474,17 +612,24 @@ def contact_sheets(
         paths.append(path)
         batch.clear()
 
+    size = tile
     for key, img in frames:
         rows = by_frame.get(key, [])
-        tile = draw_boxes(img, rows, scale)
+        if size is None:
+            size = (round(img.shape[1] * scale), round(img.shape[0] * scale))
+        fit = min(size[0] / img.shape[1], size[1] / img.shape[0])
+        drawn = draw_boxes(img, rows, fit)
+        tile_img = np.zeros((size[1], size[0], 3), np.uint8)
+        h, w = min(size[1], drawn.shape[0]), min(size[0], drawn.shape[1])
+        tile_img[:h, :w] = drawn[:h, :w]
         lights = sum(r.kind == "light" for r in rows)
         negs = sum(r.kind == "negative" for r in rows)
         state = "checked" if rows and rows[0].checked else "unchecked"
         caption = f"{key}  L{lights} N{negs} {state}"
-        cv2.rectangle(tile, (0, 0), (tile.shape[1] - 1, tile.shape[0] - 1), (80, 80, 80), 1)
-        cv2.putText(tile, caption, (6, 16), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (0, 0, 0), 3, cv2.LINE_AA)
-        cv2.putText(tile, caption, (6, 16), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (0, 255, 255), 1, cv2.LINE_AA)
-        batch.append(tile)
+        cv2.rectangle(tile_img, (0, 0), (tile_img.shape[1] - 1, tile_img.shape[0] - 1), (80, 80, 80), 1)
+        cv2.putText(tile_img, caption, (6, 16), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (0, 0, 0), 3, cv2.LINE_AA)
+        cv2.putText(tile_img, caption, (6, 16), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (0, 255, 255), 1, cv2.LINE_AA)
+        batch.append(tile_img)
         if len(batch) == per:
             flush()
     flush()
