@@ -1,12 +1,17 @@
-"""``makeway detect``: the detector → tracker → crop classifier → smoother pipeline on a video."""
+"""``makeway detect``: the detector → tracker → active-EV rule (lights and/or crop classifier) →
+smoother pipeline on a video."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
-from makeway.pipeline.video import VideoRunSummary, run_video
+from makeway.pipeline.video import DEFAULT_LIGHTS, VideoRunSummary, run_video
+from makeway.track.lights import ACTIVE_RULES
 
-__all__ = ["detect"]
+__all__ = ["DEFAULT_RULE", "detect"]
+
+#: The active-EV rule ``makeway detect`` uses when none is named (see :func:`detect`).
+DEFAULT_RULE = "lights"
 
 
 def detect(
@@ -23,9 +28,19 @@ def detect(
     classify_every: int = 1,
     single_view: bool = False,
     progress: bool = True,
+    rule: str = DEFAULT_RULE,
+    light_detector: str = DEFAULT_LIGHTS[0],
+    colours: str = DEFAULT_LIGHTS[1],
 ) -> VideoRunSummary:
-    """Detect, track and (with a ``classifier``) judge the vehicles of ``video``; write the annotated
-    video, ``tracks.jsonl`` and ``summary.json`` to ``out`` (default ``makeway_out/<video stem>``).
+    """Detect, track and judge the vehicles of ``video``; write the annotated video, ``tracks.jsonl``
+    and ``summary.json`` to ``out`` (default ``makeway_out/<video stem>``).
+
+    ``rule`` says what makes a vehicle track an active EV (:class:`makeway.pipeline.video.VisionPipeline`):
+    ``lights`` (default: lit emergency lights, preferably flashing, on or above its box, through the
+    smoother), ``lights+crop`` (flashing lights, or lit lights the crop classifier confirms) or
+    ``crop`` (the crop classifier alone; without one, no track is judged). The lights rules use the
+    light detector ``light_detector`` (registry name) with the colour set ``colours``, and each
+    ``tracks.jsonl`` line then also lists the frame's ``lights``.
 
     ``classifier`` is a shipped crop classifier name (``default``, ``fast``, ``fastest``,
     ``imagenet``), a model file (``.npz`` head or ``.onnx`` CNN) or ``none``; it judges each track on
@@ -38,8 +53,10 @@ def detect(
             an unknown classifier name lists the shipped ones).
         UnknownNameError: an unknown detector (lists the known ones).
     """
+    if rule not in ACTIVE_RULES:
+        raise ValueError(f"unknown rule {rule!r}; choose from: {', '.join(ACTIVE_RULES)}")
     track_classifier = None
-    if classifier.strip().lower() != "none":
+    if classifier.strip().lower() != "none" and rule != "lights":
         from makeway.perceive.vision.ev_classifier import EVTrackClassifier, load_crop_classifier
 
         crop_classifier = load_crop_classifier(classifier, single_view=single_view)
@@ -57,4 +74,7 @@ def detect(
         write_video=write_video,
         classifier=track_classifier,
         progress=progress,
+        rule=rule,
+        light_detector=light_detector,
+        light_colours=colours,
     )

@@ -46,8 +46,10 @@ from makeway.messages import Box, LightDetection, Track
 from makeway.perceive.vision.light_colour import DEFAULT_HSV
 
 __all__ = [
+    "ACTIVE_RULES",
     "LightTrack",
     "LightTracker",
+    "active_probability",
     "flash_stats",
     "vehicle_light_evidence",
 ]
@@ -113,7 +115,19 @@ def flash_stats(times_s: Sequence[float], on: Sequence[bool]) -> tuple[int, floa
 class _Light:
     """A live light track's state (internal)."""
 
-    __slots__ = ("box", "colour", "first_s", "history", "id", "last_seen_s", "peak", "score", "seen", "size", "state")
+    __slots__ = (
+        "box",
+        "colour",
+        "first_s",
+        "history",
+        "id",
+        "last_seen_s",
+        "peak",
+        "score",
+        "seen",
+        "size",
+        "state",
+    )
 
     def __init__(self, track_id: int, det: LightDetection, t_s: float) -> None:
         self.id = track_id
@@ -285,7 +299,9 @@ class LightTracker:
             k, hz, duty = flash_stats(times, states)
             flashing = (
                 peak >= self.min_peak_px
-                and k >= self.min_transitions and self.min_hz <= hz <= self.max_hz and 0.05 < duty < 0.95
+                and k >= self.min_transitions
+                and self.min_hz <= hz <= self.max_hz
+                and 0.05 < duty < 0.95
             )
             out.append(
                 LightTrack(
@@ -299,27 +315,69 @@ def vehicle_light_evidence(
     vehicles: Sequence[Track],
     lights: Sequence[LightTrack],
     *,
-    band: float = 0.5,
+    band: float = 0.25,
+    top: float = 0.5,
     side: float = 0.05,
+    max_area: float = 0.25,
     colours: Sequence[str] = SATURATED,
 ) -> dict[int, tuple[bool, bool]]:
-    """Per vehicle track id: ``(lit, flashing)`` — a light of the box (module docstring) is lit in
-    this frame (``on``) in one of ``colours``, or flashing in any colour (white included)."""
-    out: dict[int, tuple[bool, bool]] = {}
-    for v in vehicles:
-        b = v.box
-        w, h = b.width, b.height
-        x1, x2 = b.x1 - side * w, b.x2 + side * w
-        y1, y2 = b.y1 - band * h, b.y2
-        lit = flashing = False
-        for lt in lights:
-            cx, cy = lt.box.center
-            if not (x1 <= cx <= x2 and y1 <= cy <= y2):
+    """Per vehicle track id: ``(lit, flashing)`` from the light tracks of the same frame.
+
+    A light can belong to a vehicle box ``(x1, y1, x2, y2)`` of width ``w`` and height ``h`` when
+    its centre lies within ``[x1 − side·w, x2 + side·w]`` across and ``[y1 − band·h, y1 + top·h]``
+    down (the upper part of the box and a band above it, where light bars and beacons sit; brake
+    lights and headlights sit lower) and its box is at most ``max_area`` of the vehicle's (a glow
+    covering the vehicle is a reflection, not a lamp). A light inside some vehicle's box belongs
+    only to the boxes it is inside; only a light inside none goes to the boxes it is just above (the
+    roof bar of a vehicle behind another shows above the front one's roof, inside its own box).
+    Only lights of ``colours`` count. ``lit``: such a light is on and detected in this frame;
+    ``flashing``: such a light is flashing.
+    """
+    wanted = set(colours)
+    out: dict[int, list[bool]] = {v.track_id: [False, False] for v in vehicles}
+    for lt in lights:
+        if lt.colour not in wanted or not (lt.flashing or (lt.on and lt.detected)):
+            continue
+        cx, cy = lt.box.center
+        inside: list[int] = []
+        above: list[int] = []
+        for v in vehicles:
+            b = v.box
+            w, h = b.width, b.height
+            if not (b.x1 - side * w <= cx <= b.x2 + side * w) or lt.box.area > max_area * max(b.area, 1.0):
                 continue
-            if lt.flashing:
-                lit = flashing = True
-                break
-            if lt.on and lt.detected and lt.colour in colours:
-                lit = True
-        out[v.track_id] = (lit, flashing)
-    return out
+            if b.y1 <= cy <= b.y1 + top * h:
+                inside.append(v.track_id)
+            elif b.y1 - band * h <= cy < b.y1:
+                above.append(v.track_id)
+        for tid in inside or above:
+            out[tid][0] = True
+            out[tid][1] = out[tid][1] or lt.flashing
+    return {tid: (lit, flashing) for tid, (lit, flashing) in out.items()}
+
+
+#: Framework B's per-frame "active EV" rules (:func:`active_probability`).
+ACTIVE_RULES = ("crop", "lights", "lights+crop")
+
+
+def active_probability(rule: str, lit: bool, flashing: bool, crop_probability: float | None) -> float | None:
+    """The per-frame probability the track smoother gets for one vehicle track under ``rule``.
+
+    * ``crop``: the crop classifier's probability alone (``None`` when it gave none this frame);
+    * ``lights``: 1.0 with a flashing light on or above the box, else 0.0 (a steady light is a
+      brake light, a street lamp or a sign as often as a beacon);
+    * ``lights+crop``: 1.0 with a flashing light; with a lit, not flashing, light the crop
+      classifier's probability (0.6 when it gave none); else 0.0 — the classifier cannot make a
+      vehicle without lights active.
+    """
+    if rule == "crop":
+        return crop_probability
+    if rule == "lights":
+        return 1.0 if flashing else 0.0
+    if rule == "lights+crop":
+        if flashing:
+            return 1.0
+        if lit:
+            return 0.6 if crop_probability is None else float(crop_probability)
+        return 0.0
+    raise ValueError(f"unknown active rule {rule!r}; choose from: {', '.join(ACTIVE_RULES)}")

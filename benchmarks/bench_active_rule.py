@@ -1,0 +1,195 @@
+"""Framework B's "active EV" rules on the real clips: crop classifier vs lit/flashing lights (issue 23).
+
+Framework B (YOLOX-nano → SORT → shipped EV crop head) is recorded once per clip and cached under
+``--cache`` (``makeway.pipeline.clip_record.cached_clip``, the same cache as
+``bench_track_sweep.py``): every track's box and crop probability per frame. The light detector
+(``--detector``, default the registry's default) and :class:`makeway.track.lights.LightTracker`
+then run over every frame, and each (frame, vehicle track) gets its lights evidence (a lit
+emergency-coloured light or a flashing light on or above the box,
+:func:`makeway.track.lights.vehicle_light_evidence`). Each rule of
+:data:`makeway.track.lights.ACTIVE_RULES` turns evidence and crop probability into a per-frame
+probability, the track smoother (window 25, min 6, T 0.5: the pipeline's default) replays it, and an
+actor (SORT track) is predicted positive when it is active on at least one frame. Labels:
+``src/makeway/data/video_track_labels.csv``. Every track of the five clips is an actor, for every
+rule.
+
+Prints per rule and colour set the per-actor TP/FP/FN/TN, precision, recall, F1, the tracks flagged
+on the two no-EV clips (target 0), then the speed of lights detector + tracker + flash cue on
+``traffic_no_ev`` (640×360; target ≥ 2× real time at 25 fps, i.e. ≤ 20 ms per frame) and of four
+cameras per step (four frames per 40 ms step), then one JSON line.
+
+    .venv/bin/python benchmarks/bench_active_rule.py
+    .venv/bin/python benchmarks/bench_active_rule.py --colours eu,us --speed-frames 150
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import time
+from collections import defaultdict
+from pathlib import Path
+
+import numpy as np
+
+from makeway.eval.actor_sweep import EV_CLIPS, NO_EV_CLIPS, TRACK_LABELS, ClipRecord, read_track_labels
+from makeway.eval.classification import precision_recall_f1
+from makeway.jsonable import to_jsonable
+from makeway.messages import Box, EVObservation, EVState, Track
+from makeway.paths import data_dir
+from makeway.perceive.vision.ev_classifier import DEFAULT_MODEL
+from makeway.perceive.vision.lights import DEFAULT_LIGHT_DETECTOR, LIGHT_DETECTORS
+from makeway.pipeline.clip_record import cached_clip
+from makeway.sense.video import VideoReader
+from makeway.track.lights import ACTIVE_RULES, LightTracker, active_probability, vehicle_light_evidence
+from makeway.track.smoother import TrackSmoother
+
+TARGET_RT = 2.0  # lights detector + tracking + flash cue, × real time on 640×360 at 25 fps
+
+
+def light_evidence(
+    video: Path, rec: ClipRecord, detector_name: str, colours: str, progress: bool = False
+) -> dict[tuple[int, int], tuple[bool, bool]]:
+    """``(frame, track id) → (lit, flashing)`` for every recorded vehicle track of one clip."""
+    det = LIGHT_DETECTORS[detector_name](colours=colours)
+    tracker = LightTracker()
+    by_frame: dict[int, list[Track]] = defaultdict(list)
+    for f, tid, box in zip(rec.frame.tolist(), rec.track_id.tolist(), rec.boxes.tolist(), strict=True):
+        by_frame[f].append(Track(tid, Box(*box)))
+    out: dict[tuple[int, int], tuple[bool, bool]] = {}
+    with VideoReader(video) as reader:
+        for index, t_s, image in reader:
+            lights = tracker.update(det.detect(image, index), t_s, image)
+            for tid, ev in vehicle_light_evidence(by_frame.get(index, []), lights).items():
+                out[(index, tid)] = ev
+    return out
+
+
+def actor_active(
+    rec: ClipRecord, evidence: dict[tuple[int, int], tuple[bool, bool]], rule: str
+) -> dict[int, bool]:
+    """Per track: active on at least one frame under ``rule`` through the default smoother."""
+    out = {}
+    for tid in rec.track_ids:
+        sel = np.flatnonzero(rec.track_id == tid)
+        sm = TrackSmoother()
+        active = False
+        for j in sel:
+            f = int(rec.frame[j])
+            p = float(rec.probability[j])
+            lit, flashing = evidence.get((f, tid), (False, False))
+            prob = active_probability(rule, lit, flashing, None if math.isnan(p) else p)
+            (state,) = sm.update([EVObservation(tid, f, 0.0, prob)], alive_track_ids=[tid])
+            if state.state is EVState.ACTIVE:
+                active = True
+                break
+        out[tid] = active
+    return out
+
+
+def speed(video: Path, detector_name: str, colours: str, frames: int) -> dict[str, float]:
+    """ms per frame of detector + tracker on one camera, and per step of four cameras."""
+    det = LIGHT_DETECTORS[detector_name](colours=colours)
+    images: list[np.ndarray] = []
+    with VideoReader(video, max_frames=frames) as reader:
+        images = [img for _, _, img in reader]
+    tracker = LightTracker()
+    t0 = time.perf_counter()
+    for i, img in enumerate(images):
+        tracker.update(det.detect(img, i), i / 25.0, img)
+    one = (time.perf_counter() - t0) / len(images)
+    trackers = [LightTracker() for _ in range(4)]
+    n_steps = len(images) // 4 * 4 // 4
+    t0 = time.perf_counter()
+    for s in range(n_steps):
+        for c in range(4):  # four cameras: four different frames per step
+            img = images[(s + c * n_steps) % len(images)]
+            trackers[c].update(det.detect(img, s), s / 25.0, img)
+    four = (time.perf_counter() - t0) / max(n_steps, 1)
+    return {
+        "ms_per_frame": 1000 * one,
+        "realtime_x_at_25fps": (1 / 25) / one,
+        "four_cameras_ms_per_step": 1000 * four,
+        "four_cameras_realtime_x_at_25fps": (1 / 25) / four,
+    }
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument(
+        "--cache", type=Path, default=Path("reports/track_probs"), help="Framework B record cache"
+    )
+    ap.add_argument("--detector", default=DEFAULT_LIGHT_DETECTOR, help="light detector (registry name)")
+    ap.add_argument("--colours", default="eu,us", help="colour sets to compare (comma list)")
+    ap.add_argument("--speed-frames", type=int, default=150, help="frames of traffic_no_ev timed")
+    ap.add_argument("--labels", type=Path, default=TRACK_LABELS)
+    args = ap.parse_args()
+
+    root = data_dir()
+    if root is None:
+        print("error: shared data not found (set MAKEWAY_DATA)", file=sys.stderr)
+        return 2
+    labels = read_track_labels(args.labels)
+    records = {}
+    for clip in (*EV_CLIPS, *NO_EV_CLIPS):
+        records[clip], _ = cached_clip(
+            root / "video" / f"{clip}.mp4", args.cache, DEFAULT_MODEL, progress=True
+        )
+
+    results: dict[str, object] = {"detector": args.detector}
+    print(
+        f"{'colours':8s} {'rule':12s} {'TP':>3s} {'FP':>3s} {'FN':>3s} {'TN':>4s}  prec   rec    F1  | no-EV flagged (target 0)"
+    )
+    for colours in [c.strip() for c in args.colours.split(",") if c.strip()]:
+        evidence = {
+            clip: light_evidence(root / "video" / f"{clip}.mp4", rec, args.detector, colours)
+            for clip, rec in records.items()
+        }
+        for rule in ACTIVE_RULES:
+            if rule == "crop" and colours != args.colours.split(",")[0].strip():
+                continue  # the crop rule does not depend on the colour set
+            tp = fp = fn = tn = 0
+            no_ev = 0
+            flagged: dict[str, list[int]] = {}
+            for clip, rec in records.items():
+                pred = actor_active(rec, evidence[clip], rule)
+                flagged[clip] = sorted(t for t, a in pred.items() if a)
+                for tid, a in pred.items():
+                    y = bool(labels.label(clip, tid))
+                    tp += a and y
+                    fp += a and not y
+                    fn += (not a) and y
+                    tn += (not a) and (not y)
+                    if clip in NO_EV_CLIPS and a:
+                        no_ev += 1
+            m = precision_recall_f1(tp, fp, fn)
+            name = "—" if rule == "crop" else colours
+            print(
+                f"{name:8s} {rule:12s} {tp:3d} {fp:3d} {fn:3d} {tn:4d}  {m['precision']:.3f} {m['recall']:.3f} "
+                f"{m['f1']:.3f} | {no_ev}"
+            )
+            results[f"{name}/{rule}"] = {
+                "tp": tp,
+                "fp": fp,
+                "fn": fn,
+                "tn": tn,
+                **m,
+                "no_ev_flagged": no_ev,
+                "flagged": flagged,
+            }
+    colours0 = args.colours.split(",")[0].strip()
+    sp = speed(root / "video" / "traffic_no_ev.mp4", args.detector, colours0, args.speed_frames)
+    print(
+        f"speed ({args.detector}, {colours0}, traffic_no_ev 640×360): {sp['ms_per_frame']:.1f} ms/frame = "
+        f"{sp['realtime_x_at_25fps']:.2f}× real time at 25 fps (target ≥ {TARGET_RT:g}×); four cameras: "
+        f"{sp['four_cameras_ms_per_step']:.1f} ms per step = {sp['four_cameras_realtime_x_at_25fps']:.2f}× real time"
+    )
+    results["speed"] = sp
+    print(json.dumps(to_jsonable(results, digits=4)))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
