@@ -11,7 +11,7 @@ from makeway.track.lights import ACTIVE_RULES
 __all__ = ["DEFAULT_RULE", "detect"]
 
 #: The active-EV rule ``makeway detect`` uses when none is named (see :func:`detect`).
-DEFAULT_RULE = "lights"
+DEFAULT_RULE = "lights+crop"
 
 
 def detect(
@@ -24,7 +24,7 @@ def detect(
     stride: int = 1,
     max_frames: int | None = None,
     write_video: bool = True,
-    classifier: str = "none",
+    classifier: str = "default",
     classify_every: int = 1,
     single_view: bool = False,
     progress: bool = True,
@@ -35,10 +35,11 @@ def detect(
     """Detect, track and judge the vehicles of ``video``; write the annotated video, ``tracks.jsonl``
     and ``summary.json`` to ``out`` (default ``makeway_out/<video stem>``).
 
-    ``rule`` says what makes a vehicle track an active EV (:class:`makeway.pipeline.video.VisionPipeline`):
-    ``lights`` (default: lit emergency lights, preferably flashing, on or above its box, through the
-    smoother), ``lights+crop`` (flashing lights, or lit lights the crop classifier confirms) or
-    ``crop`` (the crop classifier alone; without one, no track is judged). The lights rules use the
+    ``rule`` says what makes a vehicle track an active EV (:class:`makeway.pipeline.video.VisionPipeline`,
+    :func:`makeway.track.lights.active_probability`), through the smoother: ``lights+crop``
+    (default: a flashing emergency light on or above its box, and the crop classifier says it is an
+    EV), ``lights`` (the flashing light alone; no classifier runs) or ``crop`` (the crop classifier
+    alone, the earlier rule; without a classifier no track is judged). The lights rules use the
     light detector ``light_detector`` (registry name) with the colour set ``colours``, and each
     ``tracks.jsonl`` line then also lists the frame's ``lights``.
 
@@ -55,6 +56,8 @@ def detect(
     """
     if rule not in ACTIVE_RULES:
         raise ValueError(f"unknown rule {rule!r}; choose from: {', '.join(ACTIVE_RULES)}")
+    if rule == "lights+crop" and classifier.strip().lower() == "none":
+        raise ValueError("the lights+crop rule needs a classifier; use --rule lights without one")
     track_classifier = None
     if classifier.strip().lower() != "none" and rule != "lights":
         from makeway.perceive.vision.ev_classifier import EVTrackClassifier, load_crop_classifier

@@ -37,12 +37,12 @@ import numpy as np
 from makeway.atomic import atomic_dir, atomic_path, check_writable, removed_on_error, write_text_atomic
 from makeway.errors import InputError
 from makeway.messages import LightDetection
-from makeway.perceive.vision.lights import DEFAULT_LIGHT_DETECTOR, LIGHT_DETECTORS, colour_set
+from makeway.perceive.vision.lights import DEFAULT_LIGHT_DETECTOR, colour_set
 from makeway.progress import progress_bar
 from makeway.sense.crops import IMAGE_SUFFIXES
 from makeway.sense.rig import Rig, load_rig
 from makeway.sense.video import VideoReader
-from makeway.track.lights import LightTrack, LightTracker
+from makeway.track.lights import LightTrack, LightTracker, build_light_detector
 from makeway.viz.video_writer import H264Writer
 
 __all__ = ["LightsSummary", "lights"]
@@ -208,7 +208,7 @@ def lights(
     if not src.exists():
         raise InputError(src, "not found (a video file or a folder of images is needed)")
     colour_names = colour_set(colours)
-    det = LIGHT_DETECTORS[detector](colours=colour_names)
+    det = build_light_detector(detector, colour_names)
     rig_obj: Rig | None = None
     if camera is not None or rig is not None:
         rig_obj = load_rig(rig if rig is not None else "default")

@@ -83,11 +83,12 @@ def detect(
     rule: Annotated[
         str,
         typer.Option(
-            help="What makes a track an active EV: 'lights' (lit emergency lights, preferably flashing, "
-            "on or above its box; the default), 'lights+crop' (flashing lights, or lit lights the crop "
-            "classifier confirms) or 'crop' (the crop classifier alone, the earlier rule)."
+            help="What makes a track an active EV (through the smoother): 'lights+crop' (the default: a "
+            "flashing emergency light on or above its box, and the crop classifier says EV), 'lights' "
+            "(the flashing light alone, no classifier) or 'crop' (the crop classifier alone, the "
+            "earlier rule)."
         ),
-    ] = "lights",
+    ] = "lights+crop",
     light_detector: Annotated[
         str | None, typer.Option(help="Light detector of the lights rules (default: the project's default).")
     ] = None,
@@ -103,10 +104,12 @@ def detect(
 ) -> None:
     """Detect, track and judge the vehicles in a road video; flag the active emergency vehicles.
 
-    The pipeline: vehicle detector → SORT tracker → active-EV rule (lit/flashing lights on the
-    vehicle by default; or the crop classifier) → smoother. Writes OUT/annotated.mp4 (H.264, boxes,
-    ids, EV state colours, light boxes, FPS), OUT/tracks.jsonl (one JSON object per frame, with its
-    lights) and OUT/summary.json (timings per stage, real-time factor, active EV track ids).
+    The pipeline: vehicle detector → SORT tracker → [crop classifier] → smoother, with the light
+    detector → light tracker → flash cue beside it: by default a track is an active EV when a
+    flashing emergency light is on or above its box and the classifier says EV (--rule). Writes
+    OUT/annotated.mp4 (H.264, boxes, ids, EV state colours, light boxes, FPS), OUT/tracks.jsonl
+    (one JSON object per frame, with its lights) and OUT/summary.json (timings per stage,
+    real-time factor, active EV track ids).
     """
     from makeway.apps.detect import detect as run
     from makeway.perceive.vision.lights import DEFAULT_LIGHT_DETECTOR

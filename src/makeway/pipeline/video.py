@@ -36,14 +36,16 @@ from makeway.atomic import atomic_path, check_writable, removed_on_error, write_
 from makeway.messages import EVObservation, EVTrackState, LightDetection, PerceptionFrame
 from makeway.perceive.vision.detectors import DETECTORS, Detector
 from makeway.perceive.vision.ev_classifier import TrackClassifier
-from makeway.perceive.vision.lights import DEFAULT_LIGHT_DETECTOR, LIGHT_DETECTORS, LightDetector
+from makeway.perceive.vision.lights import DEFAULT_LIGHT_DETECTOR, LightDetector
 from makeway.progress import progress_bar
 from makeway.sense.video import VideoReader
 from makeway.track.lights import (
     ACTIVE_RULES,
+    SATURATED,
     LightTrack,
     LightTracker,
     active_probability,
+    build_light_detector,
     vehicle_light_evidence,
 )
 from makeway.track.smoother import TrackSmoother
@@ -126,7 +128,9 @@ class VisionPipeline:
         tracks = self.tracker.update(detections)
         evidence: dict[int, tuple[bool, bool]] = {}
         if self.light_tracker is not None:
-            self.light_tracks = self.light_tracker.update(lights, time_s, image_bgr)
+            # white lights never make a vehicle active (headlights, street lamps): not tracked here
+            kept = [d for d in lights if d.colour in SATURATED]
+            self.light_tracks = self.light_tracker.update(kept, time_s, image_bgr)
             evidence = vehicle_light_evidence(tracks, self.light_tracks)
         t2 = time.perf_counter()
         states: tuple[EVTrackState, ...] = ()
@@ -433,9 +437,7 @@ def run_video(
         ]
     det = detectors[0]
     light_detectors = (
-        [LIGHT_DETECTORS[light_detector](colours=light_colours) for _ in detectors]
-        if rule != "crop"
-        else None
+        [build_light_detector(light_detector, light_colours) for _ in detectors] if rule != "crop" else None
     )
     pipe = VisionPipeline(
         det, tracker=tracker, classifier=classifier, smoother=smoother, rule=rule, light_tracker=light_tracker

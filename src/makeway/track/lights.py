@@ -37,6 +37,7 @@ from __future__ import annotations
 from collections import deque
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import cv2
 import numpy as np
@@ -44,18 +45,29 @@ from scipy.optimize import linear_sum_assignment
 
 from makeway.messages import Box, LightDetection, Track
 from makeway.perceive.vision.light_colour import DEFAULT_HSV
+from makeway.perceive.vision.lights import LIGHT_DETECTORS, LightDetector
 
 __all__ = [
     "ACTIVE_RULES",
+    "SATURATED",
     "LightTrack",
     "LightTracker",
     "active_probability",
+    "build_light_detector",
     "flash_stats",
     "vehicle_light_evidence",
 ]
 
 #: Colours that are emergency colours by themselves; ``white`` counts only when flashing.
 SATURATED = ("blue", "red", "amber")
+
+
+def build_light_detector(name: str, colours: str | Sequence[str]) -> LightDetector:
+    """The registered light detector ``name`` for the colour set ``colours`` (every registered
+    factory takes ``colours``; an unknown name raises the registry's error listing the known ones)."""
+    factory: Any = LIGHT_DETECTORS[name]
+    detector: LightDetector = factory(colours=colours)
+    return detector
 
 
 @dataclass(frozen=True, slots=True)
@@ -316,7 +328,7 @@ def vehicle_light_evidence(
     lights: Sequence[LightTrack],
     *,
     band: float = 0.25,
-    top: float = 0.5,
+    top: float = 0.3,
     side: float = 0.05,
     max_area: float = 0.25,
     colours: Sequence[str] = SATURATED,
@@ -361,23 +373,22 @@ ACTIVE_RULES = ("crop", "lights", "lights+crop")
 
 
 def active_probability(rule: str, lit: bool, flashing: bool, crop_probability: float | None) -> float | None:
-    """The per-frame probability the track smoother gets for one vehicle track under ``rule``.
+    """The per-frame probability the track smoother gets for one vehicle track under ``rule``
+    (``None``: no judgement this frame, the smoother skips it).
 
     * ``crop``: the crop classifier's probability alone (``None`` when it gave none this frame);
-    * ``lights``: 1.0 with a flashing light on or above the box, else 0.0 (a steady light is a
-      brake light, a street lamp or a sign as often as a beacon);
-    * ``lights+crop``: 1.0 with a flashing light; with a lit, not flashing, light the crop
-      classifier's probability (0.6 when it gave none); else 0.0 — the classifier cannot make a
-      vehicle without lights active.
+    * ``lights``: 1.0 with a flashing emergency light on or above the box, else 0.0 (a steady light
+      is a brake light, a street lamp or a sign as often as a beacon; ``lit`` is not used);
+    * ``lights+crop``: with a flashing light, the crop classifier's probability (``None`` when it
+      gave none), else 0.0 — the lights say "on", the classifier says "an emergency vehicle", and
+      both must hold.
     """
     if rule == "crop":
         return crop_probability
     if rule == "lights":
         return 1.0 if flashing else 0.0
     if rule == "lights+crop":
-        if flashing:
-            return 1.0
-        if lit:
-            return 0.6 if crop_probability is None else float(crop_probability)
-        return 0.0
+        if not flashing:
+            return 0.0
+        return None if crop_probability is None else float(crop_probability)
     raise ValueError(f"unknown active rule {rule!r}; choose from: {', '.join(ACTIVE_RULES)}")
