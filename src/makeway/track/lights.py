@@ -3,33 +3,36 @@
 :class:`LightTracker` follows the lit lights a light detector returns frame by frame (boxes in image
 pixels, see :class:`~makeway.messages.LightDetection`). Detections are associated to live tracks
 of the same colour by centre distance: the cost is the distance between box centres divided by the
-larger of the two boxes' sizes (``max(w, h)``, at least ``min_size_px``), gated at ``gate``, and the
-assignment is the Hungarian one (:func:`scipy.optimize.linear_sum_assignment`). Lights are small and
-move little between frames, so IoU gating (SORT's) would drop them; a track keeps its last box while
-unmatched and survives gaps up to ``max_gap_s`` seconds — a flashing lamp vanishes from the detector
-in its off phase.
+larger of the two boxes' sizes (``max(w, h)``, at least ``min_size_px``), gated at ``gate`` and at a
+size ratio of ``max_size_ratio``, and the assignment is the Hungarian one
+(:func:`scipy.optimize.linear_sum_assignment`). Lights are small and move little between frames, so
+IoU gating (SORT's) would drop them; a track keeps its last box while unmatched and survives gaps up
+to ``max_gap_s`` seconds — a flashing lamp vanishes from the detector in its off phase.
 
-**Flash cue.** Per track and frame the tracker measures the *level* of its region (the last box
-widened by half its size on each side): the fraction of the region's pixels lit in the track's
-colour (the HSV ranges of :data:`~makeway.perceive.vision.light_colour.DEFAULT_HSV`; for ``white``,
-saturated near-white cores). The lamp is *on* in a frame when the detector saw it or the level is at
-least ``on_ratio`` of the track's peak level in the window, *off* when it was not seen and the level
-is at most ``off_ratio`` of that peak (hysteresis: frames in between keep the last state). Over the
-last ``window_s`` seconds the on/off changes give
+**Flash cue.** Per track and frame the tracker measures the *level* of its region, a square around
+the track's centre whose half-side is the largest box size the track has had (at least
+``min_size_px``): the number of pixels lit in the track's colour, with the HSV ranges of
+:data:`~makeway.perceive.vision.light_colour.DEFAULT_HSV` relaxed by ``relax_s`` in saturation and
+``relax_v`` in value (for ``white``: near-white cores, value ≥ 245 − ``relax_v``), so that a lamp at
+the detector's threshold does not flicker. The lamp is *on* in a frame when the level is at least
+``min_level`` pixels and ``on_ratio`` of the track's peak level in the window, *off* when it is
+below ``min_level`` or at most ``off_ratio`` of that peak; frames in between keep the last state.
+Without the frame (``frame_bgr=None``) the level is the box area while the detector sees the light
+and 0 otherwise. Over the last ``window_s`` seconds the on/off states give
 
 * ``transitions``: the number of on↔off changes;
 * ``flash_hz``: ``(k − 1) / (2 (t_k − t_1))`` from the times ``t_1 … t_k`` of the ``k ≥ 2`` changes
   (one on/off cycle holds two changes), 0.0 with fewer;
 * ``duty``: the fraction of the window's frames that are on;
-* ``flashing``: at least ``min_transitions`` changes, ``flash_hz`` in ``[min_hz, max_hz]``, and the
-  duty strictly between 0.05 and 0.95.
+* ``flashing``: a peak level of at least ``min_peak_px``, at least ``min_transitions`` changes,
+  ``flash_hz`` in ``[min_hz, max_hz]``, and the duty strictly between 0.05 and 0.95.
 
 A steady light (brake light, street lamp, traffic light, headlight) stays on: no changes, not
 flashing. Times are in seconds from the frame times the caller passes.
 
-**Lights evidence** (:func:`vehicle_light_evidence`): a vehicle track is lit by a light track whose
-centre lies on its box or in a band above its top (``band`` × the box height; roof bars), within
-the box's width widened by ``side`` × its width on each side.
+**Lights evidence** (:func:`vehicle_light_evidence`) and the **active rules**
+(:func:`active_probability`) turn light tracks into per-frame votes for Framework B's vehicle
+tracks: a flashing emergency-coloured light in the upper part of a vehicle's box or just above it.
 """
 
 from __future__ import annotations
@@ -164,9 +167,12 @@ class LightTracker:
         gate: largest centre distance, in units of the larger box size, for a match.
         min_size_px: smallest box size (px) used to scale distances.
         on_ratio, off_ratio: level fractions of the window's peak for on / off (hysteresis).
-        min_level: levels below this fraction of the region are off whatever the peak.
+        min_level: levels (lit pixels) below this are off whatever the peak.
         min_transitions: on↔off changes within the window for ``flashing``.
         min_hz, max_hz: the flash frequency band (Hz) for ``flashing``.
+        max_size_ratio: largest ratio of box sizes (``max(w, h)``) for a match.
+        min_peak_px: smallest peak level (lit pixels) in the window for ``flashing``.
+        relax_v, relax_s: how far the level's HSV ranges are relaxed in value and saturation.
         hsv: HSV ranges per colour for the level (default
             :data:`~makeway.perceive.vision.light_colour.DEFAULT_HSV`).
     """
@@ -297,7 +303,10 @@ class LightTracker:
                 self._next_id += 1
         out = []
         for t in self._tracks:
-            level = self._level(hsv, frame_bgr, t) if frame_bgr is not None else (1.0 if t.seen else 0.0)
+            if frame_bgr is not None:
+                level = self._level(hsv, frame_bgr, t)
+            else:  # detections only: the box's area while seen
+                level = t.box.area if t.seen else 0.0
             while t.history and t.history[0][0] < time_s - self.window_s:
                 t.history.popleft()
             peak = max([level, *(lv for _, lv, _ in t.history)])
