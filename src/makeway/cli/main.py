@@ -102,7 +102,7 @@ def detect(
     as_json: Annotated[bool, typer.Option("--json", help="Print the run summary as one JSON line.")] = False,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")] = False,
 ) -> None:
-    """Detect, track and judge the vehicles in a road video; flag the active emergency vehicles.
+    """Detect, track and judge the vehicles in a road video.
 
     The pipeline: vehicle detector → SORT tracker → [crop classifier] → smoother, with the light
     detector → light tracker → flash cue beside it: by default a track is an active EV when a
@@ -182,7 +182,7 @@ def lights(
     as_json: Annotated[bool, typer.Option("--json", help="Print the run summary as one JSON line.")] = False,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")] = False,
 ) -> None:
-    """Find lit emergency lights, track them, and measure how they flash.
+    """Find, track and time lit emergency lights.
 
     Writes OUT/annotated.mp4 (H.264: light boxes in their colour, track id, flash Hz, azimuth),
     OUT/lights.jsonl (one JSON object per frame: each light's box, colour, score, track id, flash_hz,
