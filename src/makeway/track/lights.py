@@ -301,6 +301,8 @@ class LightTracker:
             if i not in matched_d:
                 self._tracks.append(_Light(self._next_id, det, time_s))
                 self._next_id += 1
+        if hsv is None and frame_bgr is not None and len(self._tracks) > 16:
+            hsv = cv2.cvtColor(frame_bgr, cv2.COLOR_BGR2HSV)  # one conversion beats many crops
         out = []
         for t in self._tracks:
             if frame_bgr is not None:
