@@ -4,22 +4,25 @@ Framework B (YOLOX-nano → SORT → shipped EV crop head) is recorded once per 
 ``--cache`` (``makeway.pipeline.clip_record.cached_clip``, the same cache as
 ``bench_track_sweep.py``): every track's box and crop probability per frame. The light detector
 (``--detector``, default the registry's default) and :class:`makeway.track.lights.LightTracker`
-then run over every frame, and each (frame, vehicle track) gets its lights evidence (a lit
-emergency-coloured light or a flashing light on or above the box,
-:func:`makeway.track.lights.vehicle_light_evidence`). Each rule of
+then run over every frame (red, blue and amber lights only, as in the pipeline), and each (frame,
+vehicle track) gets its lights evidence (a lit or flashing light in the upper part of the box or
+just above it, :func:`makeway.track.lights.vehicle_light_evidence`). Each rule of
 :data:`makeway.track.lights.ACTIVE_RULES` turns evidence and crop probability into a per-frame
 probability, the track smoother (window 25, min 6, T 0.5: the pipeline's default) replays it, and an
 actor (SORT track) is predicted positive when it is active on at least one frame. Labels:
 ``src/makeway/data/video_track_labels.csv``. Every track of the five clips is an actor, for every
-rule.
+rule; a second row per rule counts only the tracks of at least 6 frames (the smoother's
+``min_frames``: a shorter track cannot turn active under any rule).
 
 Prints per rule and colour set the per-actor TP/FP/FN/TN, precision, recall, F1, the tracks flagged
 on the two no-EV clips (target 0), then the speed of lights detector + tracker + flash cue on
-``traffic_no_ev`` (640×360; target ≥ 2× real time at 25 fps, i.e. ≤ 20 ms per frame) and of four
-cameras per step (four frames per 40 ms step), then one JSON line.
+``traffic_no_ev`` (640×360; target ≥ 2× real time at 25 fps, i.e. ≤ 20 ms per frame; wall and CPU
+time, with the load average, since a shared machine's wall time says little) and of four cameras
+per step (four frames per 40 ms step, serially and on two threads), then one JSON line.
 
-    .venv/bin/python benchmarks/bench_active_rule.py
-    .venv/bin/python benchmarks/bench_active_rule.py --colours eu,us --speed-frames 150
+    .venv/bin/python benchmarks/bench_active_rule.py                 # rules (us, eu) and speed
+    .venv/bin/python benchmarks/bench_active_rule.py --speed-only
+    .venv/bin/python benchmarks/bench_active_rule.py --detector cnn  # another registered detector
 """
 
 from __future__ import annotations
@@ -55,6 +58,7 @@ from makeway.track.lights import (
 )
 from makeway.track.smoother import TrackSmoother
 
+MIN_FRAMES = 6  # the smoother's min_frames: shorter tracks can never turn active under any rule
 TARGET_RT = 2.0  # lights detector + tracking + flash cue, × real time on 640×360 at 25 fps
 
 
@@ -187,7 +191,7 @@ def main() -> int:
         for rule in ACTIVE_RULES:
             if rule == "crop" and colours != args.colours.split(",")[0].strip():
                 continue  # the crop rule does not depend on the colour set
-            tp = fp = fn = tn = 0
+            counts = {1: [0, 0, 0, 0], MIN_FRAMES: [0, 0, 0, 0]}  # tp fp fn tn per actor set
             no_ev = 0
             flagged: dict[str, list[int]] = {}
             for clip, rec in records.items():
@@ -195,27 +199,29 @@ def main() -> int:
                 flagged[clip] = sorted(t for t, a in pred.items() if a)
                 for tid, a in pred.items():
                     y = bool(labels.label(clip, tid))
-                    tp += a and y
-                    fp += a and not y
-                    fn += (not a) and y
-                    tn += (not a) and (not y)
+                    cell = (0 if y else 1) if a else (2 if y else 3)
+                    for min_len, c in counts.items():
+                        if int(np.sum(rec.track_id == tid)) >= min_len:
+                            c[cell] += 1
                     if clip in NO_EV_CLIPS and a:
                         no_ev += 1
-            m = precision_recall_f1(tp, fp, fn)
             name = "—" if rule == "crop" else colours
-            print(
-                f"{name:8s} {rule:12s} {tp:3d} {fp:3d} {fn:3d} {tn:4d}  {m['precision']:.3f} "
-                f"{m['recall']:.3f} {m['f1']:.3f} | {no_ev}"
-            )
-            results[f"{name}/{rule}"] = {
-                "tp": tp,
-                "fp": fp,
-                "fn": fn,
-                "tn": tn,
-                **m,
-                "no_ev_flagged": no_ev,
-                "flagged": flagged,
-            }
+            for min_len, (tp, fp, fn, tn) in counts.items():
+                m = precision_recall_f1(tp, fp, fn)
+                tag = "" if min_len == 1 else f" (tracks >= {min_len} frames)"
+                print(
+                    f"{name:8s} {rule:12s} {tp:3d} {fp:3d} {fn:3d} {tn:4d}  {m['precision']:.3f} "
+                    f"{m['recall']:.3f} {m['f1']:.3f} | {no_ev}{tag}"
+                )
+                results[f"{name}/{rule}" + ("" if min_len == 1 else f"/min{min_len}")] = {
+                    "tp": tp,
+                    "fp": fp,
+                    "fn": fn,
+                    "tn": tn,
+                    **m,
+                    "no_ev_flagged": no_ev,
+                    "flagged": flagged,
+                }
     colours0 = args.colours.split(",")[0].strip()
     sp = speed(root / "video" / "traffic_no_ev.mp4", args.detector, colours0, args.speed_frames)
     print(
