@@ -5,8 +5,15 @@
 
 * ``annotated.mp4`` — H.264 with boxes, track ids, EV state colours and an FPS panel;
 * ``tracks.jsonl`` — one JSON object per processed frame (index, time, tracks with box, id, score,
-  class, EV state);
-* ``summary.json`` — frames, wall time, real-time factor and per-stage milliseconds per frame.
+  class, EV state; under the lights rules also ``lights``: the red, blue and amber lights seen in
+  the frame with their track id, box, colour, score and flash cue,
+  :meth:`makeway.track.lights.LightTrack.to_dict`);
+* ``summary.json`` — frames, wall time, real-time factor, per-stage milliseconds per frame (with
+  ``lights``, the light detector's, under the lights rules), the active-EV rule and the tracks it
+  turned active.
+
+The light detector runs beside the vehicle detector on the same worker threads; the light tracker
+(and its flash cue) with SORT on the main thread.
 
 Decoding and encoding run on their own threads (both release the GIL in FFmpeg), so they overlap
 with detection on the main thread. Outputs appear only when the run completes: an error midway (a
@@ -69,10 +76,11 @@ class VisionPipeline:
         smoother: the per-track output smoother (default ``TrackSmoother()``).
         rule: how a vehicle track becomes an active EV, one of
             :data:`~makeway.track.lights.ACTIVE_RULES`: ``crop`` (the crop classifier alone),
-            ``lights`` (lit emergency lights, preferably flashing, on or above the box) or
-            ``lights+crop`` (flashing lights, or lit lights that the classifier confirms); see
-            :func:`~makeway.track.lights.active_probability`. The per-frame votes go through the
-            smoother. Without a classifier, ``crop`` gives tracks no EV state.
+            ``lights`` (a flashing red, blue or amber light in the upper part of the box or just
+            above it) or ``lights+crop`` (such a light, and the classifier says EV); see
+            :func:`~makeway.track.lights.active_probability` and
+            :func:`~makeway.track.lights.vehicle_light_evidence`. The per-frame votes go through
+            the smoother. Without a classifier, ``crop`` gives tracks no EV state.
         light_tracker: the light tracker of the lights rules (default ``LightTracker()``); its
             detections come with each frame (:meth:`process_detections`).
     """
