@@ -168,7 +168,9 @@ def test_track_classifier_on_a_night_frame(video_dir: Path, shipped: EVCropClass
 def test_detect_with_default_classifier(video_dir: Path, tmp_path: Path) -> None:
     out = tmp_path / "night"
     clip = video_dir / "night_ambulance_lights.mp4"
-    args = ["detect", str(clip), "-o", str(out), "--max-frames", "45"]  # no --classifier: the default head
+    # no --classifier: the default head; --rule crop: the classifier alone decides (the lights rules
+    # are tested in test_lights_app.py)
+    args = ["detect", str(clip), "-o", str(out), "--max-frames", "45", "--rule", "crop"]
     r = runner.invoke(app, [*args, "--no-video", "--json", "-q"])
     assert r.exit_code == 0, r.output
     states = [
@@ -181,7 +183,7 @@ def test_detect_with_default_classifier(video_dir: Path, tmp_path: Path) -> None
     assert summary["ms_per_frame"]["classify"] > 0
     assert 13 in summary["active_ev_tracks"]  # the lit ambulance of the label file is flagged
     off = tmp_path / "off"
-    none = ["--classifier", "none", "--no-video", "-q"]
+    none = ["--classifier", "none", "--rule", "crop", "--no-video", "-q"]
     r = runner.invoke(app, ["detect", str(clip), "-o", str(off), "--max-frames", "45", *none])
     assert r.exit_code == 0, r.output
     states = {

@@ -1,12 +1,17 @@
-"""``makeway detect``: the detector → tracker → crop classifier → smoother pipeline on a video."""
+"""``makeway detect``: the detector → tracker → active-EV rule (lights and/or crop classifier) →
+smoother pipeline on a video."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
-from makeway.pipeline.video import VideoRunSummary, run_video
+from makeway.pipeline.video import DEFAULT_LIGHTS, VideoRunSummary, run_video
+from makeway.track.lights import ACTIVE_RULES
 
-__all__ = ["detect"]
+__all__ = ["DEFAULT_RULE", "detect"]
+
+#: The active-EV rule ``makeway detect`` uses when none is named (see :func:`detect`).
+DEFAULT_RULE = "lights+crop"
 
 
 def detect(
@@ -19,13 +24,24 @@ def detect(
     stride: int = 1,
     max_frames: int | None = None,
     write_video: bool = True,
-    classifier: str = "none",
+    classifier: str = "default",
     classify_every: int = 1,
     single_view: bool = False,
     progress: bool = True,
+    rule: str = DEFAULT_RULE,
+    light_detector: str = DEFAULT_LIGHTS[0],
+    colours: str = DEFAULT_LIGHTS[1],
 ) -> VideoRunSummary:
-    """Detect, track and (with a ``classifier``) judge the vehicles of ``video``; write the annotated
-    video, ``tracks.jsonl`` and ``summary.json`` to ``out`` (default ``makeway_out/<video stem>``).
+    """Detect, track and judge the vehicles of ``video``; write the annotated video, ``tracks.jsonl``
+    and ``summary.json`` to ``out`` (default ``makeway_out/<video stem>``).
+
+    ``rule`` says what makes a vehicle track an active EV (:class:`makeway.pipeline.video.VisionPipeline`,
+    :func:`makeway.track.lights.active_probability`), through the smoother: ``lights+crop``
+    (default: a flashing emergency light on or above its box, and the crop classifier says it is an
+    EV), ``lights`` (the flashing light alone; no classifier runs) or ``crop`` (the crop classifier
+    alone, the earlier rule; without a classifier no track is judged). The lights rules use the
+    light detector ``light_detector`` (registry name) with the colour set ``colours``, and each
+    ``tracks.jsonl`` line then also lists the frame's ``lights``.
 
     ``classifier`` is a shipped crop classifier name (``default``, ``fast``, ``fastest``,
     ``imagenet``), a model file (``.npz`` head or ``.onnx`` CNN) or ``none``; it judges each track on
@@ -38,8 +54,12 @@ def detect(
             an unknown classifier name lists the shipped ones).
         UnknownNameError: an unknown detector (lists the known ones).
     """
+    if rule not in ACTIVE_RULES:
+        raise ValueError(f"unknown rule {rule!r}; choose from: {', '.join(ACTIVE_RULES)}")
+    if rule == "lights+crop" and classifier.strip().lower() == "none":
+        raise ValueError("the lights+crop rule needs a classifier; use --rule lights without one")
     track_classifier = None
-    if classifier.strip().lower() != "none":
+    if classifier.strip().lower() != "none" and rule != "lights":
         from makeway.perceive.vision.ev_classifier import EVTrackClassifier, load_crop_classifier
 
         crop_classifier = load_crop_classifier(classifier, single_view=single_view)
@@ -57,4 +77,7 @@ def detect(
         write_video=write_video,
         classifier=track_classifier,
         progress=progress,
+        rule=rule,
+        light_detector=light_detector,
+        light_colours=colours,
     )

@@ -80,16 +80,39 @@ def detect(
             "(half the cost; with --classify-every 4 the head keeps >= 2x real time).",
         ),
     ] = False,
+    rule: Annotated[
+        str,
+        typer.Option(
+            help="What makes a track an active EV (through the smoother): 'lights+crop' (the default: a "
+            "flashing emergency light on or above its box, and the crop classifier says EV), 'lights' "
+            "(the flashing light alone, no classifier) or 'crop' (the crop classifier alone, the "
+            "earlier rule)."
+        ),
+    ] = "lights+crop",
+    light_detector: Annotated[
+        str | None, typer.Option(help="Light detector of the lights rules (default: the project's default).")
+    ] = None,
+    colours: Annotated[
+        str,
+        typer.Option(
+            help="Emergency-light colours of the lights rules: us (red, blue, white; the default), eu, "
+            "uk_amber, all, or a comma list."
+        ),
+    ] = "us",
     as_json: Annotated[bool, typer.Option("--json", help="Print the run summary as one JSON line.")] = False,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")] = False,
 ) -> None:
     """Detect, track and judge the vehicles in a road video.
 
-    The pipeline: vehicle detector → SORT tracker → [crop classifier] → smoother. Writes
-    OUT/annotated.mp4 (H.264, boxes, ids, EV state colours, FPS), OUT/tracks.jsonl (one JSON object
-    per frame) and OUT/summary.json (timings per stage, real-time factor).
+    The pipeline: vehicle detector → SORT tracker → [crop classifier] → smoother, with the light
+    detector → light tracker → flash cue beside it: by default a track is an active EV when a
+    flashing emergency light is on or above its box and the classifier says EV (--rule). Writes
+    OUT/annotated.mp4 (H.264, boxes, ids, EV state colours, light boxes, FPS), OUT/tracks.jsonl
+    (one JSON object per frame, with its lights) and OUT/summary.json (timings per stage,
+    real-time factor, active EV track ids).
     """
     from makeway.apps.detect import detect as run
+    from makeway.perceive.vision.lights import DEFAULT_LIGHT_DETECTOR
 
     summary = run(
         video,
@@ -104,18 +127,97 @@ def detect(
         classify_every=classify_every,
         single_view=single_view,
         progress=not quiet,
+        rule=rule,
+        light_detector=light_detector or DEFAULT_LIGHT_DETECTOR,
+        colours=colours,
     )
     table = Table(title=f"makeway detect — {video.name}", show_header=False)
     table.add_row("frames", f"{summary.frames} ({summary.width}×{summary.height} @ {summary.fps:g} fps)")
     table.add_row("real-time factor", f"{summary.realtime_factor:.2f}× ({summary.wall_seconds:.1f} s wall)")
     table.add_row("ms / frame", ", ".join(f"{k} {v:.1f}" for k, v in summary.ms_per_frame.items()))
     table.add_row("tracks", f"{summary.unique_tracks} ids, at most {summary.max_tracks} at once")
+    table.add_row(
+        f"active EVs ({summary.rule})",
+        ", ".join(f"#{i}" for i in summary.active_ev_tracks) or "none",
+    )
     for name, path in summary.outputs.items():
         table.add_row(f"→ {name}", path)
     if not as_json:
         console.print(table)
     else:
         print_json_line(summary.to_json())
+
+
+# ------------------------------------------------------------------------------------------- lights
+@app.command()
+@friendly_errors
+def lights(
+    source: Annotated[Path, typer.Argument(help="Road video, or a folder of images (no tracking then).")],
+    out: Annotated[
+        Path | None,
+        typer.Option("--out", "-o", help="Output folder (default: makeway_out/<name>_lights)."),
+    ] = None,
+    rig: Annotated[
+        str | None,
+        typer.Option(help="Rig file (YAML) or 'default'; with --camera, each light gets its azimuth."),
+    ] = None,
+    camera: Annotated[
+        str | None,
+        typer.Option(
+            help="Camera of the rig that recorded SOURCE (the default rig: front, left, right, rear)."
+        ),
+    ] = None,
+    detector: Annotated[
+        str | None, typer.Option(help="Light detector (registry name; default: the project's default).")
+    ] = None,
+    colours: Annotated[
+        str,
+        typer.Option(
+            help="Emergency-light colours: eu (blue + bluish white), us (red, blue, white), uk_amber, all, "
+            "or a comma list such as blue,red."
+        ),
+    ] = "eu",
+    max_frames: Annotated[int | None, typer.Option(min=1, help="Stop after N frames / images.")] = None,
+    no_video: Annotated[bool, typer.Option("--no-video", help="Skip the annotated video / images.")] = False,
+    as_json: Annotated[bool, typer.Option("--json", help="Print the run summary as one JSON line.")] = False,
+    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")] = False,
+) -> None:
+    """Find, track and time lit emergency lights.
+
+    Writes OUT/annotated.mp4 (H.264: light boxes in their colour, track id, flash Hz, azimuth),
+    OUT/lights.jsonl (one JSON object per frame: each light's box, colour, score, track id, flash_hz,
+    flashing, and azimuth_deg / elevation_deg with --rig/--camera) and OUT/summary.json.
+    """
+    from makeway.apps.lights import lights as run
+    from makeway.perceive.vision.lights import DEFAULT_LIGHT_DETECTOR
+
+    summary = run(
+        source,
+        out,
+        rig=rig,
+        camera=camera,
+        detector=detector or DEFAULT_LIGHT_DETECTOR,
+        colours=colours,
+        max_frames=max_frames,
+        write_video=not no_video,
+        progress=not quiet,
+    )
+    if as_json:
+        print_json_line(summary.to_json())
+        return
+    table = Table(title=f"makeway lights — {source.name}", show_header=False)
+    size = f"{summary.width}×{summary.height}" + (f" @ {summary.fps:g} fps" if summary.fps else "")
+    table.add_row("frames", f"{summary.frames} ({size})")
+    table.add_row("detector", f"{summary.detector} ({', '.join(summary.colours)})")
+    table.add_row("lights", f"{summary.light_detections} detections, {summary.light_tracks} tracks")
+    if summary.kind == "video":
+        table.add_row("flashing", f"{len(summary.flashing_tracks)} tracks")
+        table.add_row(
+            "real-time factor", f"{summary.realtime_factor or 0:.2f}× ({summary.ms_per_frame:.1f} ms/frame)"
+        )
+    for name, path in summary.outputs.items():
+        table.add_row(f"→ {name}", path)
+    console.print(table)
 
 
 # -------------------------------------------------------------------------------------------- track

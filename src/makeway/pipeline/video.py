@@ -5,8 +5,15 @@
 
 * ``annotated.mp4`` — H.264 with boxes, track ids, EV state colours and an FPS panel;
 * ``tracks.jsonl`` — one JSON object per processed frame (index, time, tracks with box, id, score,
-  class, EV state);
-* ``summary.json`` — frames, wall time, real-time factor and per-stage milliseconds per frame.
+  class, EV state; under the lights rules also ``lights``: the red, blue and amber lights seen in
+  the frame with their track id, box, colour, score and flash cue,
+  :meth:`makeway.track.lights.LightTrack.to_dict`);
+* ``summary.json`` — frames, wall time, real-time factor, per-stage milliseconds per frame (with
+  ``lights``, the light detector's, under the lights rules), the active-EV rule and the tracks it
+  turned active.
+
+The light detector runs beside the vehicle detector on the same worker threads; the light tracker
+(and its flash cue) with SORT on the main thread.
 
 Decoding and encoding run on their own threads (both release the GIL in FFmpeg), so they overlap
 with detection on the main thread. Outputs appear only when the run completes: an error midway (a
@@ -29,20 +36,34 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
+import cv2
 import numpy as np
 
 from makeway.atomic import atomic_path, check_writable, removed_on_error, write_text_atomic
-from makeway.messages import EVTrackState, PerceptionFrame
+from makeway.messages import EVObservation, EVTrackState, LightDetection, PerceptionFrame
 from makeway.perceive.vision.detectors import DETECTORS, Detector
 from makeway.perceive.vision.ev_classifier import TrackClassifier
+from makeway.perceive.vision.lights import DEFAULT_LIGHT_DETECTOR, LightDetector
 from makeway.progress import progress_bar
 from makeway.sense.video import VideoReader
+from makeway.track.lights import (
+    ACTIVE_RULES,
+    SATURATED,
+    LightTrack,
+    LightTracker,
+    active_probability,
+    build_light_detector,
+    vehicle_light_evidence,
+)
 from makeway.track.smoother import TrackSmoother
 from makeway.track.sort import Sort
 from makeway.viz.annotate import draw_frame
 from makeway.viz.video_writer import H264Writer
 
 STAGES = ("read", "detect", "track", "classify", "annotate", "encode")
+
+#: What ``lights`` means in :func:`run_video`: the light detector's registry name and colour set.
+DEFAULT_LIGHTS = (DEFAULT_LIGHT_DETECTOR, "us")
 
 
 class VisionPipeline:
@@ -51,8 +72,17 @@ class VisionPipeline:
     Args:
         detector: a registered vehicle detector (see :func:`DETECTORS`).
         tracker: the SORT tracker (default ``Sort()`` with the paper's 1 / 3 / 0.3).
-        classifier: per-track EV classifier; without one, tracks carry no EV state.
-        smoother: the per-track output smoother used with the classifier (default ``TrackSmoother()``).
+        classifier: per-track EV classifier (the ``crop`` and ``lights+crop`` rules use it).
+        smoother: the per-track output smoother (default ``TrackSmoother()``).
+        rule: how a vehicle track becomes an active EV, one of
+            :data:`~makeway.track.lights.ACTIVE_RULES`: ``crop`` (the crop classifier alone),
+            ``lights`` (a flashing red, blue or amber light in the upper part of the box or just
+            above it) or ``lights+crop`` (such a light, and the classifier says EV); see
+            :func:`~makeway.track.lights.active_probability` and
+            :func:`~makeway.track.lights.vehicle_light_evidence`. The per-frame votes go through
+            the smoother. Without a classifier, ``crop`` gives tracks no EV state.
+        light_tracker: the light tracker of the lights rules (default ``LightTracker()``); its
+            detections come with each frame (:meth:`process_detections`).
     """
 
     def __init__(
@@ -61,11 +91,22 @@ class VisionPipeline:
         tracker: Sort | None = None,
         classifier: TrackClassifier | None = None,
         smoother: TrackSmoother | None = None,
+        *,
+        rule: str = "crop",
+        light_tracker: LightTracker | None = None,
     ) -> None:
+        if rule not in ACTIVE_RULES:
+            raise ValueError(f"unknown active rule {rule!r}; choose from: {', '.join(ACTIVE_RULES)}")
         self.detector = detector
         self.tracker = tracker if tracker is not None else Sort()
         self.classifier = classifier
         self.smoother = smoother if smoother is not None else TrackSmoother()
+        self.rule = rule
+        self.light_tracker = (
+            (light_tracker if light_tracker is not None else LightTracker()) if rule != "crop" else None
+        )
+        #: The light tracks after the last frame (empty under the ``crop`` rule).
+        self.light_tracks: list[LightTrack] = []
         self.seconds: dict[str, float] = dict.fromkeys(STAGES, 0.0)
 
     def process(self, image_bgr: np.ndarray, frame_index: int, time_s: float) -> PerceptionFrame:
@@ -81,20 +122,44 @@ class VisionPipeline:
         frame_index: int,
         time_s: float,
         arrays: tuple[np.ndarray, np.ndarray, np.ndarray],
+        lights: Sequence[LightDetection] = (),
     ) -> PerceptionFrame:
         """Track, classify and smooth one frame whose detections were computed elsewhere.
 
         ``arrays`` is ``(boxes, scores, class_ids)`` as :meth:`Detector.detect_arrays` returns them;
-        frames must arrive in order, once each.
+        ``lights`` the light detector's boxes in this frame (used by the lights rules); frames must
+        arrive in order, once each.
         """
         t1 = time.perf_counter()
         boxes, scores, class_ids = arrays
         detections = Detector.to_detections((boxes, scores, class_ids))
         tracks = self.tracker.update(detections)
+        evidence: dict[int, tuple[bool, bool]] = {}
+        if self.light_tracker is not None:
+            # white lights never make a vehicle active (headlights, street lamps): not tracked here
+            kept = [d for d in lights if d.colour in SATURATED]
+            self.light_tracks = self.light_tracker.update(kept, time_s, image_bgr)
+            evidence = vehicle_light_evidence(tracks, self.light_tracks)
         t2 = time.perf_counter()
         states: tuple[EVTrackState, ...] = ()
-        if self.classifier is not None:
-            observations = self.classifier.classify(image_bgr, tracks, frame_index, time_s)
+        uses_crop = self.rule != "lights" and self.classifier is not None
+        if uses_crop or self.rule != "crop":
+            crop: dict[int, float | None] = {}
+            if uses_crop:
+                assert self.classifier is not None
+                for obs in self.classifier.classify(image_bgr, tracks, frame_index, time_s):
+                    crop[obs.track_id] = obs.probability
+            observations = [
+                EVObservation(
+                    t.track_id,
+                    frame_index,
+                    time_s,
+                    active_probability(
+                        self.rule, *evidence.get(t.track_id, (False, False)), crop.get(t.track_id)
+                    ),
+                )
+                for t in tracks
+            ]
             states = tuple(self.smoother.update(observations, alive_track_ids=self.tracker.live_ids))
             live = {t.track_id for t in tracks}
             states = tuple(s for s in states if s.track_id in live)
@@ -112,6 +177,7 @@ class VideoRunSummary:
     out_dir: str | None
     detector: str
     detector_workers: int
+    rule: str
     width: int
     height: int
     fps: float
@@ -178,42 +244,59 @@ class _Prefetch:
         self._thread.join()
 
 
+_Arrays = tuple[np.ndarray, np.ndarray, np.ndarray]
+
+
 def _detect_in_order(
-    frames: Iterator[tuple[int, float, np.ndarray]], detectors: Sequence[Detector], seconds: list[float]
-) -> Iterator[tuple[int, float, np.ndarray, tuple[np.ndarray, np.ndarray, np.ndarray]]]:
+    frames: Iterator[tuple[int, float, np.ndarray]],
+    detectors: Sequence[Detector],
+    seconds: list[float],
+    light_detectors: Sequence[LightDetector] | None = None,
+) -> Iterator[tuple[int, float, np.ndarray, tuple[_Arrays, list[LightDetection]]]]:
     """Detect on several frames at once, one detector per worker, yielding results in frame order.
 
     Detection is stateless, so consecutive frames can be detected concurrently (ONNX Runtime
     releases the GIL); tracking then consumes them strictly in order. On a 2-core machine two
     single-threaded sessions give more frames per second than one session with two threads.
-    ``seconds[0]`` accumulates the detectors' busy time.
+    With ``light_detectors`` (one per vehicle detector) each worker also finds the frame's lit
+    lights (OpenCV releases the GIL too); else the light list is empty. ``seconds[0]``
+    accumulates the vehicle detectors' busy time, ``seconds[1]`` the light detectors'.
     """
-    if len(detectors) == 1:
-        (only,) = detectors
-        for index, t_s, image in frames:
-            t0 = time.perf_counter()
-            arrays = only.detect_arrays(image)
-            seconds[0] += time.perf_counter() - t0
-            yield index, t_s, image, arrays
-        return
-    free: queue.Queue[Detector] = queue.Queue()
-    for d in detectors:
-        free.put(d)
+    lights = list(light_detectors) if light_detectors else [None] * len(detectors)
+    if len(lights) != len(detectors):
+        raise ValueError("one light detector per vehicle detector is needed")
 
-    def job(image: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        det = free.get()
+    def both(
+        det: Detector, light: LightDetector | None, image: np.ndarray, index: int
+    ) -> tuple[_Arrays, list[LightDetection]]:
         t0 = time.perf_counter()
-        try:
-            return det.detect_arrays(image)
-        finally:
-            seconds[0] += time.perf_counter() - t0
-            free.put(det)
+        arrays = det.detect_arrays(image)
+        t1 = time.perf_counter()
+        found = light.detect(image, index) if light is not None else []
+        seconds[0] += t1 - t0
+        seconds[1] += time.perf_counter() - t1
+        return arrays, found
 
-    pending: deque[tuple[int, float, np.ndarray, Future[tuple[np.ndarray, np.ndarray, np.ndarray]]]] = deque()
+    if len(detectors) == 1:
+        for index, t_s, image in frames:
+            yield index, t_s, image, both(detectors[0], lights[0], image, index)
+        return
+    free: queue.Queue[tuple[Detector, LightDetector | None]] = queue.Queue()
+    for pair in zip(detectors, lights, strict=True):
+        free.put(pair)
+
+    def job(image: np.ndarray, index: int) -> tuple[_Arrays, list[LightDetection]]:
+        det, light = free.get()
+        try:
+            return both(det, light, image, index)
+        finally:
+            free.put((det, light))
+
+    pending: deque[tuple[int, float, np.ndarray, Future[tuple[_Arrays, list[LightDetection]]]]] = deque()
     with ThreadPoolExecutor(max_workers=len(detectors), thread_name_prefix="detect") as pool:
         try:
             for index, t_s, image in frames:
-                pending.append((index, t_s, image, pool.submit(job, image)))
+                pending.append((index, t_s, image, pool.submit(job, image, index)))
                 if len(pending) > len(detectors):
                     i, t, img, fut = pending.popleft()
                     yield i, t, img, fut.result()
@@ -268,6 +351,28 @@ class _BackgroundWriter:
             raise self._error
 
 
+def draw_lights(image: np.ndarray, lights: Sequence[LightTrack]) -> None:
+    """Draw light boxes in place: a thin box in the light's colour, thick and labelled with its
+    flash frequency when flashing."""
+    bgr = {"blue": (255, 128, 0), "red": (0, 0, 255), "amber": (0, 170, 255), "white": (255, 255, 255)}
+    for lt in lights:
+        colour = bgr.get(lt.colour, (0, 255, 0))
+        p1 = (int(lt.box.x1) - 2, int(lt.box.y1) - 2)
+        p2 = (int(np.ceil(lt.box.x2)) + 2, int(np.ceil(lt.box.y2)) + 2)
+        cv2.rectangle(image, p1, p2, colour, 2 if lt.flashing else 1)
+        if lt.flashing:
+            cv2.putText(
+                image,
+                f"{lt.flash_hz:.1f}Hz",
+                (p1[0], max(10, p1[1] - 3)),
+                cv2.FONT_HERSHEY_SIMPLEX,
+                0.35,
+                colour,
+                1,
+                cv2.LINE_AA,
+            )
+
+
 def run_video(
     video: str | Path,
     out_dir: str | Path | None,
@@ -284,6 +389,10 @@ def run_video(
     on_frame: Callable[[PerceptionFrame], None] | None = None,
     detector_workers: int | None = None,
     progress: bool = True,
+    rule: str = "crop",
+    light_detector: str = DEFAULT_LIGHTS[0],
+    light_colours: str = DEFAULT_LIGHTS[1],
+    light_tracker: LightTracker | None = None,
 ) -> VideoRunSummary:
     """Run Framework B over ``video``; write the annotated video, JSONL and summary to ``out_dir``.
 
@@ -305,6 +414,11 @@ def run_video(
             Runtime session (default: the number of CPU cores, at most 4). Ignored when a ready
             ``Detector`` instance is passed (it then runs alone, with its own thread setting).
         progress: show a rich progress bar.
+        rule: the active-EV rule (:class:`VisionPipeline`): ``crop``, ``lights`` or ``lights+crop``.
+        light_detector, light_colours: the lights rules' light detector (registry name, one
+            instance per detector worker) and its colour set
+            (:data:`~makeway.perceive.vision.lights.COLOUR_SETS` name or colour list).
+        light_tracker: override the default :class:`~makeway.track.lights.LightTracker`.
 
     Raises:
         InputError: the video or the model is missing or unreadable, or ``out_dir`` cannot be
@@ -330,8 +444,13 @@ def run_video(
             for _ in range(workers)
         ]
     det = detectors[0]
-    pipe = VisionPipeline(det, tracker=tracker, classifier=classifier, smoother=smoother)
-    detect_seconds = [0.0]
+    light_detectors = (
+        [build_light_detector(light_detector, light_colours) for _ in detectors] if rule != "crop" else None
+    )
+    pipe = VisionPipeline(
+        det, tracker=tracker, classifier=classifier, smoother=smoother, rule=rule, light_tracker=light_tracker
+    )
+    detect_seconds = [0.0, 0.0]
     total = info.frame_count if info.frame_count > 0 else None
     if total is not None:
         total = -(-total // stride)
@@ -360,14 +479,20 @@ def run_video(
             frames = _Prefetch(iter(reader))
             wall0 = time.perf_counter()
             try:
-                for index, t_s, image, arrays in _detect_in_order(iter(frames), detectors, detect_seconds):
-                    frame = pipe.process_detections(image, index, t_s, arrays)
+                for index, t_s, image, (arrays, lights) in _detect_in_order(
+                    iter(frames), detectors, detect_seconds, light_detectors
+                ):
+                    frame = pipe.process_detections(image, index, t_s, arrays, lights)
+                    seen_lights = [lt for lt in pipe.light_tracks if lt.detected]
                     n_frames += 1
                     max_tracks = max(max_tracks, len(frame.tracks))
                     seen_ids.update(t.track_id for t in frame.tracks)
                     active_ids.update(s.track_id for s in frame.ev_states if s.active)
                     if jsonl is not None:
-                        jsonl.write(json.dumps(frame.to_json(), separators=(",", ":")) + "\n")
+                        line = frame.to_json()
+                        if light_detectors is not None:
+                            line["lights"] = [lt.to_dict() for lt in seen_lights]
+                        jsonl.write(json.dumps(line, separators=(",", ":")) + "\n")
                     if on_frame is not None:
                         on_frame(frame)
                     now = time.perf_counter()
@@ -376,6 +501,8 @@ def run_video(
                     fps_now = (len(recent) - 1) / span if span > 0 else 0.0
                     if bg is not None:
                         ta = time.perf_counter()
+                        if light_detectors is not None:
+                            draw_lights(image, seen_lights)
                         annotated = draw_frame(
                             image, frame, fps_text=f"{fps_now:5.1f} fps ({det.name})", copy=False
                         )
@@ -409,6 +536,8 @@ def run_video(
     seconds = dict(pipe.seconds)
     seconds["read"] = frames.seconds
     seconds["detect"] = detect_seconds[0]
+    if light_detectors is not None:
+        seconds["lights"] = detect_seconds[1]
     seconds["annotate"] = annotate_s
     seconds["encode"] = bg.seconds if bg is not None else 0.0
     video_seconds = n_frames * stride / info.fps
@@ -417,6 +546,7 @@ def run_video(
         out_dir=str(out) if out is not None else None,
         detector=det.name,
         detector_workers=len(detectors),
+        rule=rule,
         width=info.width,
         height=info.height,
         fps=info.fps,
