@@ -57,7 +57,7 @@ def propose(
     ] = None,
     data: DataOption = None,
 ) -> None:
-    """Propose lit-light boxes on every N-th frame of a video, or on each image of a folder.
+    """Propose lit-light boxes on a video's frames or a folder's images.
 
     Cues: colour (HSV masks), bright cores with a coloured halo, flashing (videos only).
 
