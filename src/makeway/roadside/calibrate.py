@@ -44,7 +44,12 @@ from makeway.sense.camera import KannalaBrandtCamera, PinholeCamera
 
 __all__ = [
     "MIN_POINTS",
-    "VANISHING_SIGMA_PX", "RoadPoints", "fit_road_camera", "leave_one_out_errors", "read_road_points"]
+    "VANISHING_SIGMA_PX",
+    "RoadPoints",
+    "fit_road_camera",
+    "leave_one_out_errors",
+    "read_road_points",
+]
 
 #: Fewest landmarks a fit accepts (8 unknowns; a hand calibration should have well over this).
 MIN_POINTS = 8
