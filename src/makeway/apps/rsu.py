@@ -151,7 +151,7 @@ def run_rsu(
                 blobs.append(signed)
                 rows.append(
                     json.dumps(
-                        {**alert.to_json(), "signer": identity.signer.hex(), "video_time_s": report.time_s}
+                        {**alert.to_json(), "signer": identity.signer.hex(), "video_time_s": round(report.time_s, 6)}
                         | {k: v for k, v in report.to_json().items() if k != "time_s"},
                         allow_nan=False,
                     )
