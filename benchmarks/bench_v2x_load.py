@@ -299,6 +299,10 @@ def run(minutes: float, units: int, n_cars: int, car_procs: int, rate_hz: float)
         "rss_first_last_min_mib": rss,
         "rss_flat": all(last - first < FLAT_MIB for first, last in rss.values()),
         "rss_after_first_min_pct_low_high": spread,
+        "rss_samples_s_mib": {
+            "publisher": pub["rss"],
+            **{f"cars-{p}": co["rss"] for p, co in enumerate(car_out)},
+        },
         "rss_flat_pct": all(lo >= -FLAT_PCT and hi <= FLAT_PCT for lo, hi in spread.values()),
         "lag_ms_p50_p99_max_per_proc": [co["lag_ms"] for co in car_out],
         "arrival_ms_p50_p99_max_per_proc": [co["arrival_ms"] for co in car_out],
