@@ -149,13 +149,10 @@ def run_rsu(
                 pub.publish(signed)
             if out is not None:
                 blobs.append(signed)
-                rows.append(
-                    json.dumps(
-                        {**alert.to_json(), "signer": identity.signer.hex(), "video_time_s": round(report.time_s, 6)}
-                        | {k: v for k, v in report.to_json().items() if k != "time_s"},
-                        allow_nan=False,
-                    )
-                )
+                fields = {k: v for k, v in report.to_json().items() if k != "time_s"}
+                head = {**alert.to_json(), "signer": identity.signer.hex()}
+                row = head | {"video_time_s": round(report.time_s, 6)} | fields
+                rows.append(json.dumps(row, allow_nan=False))
 
     from makeway.pipeline.video import run_video
 
