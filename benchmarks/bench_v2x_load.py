@@ -47,6 +47,7 @@ from makeway.v2x.security import TrustStore, Verifier, keygen, load_identity, si
 from makeway.v2x.transport import AlertPublisher, AlertSubscriber, open_peer
 
 FLAT_MIB = 5.0
+FLAT_PCT = 5.0  # every RSS sample after the first minute within ± this % of the first minute's mean
 RSS_EVERY_S = 10.0
 SETTLE_S = 3.0  # after the last alert, how long cars keep listening
 
@@ -215,6 +216,13 @@ def _flat(samples: list[tuple[float, float]], duration_s: float) -> tuple[float,
     return float(np.mean(first)), float(np.mean(last))
 
 
+def _spread_pct(samples: list[tuple[float, float]]) -> tuple[float, float]:
+    """Lowest and highest RSS sample after the first minute, in % of the first minute's mean."""
+    first = float(np.mean([m for t, m in samples if t < 60.0]))
+    later = [m for t, m in samples if t >= 60.0] or [first]
+    return 100.0 * (min(later) / first - 1.0), 100.0 * (max(later) / first - 1.0)
+
+
 def run(minutes: float, units: int, n_cars: int, car_procs: int, rate_hz: float) -> dict[str, Any]:
     duration_s = minutes * 60.0
     if n_cars % car_procs:
@@ -269,8 +277,10 @@ def run(minutes: float, units: int, n_cars: int, car_procs: int, rate_hz: float)
         for c in co["cars"]:
             failures.update(c["failures"])
     rss = {"publisher": _flat(pub["rss"], duration_s)}
+    spread = {"publisher": _spread_pct(pub["rss"])}
     for p, co in enumerate(car_out):
         rss[f"cars-{p}"] = _flat(co["rss"], duration_s)
+        spread[f"cars-{p}"] = _spread_pct(co["rss"])
     return {
         "minutes": minutes,
         "units": units,
@@ -288,6 +298,12 @@ def run(minutes: float, units: int, n_cars: int, car_procs: int, rate_hz: float)
         "publisher_late_over_one_period": pub["late_over_one_period"],
         "rss_first_last_min_mib": rss,
         "rss_flat": all(last - first < FLAT_MIB for first, last in rss.values()),
+        "rss_after_first_min_pct_low_high": spread,
+        "rss_samples_s_mib": {
+            "publisher": pub["rss"],
+            **{f"cars-{p}": co["rss"] for p, co in enumerate(car_out)},
+        },
+        "rss_flat_pct": all(lo >= -FLAT_PCT and hi <= FLAT_PCT for lo, hi in spread.values()),
         "lag_ms_p50_p99_max_per_proc": [co["lag_ms"] for co in car_out],
         "arrival_ms_p50_p99_max_per_proc": [co["arrival_ms"] for co in car_out],
     }
@@ -327,6 +343,9 @@ def main() -> None:
     for name, (first, last) in r["rss_first_last_min_mib"].items():
         print(f"  RSS {name:9s} first min {first:7.1f} MiB, last min {last:7.1f} MiB ({last - first:+.1f})")
     print(f"  memory flat (every process grew < {FLAT_MIB:g} MiB): {r['rss_flat']}")
+    for name, (lo, hi) in r["rss_after_first_min_pct_low_high"].items():
+        print(f"  RSS {name:9s} after the first minute: {lo:+.1f} % … {hi:+.1f} % of the first minute's mean")
+    print(f"  memory flat (every sample after the first minute within ± {FLAT_PCT:g} %): {r['rss_flat_pct']}")
     lags = r["lag_ms_p50_p99_max_per_proc"]
     print(
         "  generated → verified lag per car process, p50/p99/max ms: "

@@ -513,12 +513,14 @@ from makeway.cli.classify import classify_app  # noqa: E402
 from makeway.cli.light_labels import light_labels_app  # noqa: E402
 from makeway.cli.rig import rig_app  # noqa: E402
 from makeway.cli.roadside import roadside_app  # noqa: E402
+from makeway.cli.rsu import rsu_app  # noqa: E402
 from makeway.cli.v2x import v2x_app, vehicle_app  # noqa: E402
 
 app.add_typer(classify_app, name="classify")
 app.add_typer(audio_app, name="audio")
 app.add_typer(rig_app, name="rig")
 app.add_typer(roadside_app, name="roadside")
+app.add_typer(rsu_app, name="rsu")
 app.add_typer(light_labels_app, name="light-labels")
 app.add_typer(v2x_app, name="v2x")
 app.add_typer(vehicle_app, name="vehicle")
