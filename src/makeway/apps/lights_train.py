@@ -41,7 +41,9 @@ def train_lights(
     check_writable(out, folder=False)
     root = Path(data) if data is not None else data_dir()
     if root is None or not Path(root).is_dir():
-        raise InputError(str(data or "../shared/data"), "shared data folder not found; pass --data or set MAKEWAY_DATA")
+        raise InputError(
+            str(data or "../shared/data"), "shared data folder not found; pass --data or set MAKEWAY_DATA"
+        )
     if steps < 20:
         raise ValueError(f"steps must be at least 20, got {steps}")
     cfg = TrainConfig(steps=steps, attention=attention, seed=seed, threads=threads)
@@ -52,7 +54,11 @@ def train_lights(
     load_s = time.perf_counter() - t0
     with progress_bar("training lights detector", steps, enabled=show_progress, unit="steps") as advance:
         net, log = train(train_frames, val_frames, cfg, progress=lambda _s, _n, _l: advance())
-    command = f"makeway lights-train {out}" + ("" if attention else " --no-attention") + f" --steps {steps} --seed {seed}"
+    command = (
+        f"makeway lights-train {out}"
+        + ("" if attention else " --no-attention")
+        + f" --steps {steps} --seed {seed}"
+    )
     export_onnx(net, out, cfg, training=command)
     summary: dict[str, Any] = {
         "model": str(out),

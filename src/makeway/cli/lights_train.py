@@ -23,10 +23,12 @@ def lights_train(
     seed: Annotated[int, typer.Option(help="Random seed.")] = 0,
     threads: Annotated[int, typer.Option(min=1, help="torch threads.")] = 1,
     data: Annotated[
-        Path | None, typer.Option("--data", help="Shared data folder (default: ../shared/data or MAKEWAY_DATA).")
+        Path | None,
+        typer.Option("--data", help="Shared data folder (default: ../shared/data or MAKEWAY_DATA)."),
     ] = None,
     labels: Annotated[
-        Path | None, typer.Option("--labels", help="Folder of label CSVs (default: the package's data/lights).")
+        Path | None,
+        typer.Option("--labels", help="Folder of label CSVs (default: the package's data/lights)."),
     ] = None,
     json_out: Annotated[bool, typer.Option("--json", help="Print the summary as one JSON line.")] = False,
 ) -> None:
@@ -48,7 +50,8 @@ def lights_train(
     )
     console.print(
         f"wrote {s['model']} ({s['bytes'] / 1e6:.2f} MB, attention {'on' if s['attention'] else 'off'}): "
-        f"{s['train_frames']} train frames ({s['train_positive_frames']} with lights, {s['train_boxes']} boxes), "
+        f"{s['train_frames']} train frames ({s['train_positive_frames']} with lights, "
+        f"{s['train_boxes']} boxes), "
         f"{s['val_frames']} val frames ({s['val_boxes']} boxes); step {s['chosen_step']} kept; "
         f"{s['train_seconds']:.0f} s training"
     )

@@ -21,7 +21,10 @@ side of the larger one, and each group is one false vehicle. ``P = found / (foun
 ``R = found / ground-truth vehicles``, summed over frames (vehicle-frame pairs).
 
 **mAP50, mAP50:95**: :func:`makeway.eval.detection.detection_metrics` over all frames of the set (one
-class, all-point interpolated AP; COCO samples 101 recall points, which moves AP by up to ~0.01).
+class, all-point interpolated AP; COCO samples 101 recall points, which moves AP by up to ~0.01),
+over every detection given; the P/R figures count only detections scoring at least
+``score_threshold`` (the detector's operating point), so a detector run with a low threshold gives
+both its ranking (mAP) and its operating point (P/R).
 
 **Latency**: milliseconds per frame of the detector's ``detect`` call (mean and median).
 
@@ -174,22 +177,29 @@ class LightsMetrics:
     ms_median: float
 
     def to_dict(self) -> dict[str, Any]:
-        return {k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in self.__dict__.items()}
+        return {
+            k: (None if isinstance(v, float) and not math.isfinite(v) else v)
+            for k, v in self.__dict__.items()
+        }
 
 
 def _ratio(a: int, b: int) -> float:
     return a / b if b else float("nan")
 
 
-def metrics(results: Sequence[FrameResult], iou_threshold: float = 0.5) -> LightsMetrics:
-    """All figures over a set of evaluated frames."""
+def metrics(
+    results: Sequence[FrameResult], iou_threshold: float = 0.5, score_threshold: float = 0.0
+) -> LightsMetrics:
+    """All figures over a set of evaluated frames (P/R at ``score_threshold``, mAP over all)."""
     tp = n_det = n_gt = found = false = n_veh = neg = fp_frames = 0
     for r in results:
-        match = match_frame(r.boxes, r.scores, r.gt_boxes, iou_threshold)
+        keep = np.asarray(r.scores, np.float64).ravel() >= score_threshold
+        boxes, scores = _boxes(r.boxes)[keep], np.asarray(r.scores, np.float64).ravel()[keep]
+        match = match_frame(boxes, scores, r.gt_boxes, iou_threshold)
         tp += int((match >= 0).sum())
         n_det += len(match)
         n_gt += len(_boxes(r.gt_boxes))
-        f, fa, nv = vehicle_counts(r.boxes, r.scores, r.gt_boxes, r.gt_vehicles, iou_threshold)
+        f, fa, nv = vehicle_counts(boxes, scores, r.gt_boxes, r.gt_vehicles, iou_threshold)
         found, false, n_veh = found + f, false + fa, n_veh + nv
         if len(_boxes(r.gt_boxes)) == 0:
             neg += 1
@@ -235,14 +245,18 @@ _LOWER_IS_WORSE = (
 )
 
 
-def summarise(results: Sequence[FrameResult], iou_threshold: float = 0.5) -> dict[str, dict[str, Any]]:
+def summarise(
+    results: Sequence[FrameResult], iou_threshold: float = 0.5, score_threshold: float = 0.0
+) -> dict[str, dict[str, Any]]:
     """Metrics per source (``{source: LightsMetrics.to_dict()}``), plus ``all`` (every frame pooled)
     and ``worst``: per figure the lowest value among the sources where it is defined (the highest for
     latency and ``fp_frames``), with ``worst_source`` naming where each came from."""
     by: dict[str, list[FrameResult]] = {}
     for r in results:
         by.setdefault(r.source, []).append(r)
-    out: dict[str, dict[str, Any]] = {s: metrics(rs, iou_threshold).to_dict() for s, rs in sorted(by.items())}
+    out: dict[str, dict[str, Any]] = {
+        s: metrics(rs, iou_threshold, score_threshold).to_dict() for s, rs in sorted(by.items())
+    }
     worst: dict[str, Any] = {}
     where: dict[str, str] = {}
     for key in (*_LOWER_IS_WORSE, "ms_mean", "fp_frames"):
@@ -253,7 +267,7 @@ def summarise(results: Sequence[FrameResult], iou_threshold: float = 0.5) -> dic
         v, s = (max if key in ("ms_mean", "fp_frames") else min)(vals)
         worst[key], where[key] = v, s
     worst["worst_source"] = where
-    out["all"] = metrics(results, iou_threshold).to_dict()
+    out["all"] = metrics(results, iou_threshold, score_threshold).to_dict()
     out["worst"] = worst
     return out
 

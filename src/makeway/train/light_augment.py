@@ -206,8 +206,8 @@ def perspective(
     ``(image, boxes, keep)``."""
     _check_image(image)
     h, w = image.shape[:2]
-    src = np.float32([[0, 0], [w - 1, 0], [w - 1, h - 1], [0, h - 1]])
-    dst = src + rng.uniform(-strength, strength, (4, 2)).astype(np.float32) * np.float32([w, h])
+    src = np.array([[0, 0], [w - 1, 0], [w - 1, h - 1], [0, h - 1]], np.float32)
+    dst = src + rng.uniform(-strength, strength, (4, 2)).astype(np.float32) * np.array([w, h], np.float32)
     m = cv2.getPerspectiveTransform(src, dst.astype(np.float32))
     out = cv2.warpPerspective(image, m, (w, h), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
     new, keep = map_boxes(boxes, _warp_points(m), w, h)
@@ -257,14 +257,14 @@ def augment(
     keep = np.ones(len(b), bool)
     idx = np.arange(len(b))
     img = image
-    h, w = img.shape[:2]
+    w = img.shape[1]
     if rng.random() < cfg.p_flip:
         img = np.ascontiguousarray(img[:, ::-1])
         b = b.copy()
         b[:, [0, 2]] = w - b[:, [2, 0]]
     for p, fn in ((cfg.p_fisheye, fisheye), (cfg.p_affine, affine), (cfg.p_perspective, perspective)):
         if rng.random() < p:
-            img, b, k = fn(img, b, rng)  # type: ignore[operator]
+            img, b, k = fn(img, b, rng)
             idx = idx[k]
     if rng.random() < cfg.p_photometric:
         img = photometric(img, rng)

@@ -48,6 +48,7 @@ SPLITS: dict[str, str] = {
     "highway_cam_no_ev": "test",
 }
 
+
 # ----------------------------------------------------------------------------------------- data
 @dataclass
 class LightFrame:
@@ -77,7 +78,9 @@ def held_out_images(path: str | Path | None = None) -> set[str]:
     p = Path(path) if path is not None else HELD_OUT_FILE
     if not p.is_file():
         return set()
-    return {s.strip() for s in p.read_text(encoding="utf-8").splitlines() if s.strip() and not s.startswith("#")}
+    return {
+        s.strip() for s in p.read_text(encoding="utf-8").splitlines() if s.strip() and not s.startswith("#")
+    }
 
 
 def source_name(source: str) -> str:

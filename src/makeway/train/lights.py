@@ -74,7 +74,6 @@ ATTENTION_HSV: dict[str, list[tuple[int, int, int, int]]] = {
 }
 
 
-
 # ----------------------------------------------------------------------------------------- network
 def _hsv_cv(x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """RGB ``(n, 3, h, w)`` in [0, 1] → OpenCV-unit H (0–180), S (0–255), V (0–255), each
@@ -115,8 +114,9 @@ class ColourAttention(nn.Module):
         # compare in integer-like units as OpenCV does (its H, S, V are rounded to whole numbers)
         h, s, v = torch.round(h), torch.round(s), torch.round(v)
         m: torch.Tensor | None = None
-        for i in range(self.ranges.shape[0]):
-            lo, hi, smin, vmin = self.ranges[i, 0], self.ranges[i, 1], self.ranges[i, 2], self.ranges[i, 3]
+        ranges: torch.Tensor = self.ranges  # type: ignore[assignment]
+        for i in range(ranges.shape[0]):
+            lo, hi, smin, vmin = ranges[i, 0], ranges[i, 1], ranges[i, 2], ranges[i, 3]
             inside = ((h >= lo) & (h <= hi) & (s >= smin) & (v >= vmin)).to(x.dtype)
             m = inside if m is None else torch.maximum(m, inside)
         assert m is not None
@@ -144,7 +144,10 @@ class LightNet(nn.Module):
     stride = 4
 
     def __init__(
-        self, width: int = 16, attention: bool = True, attention_colours: Sequence[str] = ("blue", "red", "white")
+        self,
+        width: int = 16,
+        attention: bool = True,
+        attention_colours: Sequence[str] = ("blue", "red", "white"),
     ) -> None:
         super().__init__()
         w = width
@@ -161,6 +164,7 @@ class LightNet(nn.Module):
         self.heat = nn.Conv2d(2 * w, 1, 1)
         self.size = nn.Conv2d(2 * w, 2, 1)
         self.offset = nn.Conv2d(2 * w, 2, 1)
+        assert self.heat.bias is not None and self.size.bias is not None
         nn.init.constant_(self.heat.bias, -4.6)  # start at p ≈ 0.01 (CenterNet)
         nn.init.constant_(self.size.bias, math.log(8.0))
 
@@ -243,7 +247,8 @@ def focal_loss(logits: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
 class TrainConfig:
     """Settings of :func:`train`. ``steps`` optimiser steps of ``batch`` crops of ``crop`` px;
     ``attention`` switches the colour-attention block (False: the ablation); ``threads`` torch
-    threads (1 by default: on a shared 2-core machine a second thread made steps ten times slower); ``eval_every`` steps between validation checks (when val has lights)."""
+    threads (1 by default: on a shared 2-core machine a second thread made steps ten times slower);
+    ``eval_every`` steps between validation checks (when val has lights)."""
 
     steps: int = 1600
     batch: int = 12
@@ -261,9 +266,7 @@ class TrainConfig:
     threshold: float = 0.3
 
 
-def _sample_crop(
-    frame: LightFrame, crop: int, rng: np.random.Generator
-) -> tuple[np.ndarray, np.ndarray]:
+def _sample_crop(frame: LightFrame, crop: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
     h, w = frame.image.shape[:2]
     u = rng.random()
     if u < 0.5 and len(frame.boxes):
@@ -273,7 +276,10 @@ def _sample_crop(
         cy += rng.uniform(-0.35, 0.35) * crop
     elif u < 0.75 and len(frame.negatives):
         b = frame.negatives[rng.integers(len(frame.negatives))]
-        cx, cy = (b[0] + b[2]) / 2 + rng.uniform(-0.3, 0.3) * crop, (b[1] + b[3]) / 2 + rng.uniform(-0.3, 0.3) * crop
+        cx, cy = (
+            (b[0] + b[2]) / 2 + rng.uniform(-0.3, 0.3) * crop,
+            (b[1] + b[3]) / 2 + rng.uniform(-0.3, 0.3) * crop,
+        )
     else:
         cx, cy = rng.uniform(0, w), rng.uniform(0, h)
     x0 = int(np.clip(cx - crop / 2, 0, max(0, w - crop)))
@@ -298,7 +304,7 @@ def _batch(
     imgs, heats, sizes, offs, masks = [], [], [], [], []
     for _ in range(cfg.batch):
         pool = pos if (pos and rng.random() < 0.6) else frames
-        f = pool[rng.integers(len(pool))]
+        f = pool[int(rng.integers(len(pool)))]
         img, boxes = _sample_crop(f, cfg.crop, rng)
         img, boxes, _ = augment(img, boxes, rng, aug)
         heat, size, off, mask = make_targets(boxes, cfg.crop, cfg.crop)
@@ -327,7 +333,9 @@ def _val_f1(net: LightNet, frames: Sequence[LightFrame], threshold: float) -> fl
     from makeway.eval.detection import precision_recall
 
     preds = predict_frames(net, frames, threshold)
-    p, r, _tp, _nd, _ng = precision_recall([b for b, _ in preds], [s for _, s in preds], [f.boxes for f in frames])
+    p, r, _tp, _nd, _ng = precision_recall(
+        [b for b, _ in preds], [s for _, s in preds], [f.boxes for f in frames]
+    )
     p = 0.0 if math.isnan(p) else p
     r = 0.0 if math.isnan(r) else r
     return 2 * p * r / (p + r) if p + r > 0 else 0.0
@@ -357,7 +365,12 @@ def train(
     )
     aug = AugmentConfig()
     val_has_lights = any(len(f.boxes) for f in val_frames)
-    log: dict[str, Any] = {"config": asdict(cfg), "losses": [], "val_f1": [], "val_has_lights": val_has_lights}
+    log: dict[str, Any] = {
+        "config": asdict(cfg),
+        "losses": [],
+        "val_f1": [],
+        "val_has_lights": val_has_lights,
+    }
     best = (-1.0, 0, copy.deepcopy(net.state_dict()))
     t0 = time.perf_counter()
     running = 0.0
@@ -399,7 +412,9 @@ def train(
 
 
 # ----------------------------------------------------------------------------------------- export
-def export_onnx(net: LightNet, path: str | Path, cfg: TrainConfig, *, training: str = "", opset: int = 17) -> Path:
+def export_onnx(
+    net: LightNet, path: str | Path, cfg: TrainConfig, *, training: str = "", opset: int = 17
+) -> Path:
     """Export the deploy form (:class:`_Deploy`) as ONNX: input ``images`` float32
     ``(1, 3, input_height, input_width)`` RGB in [0, 1]; outputs ``heat``, ``size``, ``offset``
     (:mod:`makeway.perceive.vision.light_cnn`). Metadata: ``makeway.format``, ``input_width``,

@@ -55,7 +55,9 @@ def check_frame(frame_bgr: Any) -> np.ndarray:
     if frame_bgr.ndim != 3 or frame_bgr.shape[2] != 3 or frame_bgr.dtype != np.uint8:
         raise ValueError(f"expected a uint8 BGR image H×W×3, got {frame_bgr.dtype} {frame_bgr.shape}")
     if frame_bgr.shape[0] < 8 or frame_bgr.shape[1] < 8:
-        raise ValueError(f"image too small for the lights detector: {frame_bgr.shape[1]}×{frame_bgr.shape[0]}")
+        raise ValueError(
+            f"image too small for the lights detector: {frame_bgr.shape[1]}×{frame_bgr.shape[0]}"
+        )
     return frame_bgr
 
 
@@ -155,7 +157,9 @@ class CnnLightDetector:
         self.colours = colour_set(colours)
         self.path = Path(model) if model is not None else default_lights_model()
         if not self.path.is_file():
-            raise InputError(self.path, "lights detector model not found (train one with `makeway lights-train`)")
+            raise InputError(
+                self.path, "lights detector model not found (train one with `makeway lights-train`)"
+            )
         options = ort.SessionOptions()
         options.log_severity_level = 3
         if num_threads is not None:
@@ -223,4 +227,3 @@ class CnnLightDetector:
                 out.append(LightDetection(Box(*(float(v) for v in box)), colour, float(score), frame))
         self.last_ms = (time.perf_counter() - t0) * 1000.0
         return out
-

@@ -107,4 +107,3 @@ class ColourLightDetector:
             for p in propose(frame_bgr, self.config, frame=frame)
             if p.score >= self.min_score and p.colour in self.colours
         ]
-
