@@ -81,3 +81,16 @@ def test_bad_images_are_refused_with_a_clear_error() -> None:
         perspective(np.zeros((10, 10, 3), np.float32), np.zeros((0, 4)), rng)
     with pytest.raises(ValueError, match=r"\(n, 4\)"):
         affine(np.zeros((10, 10, 3), np.uint8), np.zeros((2, 3)), rng)
+
+
+def test_night_darkens_mid_tones_keeps_lamps_and_swap_turns_red_lamps_blue() -> None:
+    from makeway.train.light_augment import night, swap_red_blue
+
+    img, _ = _scene((160, 120))
+    cv2.rectangle(img, (10, 10), (20, 20), (255, 255, 255), -1)  # a clipped lamp core
+    img[100:110, 10:20] = (30, 30, 200)  # a red lamp
+    dark = night(img, np.random.default_rng(0))
+    assert dark[50, 50, 0] < img[50, 50, 0] and (dark[15, 15] == 255).all()
+    swapped = swap_red_blue(img)
+    assert tuple(swapped[105, 15]) == (200, 30, 30)  # now blue in BGR
+    assert tuple(swapped[120, 160]) == tuple(img[120, 160][::-1])

@@ -25,13 +25,16 @@ def train_lights(
     steps: int = 1600,
     seed: int = 0,
     threads: int = 1,
+    swap_red_blue: float = 0.4,
+    night: float = 0.3,
     data: str | Path | None = None,
     label_dir: str | Path | None = None,
     show_progress: bool = True,
 ) -> dict[str, Any]:
     """Train and export one detector to ``out`` (``.onnx``); ``attention`` False trains the ablation
-    without the colour-attention block. Returns the summary: frames and boxes per split, the chosen
-    step, seconds, model size (bytes), the label files left out (unknown source)."""
+    without the colour-attention block; ``swap_red_blue`` and ``night`` are the probabilities of those
+    augmentations (:mod:`makeway.train.light_augment`). Returns the summary: frames and boxes per
+    split, the chosen step, seconds, model size (bytes), the label files left out (unknown source)."""
     from makeway.progress import progress_bar
     from makeway.train.lights import TrainConfig, export_onnx, load_split, log_json, train
 
@@ -46,7 +49,12 @@ def train_lights(
         )
     if steps < 20:
         raise ValueError(f"steps must be at least 20, got {steps}")
-    cfg = TrainConfig(steps=steps, attention=attention, seed=seed, threads=threads)
+    for name, p in (("swap_red_blue", swap_red_blue), ("night", night)):
+        if not 0.0 <= p <= 1.0:
+            raise ValueError(f"{name} is a probability in [0, 1], got {p}")
+    cfg = TrainConfig(
+        steps=steps, attention=attention, seed=seed, threads=threads, swap_red_blue=swap_red_blue, night=night
+    )
     t0 = time.perf_counter()
     size = (cfg.input_width, cfg.input_height)
     train_frames, unknown = load_split("train", root, label_dir=label_dir, input_size=size)
@@ -57,7 +65,7 @@ def train_lights(
     command = (
         f"makeway lights-train {out}"
         + ("" if attention else " --no-attention")
-        + f" --steps {steps} --seed {seed}"
+        + f" --steps {steps} --seed {seed} --swap-red-blue {swap_red_blue} --night {night}"
     )
     export_onnx(net, out, cfg, training=command)
     summary: dict[str, Any] = {

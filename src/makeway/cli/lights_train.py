@@ -22,6 +22,10 @@ def lights_train(
     steps: Annotated[int, typer.Option(min=20, help="Optimiser steps (12 crops of 160 px each).")] = 1600,
     seed: Annotated[int, typer.Option(help="Random seed.")] = 0,
     threads: Annotated[int, typer.Option(min=1, help="torch threads.")] = 1,
+    swap_red_blue: Annotated[
+        float, typer.Option(help="Probability of exchanging red and blue channels (red lamps become blue).")
+    ] = 0.4,
+    night: Annotated[float, typer.Option(help="Probability of the night gamma curve (γ 1.5-3).")] = 0.3,
     data: Annotated[
         Path | None,
         typer.Option("--data", help="Shared data folder (default: ../shared/data or MAKEWAY_DATA)."),
@@ -45,6 +49,8 @@ def lights_train(
         steps=steps,
         seed=seed,
         threads=threads,
+        swap_red_blue=swap_red_blue,
+        night=night,
         data=data,
         label_dir=labels,
     )

@@ -21,6 +21,11 @@ Transforms (each takes a :class:`numpy.random.Generator` so runs are reproducibl
 * :func:`perspective` — each corner moved by up to ``strength`` of the image size.
 * :func:`photometric` — contrast and brightness (``out = a·img + b``), then Gaussian noise (σ in
   grey levels); boxes unchanged.
+* :func:`night` — a gamma curve ``255·(img/255)^γ``, γ ∈ [1.5, 3]: mid-tones go dark while clipped
+  lamps stay bright, the look of a night camera; boxes unchanged.
+* :func:`swap_red_blue` — exchanges the red and blue channels, so a lit red lamp becomes a lit blue
+  one (and the reverse) with its glow and clipped core; for a one-class lit-light detector this
+  carries lamps of one colour to the other; boxes unchanged.
 
 :func:`augment` chains them with probabilities (:class:`AugmentConfig`). numpy and OpenCV only.
 """
@@ -43,8 +48,10 @@ __all__ = [
     "default_fisheye_k",
     "fisheye",
     "map_boxes",
+    "night",
     "perspective",
     "photometric",
+    "swap_red_blue",
 ]
 
 _OUTLINE_POINTS = 8  # samples per box edge
@@ -234,6 +241,23 @@ def photometric(
     return np.clip(x, 0, 255).astype(np.uint8)
 
 
+def night(
+    image: np.ndarray, rng: np.random.Generator, *, gamma: tuple[float, float] = (1.5, 3.0)
+) -> np.ndarray:
+    """``255·(image/255)^γ`` with γ ~ U(``gamma``): darker mid-tones, bright lamps kept (``uint8``)."""
+    _check_image(image)
+    g = rng.uniform(*gamma)
+    lut = np.clip(255.0 * (np.arange(256) / 255.0) ** g + 0.5, 0, 255).astype(np.uint8)
+    out: np.ndarray = cv2.LUT(image, lut)
+    return out
+
+
+def swap_red_blue(image: np.ndarray) -> np.ndarray:
+    """The image with its red and blue channels exchanged (BGR → RGB order)."""
+    _check_image(image)
+    return np.ascontiguousarray(image[..., ::-1])
+
+
 @dataclass(frozen=True)
 class AugmentConfig:
     """Probabilities of each transform in :func:`augment` (0 turns one off)."""
@@ -243,14 +267,16 @@ class AugmentConfig:
     p_perspective: float = 0.3
     p_photometric: float = 0.8
     p_flip: float = 0.5
+    p_swap_red_blue: float = 0.0
+    p_night: float = 0.0
 
 
 def augment(
     image: np.ndarray, boxes: np.ndarray, rng: np.random.Generator, config: AugmentConfig | None = None
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """One random augmentation: horizontal flip, fisheye, affine, perspective (each with its
-    probability), then photometric. Returns ``(image, boxes, keep)``, ``keep`` indexing the input
-    boxes that survive."""
+    probability), then red↔blue swap, night gamma and photometric (each with its probability).
+    Returns ``(image, boxes, keep)``, ``keep`` indexing the input boxes that survive."""
     cfg = config or AugmentConfig()
     _check_image(image)
     b = _as_boxes(boxes)
@@ -266,6 +292,10 @@ def augment(
         if rng.random() < p:
             img, b, k = fn(img, b, rng)
             idx = idx[k]
+    if rng.random() < cfg.p_swap_red_blue:
+        img = swap_red_blue(img)
+    if rng.random() < cfg.p_night:
+        img = night(img, rng)
     if rng.random() < cfg.p_photometric:
         img = photometric(img, rng)
     keep[:] = False

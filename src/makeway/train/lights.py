@@ -264,6 +264,8 @@ class TrainConfig:
     seed: int = 0
     eval_every: int = 250
     threshold: float = 0.3
+    swap_red_blue: float = 0.0
+    night: float = 0.0
 
 
 def _sample_crop(frame: LightFrame, crop: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
@@ -363,7 +365,7 @@ def train(
     sched = torch.optim.lr_scheduler.OneCycleLR(
         opt, max_lr=cfg.lr, total_steps=max(cfg.steps, 20), pct_start=0.1
     )
-    aug = AugmentConfig()
+    aug = AugmentConfig(p_swap_red_blue=cfg.swap_red_blue, p_night=cfg.night)
     val_has_lights = any(len(f.boxes) for f in val_frames)
     log: dict[str, Any] = {
         "config": asdict(cfg),
