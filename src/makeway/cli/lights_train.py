@@ -24,8 +24,8 @@ def lights_train(
     threads: Annotated[int, typer.Option(min=1, help="torch threads.")] = 1,
     swap_red_blue: Annotated[
         float, typer.Option(help="Probability of exchanging red and blue channels (red lamps become blue).")
-    ] = 0.4,
-    night: Annotated[float, typer.Option(help="Probability of the night gamma curve (γ 1.5-3).")] = 0.3,
+    ] = 0.0,
+    night: Annotated[float, typer.Option(help="Probability of the night gamma curve (γ 1.5-3).")] = 0.0,
     data: Annotated[
         Path | None,
         typer.Option("--data", help="Shared data folder (default: ../shared/data or MAKEWAY_DATA)."),

@@ -292,9 +292,9 @@ def augment(
         if rng.random() < p:
             img, b, k = fn(img, b, rng)
             idx = idx[k]
-    if rng.random() < cfg.p_swap_red_blue:
+    if cfg.p_swap_red_blue > 0 and rng.random() < cfg.p_swap_red_blue:  # no draw when off
         img = swap_red_blue(img)
-    if rng.random() < cfg.p_night:
+    if cfg.p_night > 0 and rng.random() < cfg.p_night:
         img = night(img, rng)
     if rng.random() < cfg.p_photometric:
         img = photometric(img, rng)
