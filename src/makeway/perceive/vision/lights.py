@@ -8,6 +8,8 @@ each factory accepts ``colours``, the set of emergency-light colours that count 
 
 ``colour`` is the rule-based finder of :mod:`makeway.perceive.vision.light_colour` (colour masks and
 bright cores with a coloured halo): no training, a baseline and the labelling tool's proposer.
+``cnn`` is the learned heat-map detector with seed 004's colour attention
+(:mod:`makeway.perceive.vision.light_cnn`, ONNX Runtime; trained by ``makeway lights-train``).
 """
 
 from __future__ import annotations
@@ -18,6 +20,7 @@ from typing import Protocol
 import numpy as np
 
 from makeway.messages import Box, LightDetection
+from makeway.perceive.vision.light_cnn import CnnLightDetector
 from makeway.perceive.vision.light_colour import COLOURS, HSV_PRESETS, ProposalConfig, propose
 from makeway.registry import Registry
 
@@ -25,6 +28,7 @@ __all__ = [
     "COLOUR_SETS",
     "DEFAULT_LIGHT_DETECTOR",
     "LIGHT_DETECTORS",
+    "CnnLightDetector",
     "ColourLightDetector",
     "LightDetector",
     "colour_set",
@@ -70,6 +74,7 @@ class LightDetector(Protocol):
 
 
 LIGHT_DETECTORS: Registry[type[LightDetector]] = Registry("light detector")
+LIGHT_DETECTORS.register("cnn")(CnnLightDetector)
 
 #: The detector a command uses when none is named.
 DEFAULT_LIGHT_DETECTOR = "colour"

@@ -1,0 +1,159 @@
+"""Lit-light detection on the held-out labelled frames: seed 004's metrics beside their targets.
+
+Prints, per test source and for the worst source, array (bulb) P/R at IoU 0.5, vehicle P/R, mAP50,
+mAP50:95 and ms/frame for three detectors:
+
+* ``colour`` — the rule-based finder (``LIGHT_DETECTORS["colour"]``, the baseline);
+* ``cnn+att`` — the shipped learned detector with seed 004's colour-attention block
+  (``src/makeway/models/lights_det.onnx``);
+* ``cnn-att`` — the same network trained by the same command with ``--no-attention`` (the ablation:
+  the block's gain). Read from ``benchmarks/out/lights_det_no_attention.onnx``; trained there first
+  (about 15 min on one core) when missing and torch is installed.
+
+Test split (by source clip, :mod:`makeway.train.light_split`): ``night_ambulance_lights``,
+``highway_cam_no_ev`` and the held-out ``ambulance_yolo`` images once labelled. Every labelled colour
+counts (colour set ``all``). Anchors: array P ≥ 0.90 / R ≥ 0.88, vehicle P ≥ 0.95 / R ≥ 0.94 (issue 23);
+seed 004 with attention on ABLDataset: P 88.8 / R 86.4 (array).
+
+    PYTHONPATH=src python benchmarks/bench_lights.py [--json out.json] [--threads 1]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+from pathlib import Path
+from typing import Any
+
+from makeway.eval.lights import run_detector, summarise
+from makeway.paths import data_dir
+from makeway.perceive.vision.light_cnn import default_lights_model
+from makeway.perceive.vision.lights import LIGHT_DETECTORS
+from makeway.train.light_split import load_split
+
+ROOT = Path(__file__).resolve().parents[1]
+ABLATION = ROOT / "benchmarks" / "out" / "lights_det_no_attention.onnx"
+TARGETS = {"array_precision": 0.90, "array_recall": 0.88, "vehicle_precision": 0.95, "vehicle_recall": 0.94}
+SEED004 = {"array_precision": 0.888, "array_recall": 0.864}
+
+
+def _fmt(v: Any, pct: bool = True) -> str:
+    if v is None or (isinstance(v, float) and not math.isfinite(v)):
+        return "   —  "
+    return f"{100 * v:5.1f}%" if pct else f"{v:6.1f}"
+
+
+def _ensure_ablation(path: Path) -> bool:
+    if path.is_file():
+        return True
+    try:
+        import torch  # noqa: F401
+    except ImportError:
+        print(f"(no {path} and no torch: the ablation row is skipped)")
+        return False
+    from makeway.apps.lights_train import train_lights
+
+    path.parent.mkdir(parents=True, exist_ok=True)
+    print(f"training the ablation (no colour attention) into {path} …", flush=True)
+    train_lights(path, attention=False)
+    return True
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--json", type=Path, default=None, help="also write the figures as JSON")
+    ap.add_argument("--threads", type=int, default=1, help="ONNX Runtime threads (default 1)")
+    ap.add_argument("--model", type=Path, default=default_lights_model(), help="the attention model")
+    ap.add_argument("--ablation", type=Path, default=ABLATION, help="the no-attention model")
+    ap.add_argument("--split", default="test", choices=["test", "val"], help="which split to score")
+    ap.add_argument(
+        "--map-threshold",
+        type=float,
+        default=0.05,
+        help="CNN peaks kept for mAP (P/R use the model's threshold)",
+    )
+    args = ap.parse_args(argv)
+    root = data_dir()
+    if root is None:
+        print("shared data not found (set MAKEWAY_DATA)", file=sys.stderr)
+        return 2
+    frames, _ = load_split(args.split, root, input_size=None)
+    items = [(f.source, f.key, f.image, f.boxes, f.vehicles) for f in frames]
+    detectors: dict[str, Any] = {"colour": LIGHT_DETECTORS["colour"](colours="all")}
+    operating = {"colour": 0.0}
+    models = {"cnn+att": args.model}
+    if _ensure_ablation(args.ablation):
+        models["cnn-att"] = args.ablation
+    for name, path in models.items():
+        # run at a low threshold so mAP sees the ranking; P/R count the model's own operating threshold
+        probe = LIGHT_DETECTORS["cnn"](colours="all", model=path, num_threads=args.threads)
+        operating[name] = probe.threshold
+        detectors[name] = LIGHT_DETECTORS["cnn"](
+            colours="all", model=path, num_threads=args.threads, threshold=args.map_threshold
+        )
+    report: dict[str, Any] = {
+        "split": args.split,
+        "frames": len(items),
+        "thresholds": operating,
+        "detectors": {},
+    }
+    for name, det in detectors.items():
+        report["detectors"][name] = summarise(run_detector(det, items), score_threshold=operating[name])
+    sources = [s for s in next(iter(report["detectors"].values())) if s not in ("all", "worst")]
+    print(
+        f"\nlit-light detection, {args.split} split ({len(items)} frames; every labelled colour counts; "
+        f"IoU 0.5; ONNX Runtime {args.threads} thread(s); P/R at score ≥ "
+        + ", ".join(f"{k} {v:.2f}" for k, v in operating.items())
+        + ")"
+    )
+    head = (
+        f"{'source':26s} {'detector':8s} {'arrP':>6s} {'arrR':>6s} {'vehP':>6s} {'vehR':>6s} "
+        f"{'mAP50':>6s} {'mAP50:95':>8s} {'ms/fr':>6s}  frames/boxes/dets/FP-frames"
+    )
+    print(head)
+    print("-" * len(head))
+    for src in [*sources, "all", "worst"]:
+        for name, summ in report["detectors"].items():
+            m = summ[src]
+            extra = (
+                f"  {m['frames']}/{m['gt_boxes']}/{m['detections']}/{m['fp_frames']}"
+                if src != "worst"
+                else "  ("
+                + ", ".join(f"{k}:{v}" for k, v in m["worst_source"].items() if k.startswith("array"))
+                + ")"
+            )
+            print(
+                f"{src:26s} {name:8s} {_fmt(m['array_precision'])} {_fmt(m['array_recall'])} "
+                f"{_fmt(m['vehicle_precision'])} {_fmt(m['vehicle_recall'])} {_fmt(m['map50'])} "
+                f"{_fmt(m['map50_95']):>8s} {_fmt(m['ms_mean'], pct=False)}{extra}"
+            )
+    print(
+        "anchor (targets, worst source):   arrP ≥ 90.0%  arrR ≥ 88.0%  vehP ≥ 95.0%  vehR ≥ 94.0%   "
+        "(seed 004 CA RT-DETR on ABLDataset: arrP 88.8% arrR 86.4%)"
+    )
+    if "cnn-att" in report["detectors"]:
+        a, b = report["detectors"]["cnn+att"]["all"], report["detectors"]["cnn-att"]["all"]
+        gains = {
+            k: (a[k] - b[k]) if a[k] is not None and b[k] is not None else None
+            for k in ("array_precision", "array_recall", "map50", "map50_95")
+        }
+        report["attention_gain_all"] = gains
+        print(
+            "colour-attention gain (all test frames, with − without): "
+            + ", ".join(f"{k} {'—' if v is None else f'{100 * v:+.1f} pts'}" for k, v in gains.items())
+        )
+    for name, summ in report["detectors"].items():
+        w = summ["worst"]
+        met = [k for k, t in TARGETS.items() if w.get(k) is not None and w[k] >= t]
+        print(
+            f"{name}: worst-source targets met: {', '.join(met) if met else 'none'} of {', '.join(TARGETS)}"
+        )
+    if args.json is not None:
+        args.json.write_text(json.dumps(report, allow_nan=False, indent=1) + "\n", encoding="utf-8")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

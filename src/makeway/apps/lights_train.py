@@ -1,0 +1,89 @@
+"""``makeway lights-train``: train the lit-light detector on the committed labels and export it as ONNX.
+
+One library call for the CLI and the benchmark: :func:`train_lights` loads the train and validation
+splits (:mod:`makeway.train.lights`), trains, writes the ONNX file (and a JSON training log beside it,
+``<out>.json``) and returns a summary.
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+from typing import Any
+
+from makeway.atomic import check_writable, write_text_atomic
+from makeway.errors import InputError
+from makeway.paths import data_dir
+
+__all__ = ["train_lights"]
+
+
+def train_lights(
+    out: str | Path,
+    *,
+    attention: bool = True,
+    steps: int = 1600,
+    seed: int = 0,
+    threads: int = 1,
+    swap_red_blue: float = 0.0,
+    night: float = 0.0,
+    data: str | Path | None = None,
+    label_dir: str | Path | None = None,
+    show_progress: bool = True,
+) -> dict[str, Any]:
+    """Train and export one detector to ``out`` (``.onnx``); ``attention`` False trains the ablation
+    without the colour-attention block; ``swap_red_blue`` and ``night`` are the probabilities of those
+    augmentations (:mod:`makeway.train.light_augment`). Returns the summary: frames and boxes per
+    split, the chosen step, seconds, model size (bytes), the label files left out (unknown source)."""
+    from makeway.progress import progress_bar
+    from makeway.train.lights import TrainConfig, export_onnx, load_split, log_json, train
+
+    out = Path(out)
+    if out.suffix.lower() != ".onnx":
+        raise InputError(out, "the output must be an .onnx file")
+    check_writable(out, folder=False)
+    root = Path(data) if data is not None else data_dir()
+    if root is None or not Path(root).is_dir():
+        raise InputError(
+            str(data or "../shared/data"), "shared data folder not found; pass --data or set MAKEWAY_DATA"
+        )
+    if steps < 20:
+        raise ValueError(f"steps must be at least 20, got {steps}")
+    for name, p in (("swap_red_blue", swap_red_blue), ("night", night)):
+        if not 0.0 <= p <= 1.0:
+            raise ValueError(f"{name} is a probability in [0, 1], got {p}")
+    cfg = TrainConfig(
+        steps=steps, attention=attention, seed=seed, threads=threads, swap_red_blue=swap_red_blue, night=night
+    )
+    t0 = time.perf_counter()
+    size = (cfg.input_width, cfg.input_height)
+    train_frames, unknown = load_split("train", root, label_dir=label_dir, input_size=size)
+    val_frames, _ = load_split("val", root, label_dir=label_dir, input_size=size)
+    load_s = time.perf_counter() - t0
+    with progress_bar("training lights detector", steps, enabled=show_progress, unit="steps") as advance:
+        net, log = train(train_frames, val_frames, cfg, progress=lambda _s, _n, _l: advance())
+    command = (
+        f"makeway lights-train {out}"
+        + ("" if attention else " --no-attention")
+        + f" --steps {steps} --seed {seed} --swap-red-blue {swap_red_blue} --night {night}"
+    )
+    export_onnx(net, out, cfg, training=command)
+    summary: dict[str, Any] = {
+        "model": str(out),
+        "bytes": out.stat().st_size,
+        "attention": attention,
+        "train_frames": len(train_frames),
+        "train_boxes": int(sum(len(f.boxes) for f in train_frames)),
+        "train_positive_frames": int(sum(len(f.boxes) > 0 for f in train_frames)),
+        "val_frames": len(val_frames),
+        "val_boxes": int(sum(len(f.boxes) for f in val_frames)),
+        "val_has_lights": bool(log["val_has_lights"]),
+        "chosen_step": int(log["chosen_step"]),
+        "train_seconds": float(log["seconds"]),
+        "load_seconds": round(load_s, 1),
+        "left_out": unknown,
+        "command": command,
+    }
+    log["summary"] = summary
+    write_text_atomic(out.with_suffix(".json"), log_json(log) + "\n")
+    return summary

@@ -1,0 +1,67 @@
+"""``makeway lights-train``: train the lit-light detector (parses options, calls
+:func:`makeway.apps.lights_train.train_lights`, prints). Registered by the main app."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from makeway.cli.common import console, friendly_errors, print_json_line
+
+
+@friendly_errors
+def lights_train(
+    out: Annotated[
+        Path, typer.Argument(help="ONNX file to write (the shipped one: src/makeway/models/lights_det.onnx).")
+    ],
+    no_attention: Annotated[
+        bool, typer.Option("--no-attention", help="Train without the colour-attention block (the ablation).")
+    ] = False,
+    steps: Annotated[int, typer.Option(min=20, help="Optimiser steps (12 crops of 160 px each).")] = 1600,
+    seed: Annotated[int, typer.Option(help="Random seed.")] = 0,
+    threads: Annotated[int, typer.Option(min=1, help="torch threads.")] = 1,
+    swap_red_blue: Annotated[
+        float, typer.Option(help="Probability of exchanging red and blue channels (red lamps become blue).")
+    ] = 0.0,
+    night: Annotated[float, typer.Option(help="Probability of the night gamma curve (γ 1.5-3).")] = 0.0,
+    data: Annotated[
+        Path | None,
+        typer.Option("--data", help="Shared data folder (default: ../shared/data or MAKEWAY_DATA)."),
+    ] = None,
+    labels: Annotated[
+        Path | None,
+        typer.Option("--labels", help="Folder of label CSVs (default: the package's data/lights)."),
+    ] = None,
+    json_out: Annotated[bool, typer.Option("--json", help="Print the summary as one JSON line.")] = False,
+) -> None:
+    """Train the lit-light detector on the checked labels (split by source clip) and export ONNX.
+
+    Train: fire_trucks_red_lights, traffic_no_ev, ambulance_yolo (not held out); validation:
+    intersection_cam_ambulance (picks the step when it has lit lights). See docs/model_card_lights.md.
+    """
+    from makeway.apps.lights_train import train_lights
+
+    s = train_lights(
+        out,
+        attention=not no_attention,
+        steps=steps,
+        seed=seed,
+        threads=threads,
+        swap_red_blue=swap_red_blue,
+        night=night,
+        data=data,
+        label_dir=labels,
+    )
+    console.print(
+        f"wrote {s['model']} ({s['bytes'] / 1e6:.2f} MB, attention {'on' if s['attention'] else 'off'}): "
+        f"{s['train_frames']} train frames ({s['train_positive_frames']} with lights, "
+        f"{s['train_boxes']} boxes), "
+        f"{s['val_frames']} val frames ({s['val_boxes']} boxes); step {s['chosen_step']} kept; "
+        f"{s['train_seconds']:.0f} s training"
+    )
+    if s["left_out"]:
+        console.print(f"left out (source not in the split table): {', '.join(s['left_out'])}")
+    if json_out:
+        print_json_line(s)
