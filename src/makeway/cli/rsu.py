@@ -17,7 +17,8 @@ from makeway.cli.common import friendly_errors, new_app, print_json_line
 rsu_app = new_app(
     "rsu",
     "Roadside unit: a pole camera that warns cars of EVs.\n\n"
-    "run: the video pipeline (vehicles detected, tracked and judged) on the camera's video; tracks the pipeline flags as active EVs are located on "
+    "run: the video pipeline (vehicles detected, tracked and judged) on the camera's video; "
+    "tracks the pipeline flags as active EVs are located on "
     "the road through the camera's calibration, filtered for heading and speed, and sent as signed "
     "alerts (zenoh on loopback and/or a log). calibrate: fit the camera to road landmarks.",
 )
