@@ -7,7 +7,8 @@ DEV    := $(VENV)/.dev
 OUT    ?= reports/demo
 
 .PHONY: venv demo test lint typecheck bench bench-sort bench-video bench-crops bench-detection bench-pull-over \
-	bench-siren-loop bench-audio bench-rig bench-v2x bench-fusion bench-roadside clean
+	bench-siren-loop bench-audio bench-rig bench-v2x bench-fusion bench-roadside bench-lights bench-active-rule \
+	bench-rsu clean
 
 # `make demo` installs the runtime only; `make test` and the benchmarks add the dev extra (linters,
 # scikit-learn, XGBoost, torch for the training tests).
@@ -75,9 +76,11 @@ bench-audio: venv
 	$(BIN)/python benchmarks/bench_audio_calibration.py
 	$(BIN)/python benchmarks/bench_audio_range_bound.py
 
-# the rig's azimuth beside OpenCV's fisheye model (pure geometry) and the unproject speed
+# the rig's azimuth beside OpenCV's fisheye model (pure geometry), the unproject speed, and the azimuth of
+# rendered lit lamps with the light detector in the loop
 bench-rig: venv
 	$(BIN)/python benchmarks/bench_rig_azimuth.py
+	$(BIN)/python benchmarks/bench_rig_lights_azimuth.py
 
 # signed V2X alerts: attack-suite counts, verification on one core, created → verified latency over zenoh
 bench-v2x: venv
@@ -90,8 +93,20 @@ bench-fusion: venv
 bench-roadside: venv
 	$(BIN)/python benchmarks/bench_pixel_to_road.py
 
+# lit-light detection on the held-out sources: rule baseline, CNN with and without colour attention
+bench-lights: venv
+	$(BIN)/python benchmarks/bench_lights.py
+
+# the video pipeline's active-EV rules (crop / lights / lights+crop) on the labelled clips; lights speed
+bench-active-rule: venv
+	$(BIN)/python benchmarks/bench_active_rule.py
+
+# the roadside node on the real clip: signed alerts received and verified by a car process on loopback
+bench-rsu: venv
+	$(BIN)/python benchmarks/bench_rsu.py
+
 bench: bench-sort bench-video bench-crops bench-detection bench-pull-over bench-siren-loop bench-audio bench-rig \
-	bench-v2x bench-fusion bench-roadside
+	bench-v2x bench-fusion bench-roadside bench-lights bench-active-rule bench-rsu
 
 clean:
 	rm -rf $(VENV) reports .pytest_cache .mypy_cache .ruff_cache
