@@ -95,10 +95,10 @@ def detect(
     colours: Annotated[
         str,
         typer.Option(
-            help="Emergency-light colours of the lights rules: us (red, blue, white; the default), eu, "
-            "uk_amber, all, or a comma list."
+            help="Emergency-light colours of the lights rules: eu (blue and bluish white; the default), "
+            "us (red, blue, white), uk_amber, all, or a comma list."
         ),
-    ] = "us",
+    ] = "eu",
     as_json: Annotated[bool, typer.Option("--json", help="Print the run summary as one JSON line.")] = False,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")] = False,
 ) -> None:

@@ -63,7 +63,7 @@ from makeway.viz.video_writer import H264Writer
 STAGES = ("read", "detect", "track", "classify", "annotate", "encode")
 
 #: What ``lights`` means in :func:`run_video`: the light detector's registry name and colour set.
-DEFAULT_LIGHTS = (DEFAULT_LIGHT_DETECTOR, "us")
+DEFAULT_LIGHTS = (DEFAULT_LIGHT_DETECTOR, "eu")
 
 
 class VisionPipeline:
