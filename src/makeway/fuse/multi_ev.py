@@ -490,3 +490,7 @@ class FusedBeliefSource:
         pending, self._pending = self._pending, []
         self.beliefs_ = self.fusion.update(time_s, ego, pending)
         return MultiEVFusion.most_urgent(self.beliefs_, time_s)
+
+    def beliefs(self) -> list[EVBelief]:
+        """One belief per confirmed EV track as of the last :meth:`update`."""
+        return list(self.beliefs_)
