@@ -242,6 +242,6 @@ def test_no_ev_heard_by_the_siren_stack_is_no_ev() -> None:
     m = json.loads(r.stdout.strip().splitlines()[-1])
     assert m["action"] == "continue" and m["transitions"] == 0
     r = runner.invoke(app, ["simulate", "no_ev", "--perception", "radar"])
-    assert r.exit_code == 2 and "unknown perception 'radar'; choose from: simulated, siren" in r.stderr
+    assert r.exit_code == 2 and "unknown perception 'radar'; choose from: simulated, siren, vision, v2x, fused" in r.stderr
     r = runner.invoke(app, ["simulate", "no_ev", "--perception", "siren", "--siren", "tape"])
     assert r.exit_code == 2 and "synth or real" in r.stderr

@@ -2,16 +2,20 @@
 
 :func:`run_scenario` steps a built-in :class:`~makeway.sim.scenarios.Scenario` at 100 Hz:
 
-1. the EV (:class:`~makeway.sim.ev_actor.EVActor`) moves along its own path, keeping a gap behind a
+1. every EV (and truck) (:class:`~makeway.sim.ev_actor.EVActor`) moves along its own path, keeping a gap behind a
    vehicle in its lane, and the simulated world (:class:`~makeway.sim.world.SimWorld`) shows it;
 2. a belief source (:class:`~makeway.fuse.source.BeliefSource`) publishes an
    :class:`~makeway.messages.EVBelief`. ``perception`` picks it: any object with
    ``build(scenario, world) -> BeliefSource``, e.g. a
    :class:`~makeway.sim.perception.PerceptionConfig` (a model of perception: latency, dropouts,
    noise; the default) or a :class:`~makeway.pipeline.siren_perception.SirenPerceptionConfig` (the
-   siren stack itself on the array's audio rendered as the car drives). :data:`PERCEPTIONS` names
-   them for the command line;
-3. the yield state machine decides at 20 Hz; the planner replans the reference path on a new
+   siren stack itself on the array's audio rendered as the car drives) or a
+   :class:`~makeway.pipeline.fused_perception.FusedPerceptionConfig` (siren stack, cameras and V2X
+   fused into one track per EV). :data:`PERCEPTIONS` names them for the command line (``simulated``,
+   ``siren``, ``vision``, ``v2x``, ``fused``); every source gives a belief per EV
+   (:meth:`~makeway.fuse.source.BeliefSource.beliefs`) and the most urgent one;
+3. the yield state machine decides at 20 Hz from every EV's belief
+   (:meth:`~makeway.decide.yield_fsm.YieldStateMachine.update_all`); the planner replans the reference path on a new
    manoeuvre;
 4. the lateral controller (feed-forward + feedback by default, or a baseline) and the longitudinal
    controller command the single-track vehicle model.
@@ -36,6 +40,7 @@ from makeway.frames import to_vehicle_frame
 from makeway.fuse.source import BeliefSource
 from makeway.geometry import rect_distance, rectangle_corners
 from makeway.messages import ControlCommand, EVBelief, RoadContext, SirenObservation, VehicleState, YieldState
+from makeway.pipeline.fused_perception import FusedPerceptionConfig
 from makeway.pipeline.siren_perception import SirenPerceptionConfig
 from makeway.plan.path import nearest_index, point_at
 from makeway.plan.planner import YieldPlanner
@@ -118,8 +123,32 @@ def siren_perception(
     return SirenPerceptionConfig(audio=LiveAudioConfig(seed=seed, siren=siren, noise=noise))
 
 
+def vision_perception(seed: int = 0, **_: Any) -> PerceptionSpec:
+    """The camera rig's lights detector (modelled) into the multi-EV fusion, seeded."""
+    return FusedPerceptionConfig(senses=("light",), seed=seed)
+
+
+def v2x_perception(seed: int = 0, **_: Any) -> PerceptionSpec:
+    """Signed V2X alerts of equipped EVs, verified, into the multi-EV fusion, seeded."""
+    return FusedPerceptionConfig(senses=("v2x",), seed=seed)
+
+
+def fused_perception(
+    seed: int = 0, siren: str = "synth", noise: str = "generated", **_: Any
+) -> PerceptionSpec:
+    """Siren stack + cameras + V2X into the multi-EV fusion; ``siren``/``noise`` as for ``siren``."""
+    return FusedPerceptionConfig(audio=LiveAudioConfig(seed=seed, siren=siren, noise=noise), seed=seed)
+
+
 PERCEPTIONS: Registry[Callable[..., PerceptionSpec]] = Registry(
-    "perception", {"simulated": simulated_perception, "siren": siren_perception}
+    "perception",
+    {
+        "simulated": simulated_perception,
+        "siren": siren_perception,
+        "vision": vision_perception,
+        "v2x": v2x_perception,
+        "fused": fused_perception,
+    },
 )
 """Kinds of perception by name: ``PERCEPTIONS[name](seed=..., **options)`` gives a spec for
 :func:`run_scenario` (``makeway simulate --perception NAME``)."""

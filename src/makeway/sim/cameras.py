@@ -163,6 +163,7 @@ class CameraSense:
         self._next_false_s = self._draw_gap()
         self._false: tuple[float, float, float] | None = None  # until, azimuth, probability
         self._az_sigma = math.radians(f.azimuth_sigma_deg)
+        self.false_events = 0  # false lights started so far
 
     def _draw_gap(self) -> float:
         rate = self.figures.false_rate_per_hour
@@ -227,6 +228,7 @@ class CameraSense:
             dur = float(rng.uniform(*f.false_light_duration_s))
             az = math.radians(float(rng.uniform(-f.false_light_azimuth_deg, f.false_light_azimuth_deg)))
             self._false = (time_s + dur, az, float(rng.uniform(*f.false_light_probability)))
+            self.false_events += 1
         if self._false is not None:
             until, az, p = self._false
             if time_s >= until:
