@@ -109,7 +109,9 @@ def main() -> int:
     wall0 = time.perf_counter()
     runs: list[dict[str, Any]] = []
     cols = ("action", "action_ok", "collision", "stopped_s", "yield_s", "extra_yields")
-    print(f"{'scenario':18s} {'perception':10s} {'seed':>4s} " + " ".join(f"{c:>18s}" for c in cols), flush=True)
+    print(
+        f"{'scenario':18s} {'perception':10s} {'seed':>4s} " + " ".join(f"{c:>18s}" for c in cols), flush=True
+    )
     for name in names:
         sc = SCENARIOS[name]()
         extra = ["onboard"] if name == "v2x_corridor" and "fused" in kinds else []
@@ -174,7 +176,9 @@ def main() -> int:
     quiet = SCENARIOS["no_ev"]()
     false_yields = prepares = 0
     for k in range(no_ev_runs):
-        cfg = FusedPerceptionConfig(audio=LiveAudioConfig(seed=100 + k, noise="real"), seed=100 + k, model=model)
+        cfg = FusedPerceptionConfig(
+            audio=LiveAudioConfig(seed=100 + k, noise="real"), seed=100 + k, model=model
+        )
         res = run_scenario(quiet, perception=cfg)
         fy = res.metrics["yields"]
         pr = sum(1 for _, _, to, _ in res.transitions if to == "ev_confirmed")
@@ -196,12 +200,16 @@ def main() -> int:
         print(
             f"no EV, fused, real held-out street noise and false lights: {false_yields} false yields in "
             f"{no_ev_runs} drives ({hours:.2f} h) = {no_ev['false_yields_per_hour']} per hour (target ≤ "
-            f"{TARGETS['false_yields_per_hour']} over ≥ {TARGETS['no_ev_hours']:g} h; hearing alone, old rule: "
-            f"13.5); EVs confirmed (slow-downs) {no_ev['false_confirmations_per_hour']} per hour"
+            f"{TARGETS['false_yields_per_hour']} over ≥ {TARGETS['no_ev_hours']:g} h; hearing alone, "
+            "old rule: 13.5); EVs confirmed (slow-downs) {no_ev['false_confirmations_per_hour']} per hour"
         )
     wall = time.perf_counter() - wall0
     print(f"wall time {wall:.0f} s (scenarios {scenario_wall:.0f} s, no-EV drives {no_ev['wall_s']:.0f} s)")
-    print(json.dumps({"summary": summary, "no_ev": no_ev, "targets": TARGETS, "wall_s": round(wall, 1), "runs": runs}))
+    print(
+        json.dumps(
+            {"summary": summary, "no_ev": no_ev, "targets": TARGETS, "wall_s": round(wall, 1), "runs": runs}
+        )
+    )
     return 0
 
 

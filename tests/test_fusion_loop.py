@@ -32,10 +32,17 @@ def _rate(sense: CameraSense, world: SimWorld, frames: int = 600) -> float:
 
 def test_camera_recall_follows_the_field_figures_by_day_and_night() -> None:
     steady = CameraFigures(flash_duty=1.0, false_lights_per_hour=0.0)
-    assert steady.recall(20.0, night=False) == 1.0 and steady.recall(45.0, night=False) == pytest.approx(0.4315)
+    assert steady.recall(20.0, night=False) == 1.0 and steady.recall(45.0, night=False) == pytest.approx(
+        0.4315
+    )
     assert steady.recall(60.0, night=True) == pytest.approx(0.593) and steady.recall(95.0, night=True) == 0.0
     sense = CameraSense(steady, seed=1)
-    for x, night, want in ((-20.0, False, 1.0), (-50.0, False, 0.229), (-50.0, True, 0.931), (-75.0, True, 0.163)):
+    for x, night, want in (
+        (-20.0, False, 1.0),
+        (-50.0, False, 0.229),
+        (-50.0, True, 0.931),
+        (-75.0, True, 0.163),
+    ):
         world = SimWorld(evs=(EVTruth(0.0, x, 0.0, 0.0, 15.0, True, True),), night=night)
         assert _rate(sense, world) == pytest.approx(want, abs=0.05), (x, night)
     # the flash pattern: a lit light is seen in its on-phases only (duty 0.5 by default)
@@ -76,9 +83,22 @@ def test_false_lights_come_at_the_documented_rate() -> None:
 # ------------------------------------------------------------------------------------ the law
 
 
-def _b(siren: bool, lights: bool, *, d: float = 100.0, app: bool | None = True, v2x: bool = False) -> EVBelief:
+def _b(
+    siren: bool, lights: bool, *, d: float = 100.0, app: bool | None = True, v2x: bool = False
+) -> EVBelief:
     return EVBelief(
-        0.0, True, 0.9, EVRelation.BEHIND, -d, 0.0, d, math.pi, app, lights, siren, "fused",
+        0.0,
+        True,
+        0.9,
+        EVRelation.BEHIND,
+        -d,
+        0.0,
+        d,
+        math.pi,
+        app,
+        lights,
+        siren,
+        "fused",
         ("v2x",) if v2x else (),
     )
 

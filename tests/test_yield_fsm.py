@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 import pytest
 
 from makeway.decide import YieldConfig, YieldStateMachine, clear_stop_point, lane_change_length_m, needs_yield
-from makeway.decide.duty import DUTY_PRESETS, DutyToYield, duty_of
+from makeway.decide.duty import DUTY_PRESETS
 from makeway.messages import EVBelief, EVRelation, RoadContext, VehicleState, YieldDecision, YieldState
 
 DT = 0.05

@@ -33,7 +33,8 @@ def simulate(
     ``perception`` names a kind of :data:`~makeway.pipeline.closed_loop.PERCEPTIONS` (``simulated``,
     ``siren``, ``vision``, ``v2x`` or ``fused``); ``seed`` seeds its noise (the siren's scene too);
     ``siren`` and ``noise`` choose the siren stack's sources; ``duty`` names the duty to yield
-    (:data:`~makeway.decide.duty.DUTY_PRESETS`). Returns the run, the scenario and the files written (name → path).
+    (:data:`~makeway.decide.duty.DUTY_PRESETS`). Returns the run, the scenario and the files written
+    (name → path).
 
     Raises:
         InputError: the recorded path cannot be read, or ``out`` cannot be written (checked first).
@@ -51,6 +52,8 @@ def simulate(
             raise InputError(path, str(exc)) from None
     else:
         scenario = SCENARIOS[name]()
-    result = run_scenario(scenario, controller=controller, perception=spec, yield_config=YieldConfig(duty=law))
+    result = run_scenario(
+        scenario, controller=controller, perception=spec, yield_config=YieldConfig(duty=law)
+    )
     files = write_closed_loop_report(result, scenario, out) if out is not None else {}
     return result, scenario, files

@@ -72,9 +72,13 @@ class DutyToYield:
     def __post_init__(self) -> None:
         for f in ("siren_and_lights", "v2x_verified", "siren_only", "lights_only"):
             if getattr(self, f) not in DUTIES:
-                raise ValueError(f"DutyToYield.{f} must be one of {', '.join(DUTIES)}, not {getattr(self, f)!r}")
+                raise ValueError(
+                    f"DutyToYield.{f} must be one of {', '.join(DUTIES)}, not {getattr(self, f)!r}"
+                )
         if not (self.siren_close_m >= 0 and self.v2x_horizon_m >= 0 and 0 < self.prepare_speed_fraction <= 1):
-            raise ValueError("siren_close_m, v2x_horizon_m >= 0 and 0 < prepare_speed_fraction <= 1 are needed")
+            raise ValueError(
+                "siren_close_m, v2x_horizon_m >= 0 and 0 < prepare_speed_fraction <= 1 are needed"
+            )
 
 
 def duty_of(belief: EVBelief, duty: DutyToYield) -> str:

@@ -117,8 +117,7 @@ Every transition is appended to :attr:`YieldStateMachine.history` as ``(time, fr
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field, fields
 
 from makeway.decide.duty import DutyToYield, duty_of

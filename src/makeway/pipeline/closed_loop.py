@@ -2,8 +2,9 @@
 
 :func:`run_scenario` steps a built-in :class:`~makeway.sim.scenarios.Scenario` at 100 Hz:
 
-1. every EV (and truck) (:class:`~makeway.sim.ev_actor.EVActor`) moves along its own path, keeping a gap behind a
-   vehicle in its lane, and the simulated world (:class:`~makeway.sim.world.SimWorld`) shows it;
+1. every EV, and every truck of the scenario, (:class:`~makeway.sim.ev_actor.EVActor`) moves along
+   its own path, keeping a gap behind a vehicle in its lane, and the simulated world
+   (:class:`~makeway.sim.world.SimWorld`) shows them;
 2. a belief source (:class:`~makeway.fuse.source.BeliefSource`) publishes an
    :class:`~makeway.messages.EVBelief`. ``perception`` picks it: any object with
    ``build(scenario, world) -> BeliefSource``, e.g. a
@@ -15,8 +16,8 @@
    ``siren``, ``vision``, ``v2x``, ``fused``); every source gives a belief per EV
    (:meth:`~makeway.fuse.source.BeliefSource.beliefs`) and the most urgent one;
 3. the yield state machine decides at 20 Hz from every EV's belief
-   (:meth:`~makeway.decide.yield_fsm.YieldStateMachine.update_all`); the planner replans the reference path on a new
-   manoeuvre;
+   (:meth:`~makeway.decide.yield_fsm.YieldStateMachine.update_all`); the planner replans the
+   reference path on a new manoeuvre;
 4. the lateral controller (feed-forward + feedback by default, or a baseline) and the longitudinal
    controller command the single-track vehicle model.
 
@@ -200,7 +201,8 @@ def run_scenario(
         t = i * DT_S
         if ev_actors or others:
             truths = [
-                _with_station(a.step(t, DT_S, ego.x_m, ego.y_m), a.plan, k + 1) for k, a in enumerate(ev_actors)
+                _with_station(a.step(t, DT_S, ego.x_m, ego.y_m), a.plan, k + 1)
+                for k, a in enumerate(ev_actors)
             ]
             traffic = [_with_station(a.step(t, DT_S, ego.x_m, ego.y_m), a.plan, 0) for a in others]
             world.evs, world.traffic = tuple(truths), tuple(traffic)

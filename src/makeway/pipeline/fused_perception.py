@@ -41,7 +41,7 @@ from pathlib import Path
 import numpy as np
 
 from makeway.fuse.multi_ev import FusedBeliefSource, MultiEVFusion, Observation
-from makeway.messages import EVBelief, V2XObservation, VehicleState
+from makeway.messages import EVBelief, SirenObservation, V2XObservation, VehicleState
 from makeway.perceive.audio.siren_model import SirenModel
 from makeway.pipeline.siren_perception import SirenPerception, SirenPerceptionConfig
 from makeway.roadside.geodesy import LocalFrame
@@ -92,11 +92,15 @@ class FusedPerceptionConfig:
     def __post_init__(self) -> None:
         bad = [s for s in self.senses if s not in SENSE_NAMES]
         if bad or not self.senses:
-            raise ValueError(f"senses must be a non-empty subset of {', '.join(SENSE_NAMES)}, not {self.senses}")
+            raise ValueError(
+                f"senses must be a non-empty subset of {', '.join(SENSE_NAMES)}, not {self.senses}"
+            )
 
     def build(self, scenario: Scenario, world: SimWorld) -> FusedPerception:
         """The fused perception for a closed-loop run of ``scenario`` in ``world``."""
-        return FusedPerception(scenario.duration_s, self, world=world, initial_speed_mps=scenario.ego_speed_mps)
+        return FusedPerception(
+            scenario.duration_s, self, world=world, initial_speed_mps=scenario.ego_speed_mps
+        )
 
 
 @functools.lru_cache(maxsize=1)
@@ -143,7 +147,7 @@ class FusedPerception:
         self._siren_done = 0  # siren observations handed over so far
         self._next_frame_s = 0.0
         self._next_alert_s = 0.0
-        self._pending: deque[tuple[float, Observation]] = deque()  # (publish time, observation)
+        self._pending: deque[tuple[float, Observation | _Signed]] = deque()  # (publish time, message)
         self._sequence = 0
         self._verifier: Verifier | None = None
         self._epoch = 0.0
@@ -219,8 +223,8 @@ class FusedPerception:
             self.siren.update(time_s, ego)
             obs = self.siren.observations
             while self._siren_done < len(obs):
-                o = obs[self._siren_done][0]
-                self._pending.append((o.t_end + cfg.siren_latency_s, o))
+                heard = obs[self._siren_done][0]
+                self._pending.append((heard.t_end + cfg.siren_latency_s, heard))
                 self._siren_done += 1
         if self.cameras is not None:
             while self._next_frame_s <= time_s + 1e-9:
@@ -233,12 +237,10 @@ class FusedPerception:
         ready = [p for p in self._pending if p[0] <= time_s + 1e-9]
         if ready:
             self._pending = deque(p for p in self._pending if p[0] > time_s + 1e-9)
-        for _, o in sorted(ready, key=lambda p: p[0]):
-            if isinstance(o, _Signed):
-                v = self._receive(time_s, o)
-                if v is None:
-                    continue
-                o = v
+        for _, msg in sorted(ready, key=lambda p: p[0]):
+            o = self._receive(time_s, msg) if isinstance(msg, _Signed) else msg
+            if o is None:
+                continue
             self.counts[_sense_of(o)] += 1
             self.source.receive(o)
         return self.source.update(time_s, ego)
@@ -248,7 +250,7 @@ class FusedPerception:
         return self.source.beliefs()
 
     @property
-    def observations(self) -> list:  # type: ignore[type-arg]
+    def observations(self) -> list[tuple[SirenObservation, EVBelief]]:
         """The siren listener's observations with the siren track's belief (for reports)."""
         return self.siren.observations if self.siren is not None else []
 

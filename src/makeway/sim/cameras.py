@@ -154,7 +154,9 @@ class CameraSense:
     vehicle frame at that state.
     """
 
-    def __init__(self, figures: CameraFigures | None = None, *, rig: Rig | None = None, seed: int = 0) -> None:
+    def __init__(
+        self, figures: CameraFigures | None = None, *, rig: Rig | None = None, seed: int = 0
+    ) -> None:
         self.figures = figures if figures is not None else CameraFigures()
         self.rig = rig if rig is not None else load_rig("default")
         self._rng = np.random.default_rng(np.random.SeedSequence([seed, 4004]))
