@@ -4,7 +4,7 @@ The law it serves (Texas Transportation Code 545.156): on an emergency vehicle (
 visual signals, yield the right of way, drive immediately to a position parallel to and as close as
 possible to the right-hand edge, clear of any intersection, and stop until the EV has passed.
 
-:class:`YieldStateMachine` consumes one fused :class:`~makeway.messages.EVBelief`, the ego
+:class:`YieldStateMachine` consumes the fused :class:`~makeway.messages.EVBelief` of each EV, the ego
 :class:`~makeway.messages.VehicleState` and the map's :class:`~makeway.messages.RoadContext` per
 decision period and returns a :class:`~makeway.messages.YieldDecision`. Its clock is the later of
 ``ego.time_s`` and ``belief.time_s`` (it must not go backwards; equal times are fine).
@@ -19,9 +19,11 @@ States::
        (an EV needing a yield, confirmed during EV_PASSED or RESUMING → EV_CONFIRMED)
 
 **Perceiving an EV.** Per belief: *seen* = ``detected`` and ``confidence >= release_confidence``;
-*active* = seen, within ``max_relevant_distance_m`` (an unknown distance counts as within), and
-showing lights **or** siren (an EV that switches its siren off but keeps its lights on is still
-active; ``signals_required=False`` drops the signal test for producers that do not report them);
+*active* = seen, within ``max_relevant_distance_m`` (an unknown distance counts as within; an EV
+announced by a verified V2X alert counts up to the duty's ``v2x_horizon_m``), showing lights **or**
+siren (an EV that switches its siren off but keeps its lights on is still active;
+``signals_required=False`` drops the signal test for producers that do not report them), and with
+evidence the duty to yield does not ignore;
 *strong* = active with ``confidence >= confirm_confidence``. Confirmation (hysteresis on) needs strong
 beliefs without a break for ``confirm_time_s``, so a single-frame spike confirms nothing. Once
 confirmed, the EV is released (hysteresis off) only by the rules below: a dip under
@@ -60,9 +62,21 @@ not placed)                                                                    i
 UNKNOWN            no                          ``continue``                    a receding siren
 =================  ==========================  ==============================  ==========================
 
+**The duty to yield** (``YieldConfig.duty``, :mod:`makeway.decide.duty`): the table's yields apply
+to an EV whose evidence carries the duty ``"yield"`` (default: siren and lights, a verified V2X
+alert, lights alone, or a siren alone that is close and approaching). One whose evidence only
+carries ``"prepare"`` (default: a siren alone, far or not placed) gets ``prepare`` instead: keep the
+lane at ``prepare_speed_fraction`` of the speed limit until the evidence grows to a yield.
+
+**Several EVs** (:meth:`YieldStateMachine.update_all`, one belief per EV track): the machine follows
+one EV — one that needs a yield first, the one it followed last time next, then the nearest — and
+does not leave STOPPED_WAITING while any other EV still needs a yield: it yields until every EV
+that requires it has passed. A change of the followed EV (its ``track_id``) clears what was learnt
+about the last one's distance and side.
+
 By state: NO_EV ``continue`` at the speed limit; EV_CONFIRMED the table (the confirming decision
-already starts the manoeuvre); MOVING_OVER the table's manoeuvre with a latched stop point;
-STOPPED_WAITING and EV_PASSED ``wait`` at 0 m/s; RESUMING ``resume`` at ``resume_speed_mps``
+already starts the manoeuvre; ``prepare`` under the duty above); MOVING_OVER the table's
+manoeuvre with a latched stop point; STOPPED_WAITING and EV_PASSED ``wait`` at 0 m/s; RESUMING ``resume`` at ``resume_speed_mps``
 (default: the speed limit).
 
 **Stop point** (``stop_s_m``, arc length along the ego path, same frame as ``RoadContext.s_m``),
