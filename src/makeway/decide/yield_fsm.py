@@ -76,8 +76,8 @@ about the last one's distance and side.
 
 By state: NO_EV ``continue`` at the speed limit; EV_CONFIRMED the table (the confirming decision
 already starts the manoeuvre; ``prepare`` under the duty above); MOVING_OVER the table's
-manoeuvre with a latched stop point; STOPPED_WAITING and EV_PASSED ``wait`` at 0 m/s; RESUMING ``resume`` at ``resume_speed_mps``
-(default: the speed limit).
+manoeuvre with a latched stop point; STOPPED_WAITING and EV_PASSED ``wait`` at 0 m/s; RESUMING
+``resume`` at ``resume_speed_mps`` (default: the speed limit).
 
 **Stop point** (``stop_s_m``, arc length along the ego path, same frame as ``RoadContext.s_m``),
 chosen once when the manoeuvre starts and kept (re-chosen only when the EV changes from crossing to
