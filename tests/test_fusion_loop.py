@@ -84,13 +84,20 @@ def test_false_lights_come_at_the_documented_rate() -> None:
 
 
 def _b(
-    siren: bool, lights: bool, *, d: float = 100.0, app: bool | None = True, v2x: bool = False
+    siren: bool,
+    lights: bool,
+    *,
+    d: float = 100.0,
+    app: bool | None = True,
+    v2x: bool = False,
+    t: float = 0.0,
+    relation: EVRelation = EVRelation.BEHIND,
 ) -> EVBelief:
     return EVBelief(
-        0.0,
+        t,
         True,
         0.9,
-        EVRelation.BEHIND,
+        relation,
         -d,
         0.0,
         d,
@@ -111,7 +118,10 @@ def test_duty_presets() -> None:
     assert duty_of(_b(True, False), law) == "prepare"  # siren only, far
     assert duty_of(_b(True, False, d=40.0), law) == "yield"  # … close and approaching
     assert duty_of(_b(True, False, d=40.0, app=False), law) == "prepare"
-    assert duty_of(_b(False, True), law) == "yield"  # lights only (night, siren off)
+    # … but not a listener's distance call alone: the track must place it and know how it moves
+    assert duty_of(_b(True, False, d=40.0, relation=EVRelation.UNKNOWN), law) == "prepare"
+    assert duty_of(_b(False, True), law) == "yield"  # lights only (night, siren off), shown long enough
+    assert duty_of(_b(False, True), law, lights_for_s=1.0) == "ignore"  # a light seen for a moment
     assert duty_of(_b(False, False), law) == "ignore"
     de, uk = DUTY_PRESETS["germany"], DUTY_PRESETS["uk"]
     assert duty_of(_b(False, True), de) == "prepare" and duty_of(_b(True, True), de) == "yield"
@@ -135,8 +145,11 @@ def test_siren_alone_prepares_then_yields_once_close() -> None:
     assert d.state is YieldState.MOVING_OVER and d.action == "pull_over_and_stop"
     # the German rule: lights alone only warn
     de = YieldStateMachine(YieldConfig(duty=DUTY_PRESETS["germany"]))
-    for k in range(10):
-        d = de.update(_b(False, True, d=30.0), VehicleState(k * 0.05, 0, 0, 0, 13.4), _road())
+    for k in range(50):
+        t = k * 0.05
+        d = de.update(_b(False, True, d=30.0, t=t), VehicleState(t, 0, 0, 0, 13.4), _road())
+        if t < 2.0:  # lights alone are acted on once shown for 2 s
+            assert d.state is YieldState.NO_EV
     assert d.action == "prepare"
 
 

@@ -12,7 +12,14 @@ A rule maps what supports one EV's belief to a *duty*:
 The evidence of a belief (:class:`~makeway.messages.EVBelief`): a verified V2X alert (``"v2x"`` among
 its ``sources``), the siren heard (``siren``), lights seen (``lights``). A siren-only belief that is
 ``siren_close_m`` or nearer and approaching counts as a ``"yield"`` even under a ``"prepare"`` rule: a
-siren that close leaves no time to wait for the lights. A verified alert is acted on up to
+siren that close leaves no time to wait for the lights. With ``siren_close_needs_track`` (default)
+"close and approaching" must come from the EV's track — placed, with a known relation (behind,
+ahead, oncoming, crossing: a position and a speed), not from one listener's distance call: a
+siren-like sound in the street noise, heard at a made-up distance, does not move like a vehicle.
+Lights alone carry their duty only once the same EV track has shown them for ``lights_only_min_s``
+without a break (the yield state machine keeps that time): an EV's light bar flashes for as long
+as it drives, while a brake or traffic light that passes the detector's flash check does so for
+moments; before that the lights are not acted on. A verified alert is acted on up to
 ``v2x_horizon_m`` away (the yield state machine's ``max_relevant_distance_m`` bounds the others):
 an announced EV lets the car open the way long before it can be heard.
 
@@ -46,7 +53,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from makeway.messages import EVBelief
+from makeway.messages import EVBelief, EVRelation
 from makeway.registry import Registry
 
 __all__ = ["DUTIES", "DUTY_PRESETS", "DutyToYield", "duty_of"]
@@ -66,6 +73,8 @@ class DutyToYield:
     siren_only: str = "prepare"
     lights_only: str = "yield"
     siren_close_m: float = 60.0
+    siren_close_needs_track: bool = True
+    lights_only_min_s: float = 2.0
     v2x_horizon_m: float = 600.0
     prepare_speed_fraction: float = 0.6
 
@@ -75,14 +84,22 @@ class DutyToYield:
                 raise ValueError(
                     f"DutyToYield.{f} must be one of {', '.join(DUTIES)}, not {getattr(self, f)!r}"
                 )
-        if not (self.siren_close_m >= 0 and self.v2x_horizon_m >= 0 and 0 < self.prepare_speed_fraction <= 1):
+        if not (
+            self.siren_close_m >= 0
+            and self.v2x_horizon_m >= 0
+            and self.lights_only_min_s >= 0
+            and 0 < self.prepare_speed_fraction <= 1
+        ):
             raise ValueError(
-                "siren_close_m, v2x_horizon_m >= 0 and 0 < prepare_speed_fraction <= 1 are needed"
+                "siren_close_m, v2x_horizon_m, lights_only_min_s >= 0 and 0 < prepare_speed_fraction <= 1 "
+                "are needed"
             )
 
 
-def duty_of(belief: EVBelief, duty: DutyToYield) -> str:
-    """The duty (``"yield"``, ``"prepare"`` or ``"ignore"``) the evidence behind ``belief`` carries."""
+def duty_of(belief: EVBelief, duty: DutyToYield, lights_for_s: float = math.inf) -> str:
+    """The duty (``"yield"``, ``"prepare"`` or ``"ignore"``) the evidence behind ``belief`` carries;
+    ``lights_for_s`` is how long (s) its track has shown lights without a break (lights alone are
+    ignored until it reaches ``lights_only_min_s``)."""
     if not belief.detected:
         return "ignore"
     if "v2x" in belief.sources:
@@ -96,12 +113,13 @@ def duty_of(belief: EVBelief, duty: DutyToYield) -> str:
             and math.isfinite(d)
             and d <= duty.siren_close_m
             and belief.approaching is True
+            and (belief.relation is not EVRelation.UNKNOWN or not duty.siren_close_needs_track)
         )
         if duty.siren_only == "prepare" and close:
             return "yield"
         return duty.siren_only
     if belief.lights:
-        return duty.lights_only
+        return duty.lights_only if lights_for_s >= duty.lights_only_min_s - 1e-9 else "ignore"
     return "ignore"
 
 

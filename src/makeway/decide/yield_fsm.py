@@ -441,6 +441,7 @@ class YieldStateMachine:
         self._pull_over = False
         self._duty = "ignore"  # the duty the followed EV's evidence carries
         self._others_wanting = False  # another EV than the followed one needs a yield
+        self._lights_since: dict[int | None, float] = {}  # per track: lights shown without a break since
 
     def update(self, belief: EVBelief, ego: VehicleState, road: RoadContext) -> YieldDecision:
         """:meth:`update_all` with one belief."""
@@ -463,6 +464,11 @@ class YieldStateMachine:
         """
         if not beliefs:
             raise ValueError("update_all needs at least one belief")
+        for b in beliefs:  # how long each track has shown lights without a break
+            if b.detected and b.lights:
+                self._lights_since.setdefault(b.track_id, b.time_s)
+            else:
+                self._lights_since.pop(b.track_id, None)
         belief = self._choose(beliefs)
         self._others_wanting = any(b is not belief and self._belief_wants(b) for b in beliefs)
         stamps = [float(x) for x in (ego.time_s, belief.time_s) if _finite(x)]
@@ -484,7 +490,9 @@ class YieldStateMachine:
         cfg = self.config
         if not (b.lights or b.siren or "v2x" in b.sources or cfg.signals_required):
             return cfg.duty.siren_and_lights if b.detected else "ignore"
-        return duty_of(b, cfg.duty)
+        since = self._lights_since.get(b.track_id)
+        lights_for = b.time_s - since if since is not None else 0.0
+        return duty_of(b, cfg.duty, lights_for)
 
     def _relevant(self, b: EVBelief) -> bool:
         dist = _distance(b)
