@@ -19,8 +19,9 @@ collects what the chosen senses published by then and hands it to the multi-EV f
   process), lost with ``loss_prob``, received ``latency_s`` later, checked by the car's
   :class:`~makeway.v2x.security.Verifier` (signature, trust, freshness, replay) and, when valid,
   turned into a verified :class:`~makeway.messages.V2XObservation` in the world frame (the local
-  east-north plane of :class:`~makeway.roadside.geodesy.LocalFrame`). The alerts' clock is the
-  simulation's time plus the Unix time at which the identities were made.
+  east-north plane of :class:`~makeway.roadside.geodesy.LocalFrame`). The EVs' identities are made
+  before the run starts (their certificates are valid from 5 minutes before they were made); the
+  alerts' clock is the simulation's time plus the Unix time at which the run started.
 
 Light and siren observations are in the vehicle frame of the moment they were taken; the fusion
 reads them with the ego's state when they are published (the latency's ego motion, ≤ 1.5 m at
@@ -99,24 +100,26 @@ class FusedPerceptionConfig:
     def build(self, scenario: Scenario, world: SimWorld) -> FusedPerception:
         """The fused perception for a closed-loop run of ``scenario`` in ``world``."""
         return FusedPerception(
-            scenario.duration_s, self, world=world, initial_speed_mps=scenario.ego_speed_mps
+            scenario.duration_s,
+            self,
+            world=world,
+            initial_speed_mps=scenario.ego_speed_mps,
+            stations=len(scenario.evs),
         )
 
 
 @functools.lru_cache(maxsize=1)
-def _keys() -> tuple[Path, float]:
-    """A local root and its trust store in a temporary folder (once per process), and the Unix time
-    the alerts' clock starts at."""
+def _keys() -> Path:
+    """A local root and its trust store in a temporary folder (once per process)."""
     folder = Path(tempfile.mkdtemp(prefix="makeway-v2x-"))
     keygen(folder, "rsu")
-    return folder, float(round(time.time()))
+    return folder
 
 
 @functools.lru_cache(maxsize=16)
 def _identity(station: int) -> Identity:
     """The signing identity of the simulated EV number ``station`` (made once per process)."""
-    folder, _ = _keys()
-    return keygen(folder, f"ev{station}")
+    return keygen(_keys(), f"ev{station}")
 
 
 class FusedPerception:
@@ -129,7 +132,9 @@ class FusedPerception:
         *,
         world: SimWorld | None = None,
         initial_speed_mps: float = 0.0,
+        stations: int = 2,
     ) -> None:
+        """``stations``: how many EVs may send alerts (numbered 1, 2, …: ``EVTruth.station_id``)."""
         self.config = config if config is not None else FusedPerceptionConfig()
         cfg = self.config
         self.world = world if world is not None else SimWorld()
@@ -152,9 +157,10 @@ class FusedPerception:
         self._verifier: Verifier | None = None
         self._epoch = 0.0
         if "v2x" in cfg.senses:
-            folder, self._epoch = _keys()
-            self._trust_dir = folder / "trust"
-            self._verifier = None  # made when the first EV's identity exists
+            for k in range(1, max(stations, 1) + 1):
+                _identity(k)
+            self._verifier = Verifier(TrustStore.load(_keys() / "trust"))
+            self._epoch = float(round(time.time()))
         self.rejected = 0  # alerts the verifier refused
         self.counts = dict.fromkeys(SENSE_NAMES, 0)  # observations handed to the fusion, per sense
 
@@ -173,8 +179,6 @@ class FusedPerception:
     def _send(self, t: float, ev: EVTruth) -> None:
         link = self.config.v2x
         ident = _identity(max(ev.station_id, 1))
-        if self._verifier is None:
-            self._verifier = Verifier(TrustStore.load(self._trust_dir))
         if self._rng.random() < link.loss_prob:
             return
         lat, lon, _ = ORIGIN.to_geodetic([ev.x_m, ev.y_m])
@@ -232,7 +236,7 @@ class FusedPerception:
                 self._next_frame_s += 1.0 / cfg.cameras.rate_hz
                 for lo in self.cameras.observe(t, ego, self.world):
                     self._pending.append((t + cfg.cameras.latency_s, lo))
-        if self._verifier is not None or "v2x" in cfg.senses:
+        if self._verifier is not None:
             self._v2x(time_s)
         ready = [p for p in self._pending if p[0] <= time_s + 1e-9]
         if ready:
