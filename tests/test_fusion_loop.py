@@ -190,6 +190,7 @@ def fused(name: str, seed: int = 0) -> ClosedLoopResult:
     return FUSED_CACHE[key]
 
 
+@pytest.mark.slow  # the siren stack renders and listens: ~5–25 s per scenario on 2 free cores
 @pytest.mark.parametrize("name", list(SCENARIOS))
 def test_every_scenario_fused_gives_the_expected_action(name: str) -> None:
     m = fused(name).metrics
@@ -200,12 +201,14 @@ def test_every_scenario_fused_gives_the_expected_action(name: str) -> None:
         assert m["final_speed_mps"] > 12.0
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", ["crossing", "two_evs", "occluded_behind"])
 def test_second_seed_fused(name: str) -> None:
     m = fused(name, 1).metrics
     assert m["action"] == m["expected_action"] and not m["collision"] and m["yields"] == 1
 
 
+@pytest.mark.slow
 def test_two_evs_waits_for_the_second() -> None:
     res = fused("two_evs")
     log = res.log
@@ -219,6 +222,7 @@ def test_two_evs_waits_for_the_second() -> None:
     assert ev2_x < ego_x, (passed, ego_x, ev2_x)
 
 
+@pytest.mark.slow
 def test_v2x_corridor_yields_ten_seconds_before_the_onboard_senses() -> None:
     fused_m = fused("v2x_corridor").metrics
     onboard = run_scenario(
