@@ -96,12 +96,13 @@ def _f(v: Any) -> str:
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--seeds", type=int, default=2, help="scene seeds per scenario and perception")
+    ap.add_argument("--first-seed", type=int, default=0, help="the first scene seed")
     ap.add_argument("--scenarios", default=",".join(SCENARIOS), help="scenario names (comma-separated)")
     ap.add_argument("--perceptions", default=",".join(PERCEPTIONS), help="audio, vision, v2x, fused")
     ap.add_argument("--no-ev-runs", type=int, default=12, help="no-EV drives (20 s) through real noise")
     ap.add_argument("--full", action="store_true", help="10 seeds and 360 no-EV drives (2 h of driving)")
     args = ap.parse_args()
-    seeds = list(range(10 if args.full else args.seeds))
+    seeds = list(range(args.first_seed, args.first_seed + (10 if args.full else args.seeds)))
     no_ev_runs = 360 if args.full else args.no_ev_runs
     names = [s for s in args.scenarios.split(",") if s]
     kinds = [s for s in args.perceptions.split(",") if s]
