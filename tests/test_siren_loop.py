@@ -219,19 +219,18 @@ def test_crossing_heard_waits_until_the_ev_has_crossed(crossing_heard: ClosedLoo
     passed = [t for t, _, to, _ in res.transitions if to == YieldState.EV_PASSED.value]
     log = res.log
     crossed = log["t"][(log["ev_y"] > 0.0).argmax()]  # the EV reaches the ego's road
-    assert passed and crossed - 1.0 <= passed[0] <= crossed + 3.0  # not before it has crossed, nor long after
+    # not before it has crossed, nor long after: the siren alone first only prepares (slows), so the
+    # car is still short of its stop point when the EV crosses in front of it; it halts behind the
+    # crossing EV and counts as arrived 3 s later (stuck_timeout_s), then sees it has passed
+    assert passed and crossed - 1.0 <= passed[0] <= crossed + 5.0
     assert YieldState.RESUMING.value in [to for _, _, to, _ in res.transitions]
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="heard ~200 m away a crossing EV's track has no heading yet, so the decision asks for a "
-    "pull-over instead of a stop before the intersection (docs/results.md: 5 of 8 crossing runs); "
-    "waits on issue 26 (fusion)",
-)
 def test_crossing_heard_stops_before_the_intersection(crossing_heard: ClosedLoopResult) -> None:
     """SPEC §6's action for an EV on the crossing road: stop in lane before the intersection, the
-    scenario's expected action (with the modelled perception the loop takes it: test_closed_loop)."""
+    scenario's expected action (with the modelled perception the loop takes it: test_closed_loop).
+    Heard ~200 m away the track has no heading yet; under the default duty to yield a siren alone
+    only prepares (slows) until it is close, and by then the track knows the EV crosses."""
     m = crossing_heard.metrics
     assert m["action"] == "stop_before_intersection" and m["action_ok"]
 
@@ -242,6 +241,9 @@ def test_no_ev_heard_by_the_siren_stack_is_no_ev() -> None:
     m = json.loads(r.stdout.strip().splitlines()[-1])
     assert m["action"] == "continue" and m["transitions"] == 0
     r = runner.invoke(app, ["simulate", "no_ev", "--perception", "radar"])
-    assert r.exit_code == 2 and "unknown perception 'radar'; choose from: simulated, siren" in r.stderr
+    assert (
+        r.exit_code == 2
+        and "unknown perception 'radar'; choose from: simulated, siren, vision, v2x, fused" in r.stderr
+    )
     r = runner.invoke(app, ["simulate", "no_ev", "--perception", "siren", "--siren", "tape"])
     assert r.exit_code == 2 and "synth or real" in r.stderr

@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 import pytest
 
 from makeway.decide import YieldConfig, YieldStateMachine, clear_stop_point, lane_change_length_m, needs_yield
+from makeway.decide.duty import DUTY_PRESETS
 from makeway.messages import EVBelief, EVRelation, RoadContext, VehicleState, YieldDecision, YieldState
 
 DT = 0.05
@@ -303,7 +304,9 @@ def test_ev_passing_before_we_stop_still_completes_the_stop() -> None:
 
 
 def test_unknown_relation_pulls_over_and_stops() -> None:
-    drive = Drive()
+    """A siren heard and not placed: the UK preset yields at once (the default law prepares; see
+    test_duty_to_yield)."""
+    drive = Drive(fsm=YieldStateMachine(YieldConfig(duty=DUTY_PRESETS["uk"])))
     d = drive.run(0.35, lambda t: ev(t, R.UNKNOWN, math.nan, None, lights=False))
     assert d.state is S.EV_CONFIRMED and d.action == "pull_over_and_stop" and d.pull_over
     drive.until(S.STOPPED_WAITING, lambda t: ev(t, R.UNKNOWN, math.nan, None, lights=False))

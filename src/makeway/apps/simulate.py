@@ -6,6 +6,7 @@ from pathlib import Path
 
 from makeway.apps.closed_loop_report import write_closed_loop_report
 from makeway.atomic import check_writable
+from makeway.decide import DUTY_PRESETS, YieldConfig
 from makeway.errors import InputError
 from makeway.pipeline.closed_loop import PERCEPTIONS, ClosedLoopResult, run_scenario
 from makeway.plan.path import load_path_csv
@@ -22,23 +23,28 @@ def simulate(
     seed: int = 0,
     siren: str = "synth",
     noise: str = "generated",
+    duty: str = "audible_and_visual",
     path: str | Path | None = None,
     out: str | Path | None = None,
 ) -> tuple[ClosedLoopResult, Scenario, dict[str, str]]:
     """Run the built-in scenario ``name`` (or seed 003's situation on the recorded x,y ``path``, a
     CSV in metres) in closed loop and, with ``out``, write its plots and metrics there.
 
-    ``perception`` names a kind of :data:`~makeway.pipeline.closed_loop.PERCEPTIONS` (``simulated``
-    or ``siren``); ``seed`` seeds its noise (the siren's scene too); ``siren`` and ``noise`` choose
-    the siren stack's sources. Returns the run, the scenario and the files written (name → path).
+    ``perception`` names a kind of :data:`~makeway.pipeline.closed_loop.PERCEPTIONS` (``simulated``,
+    ``siren``, ``vision``, ``v2x`` or ``fused``); ``seed`` seeds its noise (the siren's scene too);
+    ``siren`` and ``noise`` choose the siren stack's sources; ``duty`` names the duty to yield
+    (:data:`~makeway.decide.duty.DUTY_PRESETS`). Returns the run, the scenario and the files written
+    (name → path).
 
     Raises:
         InputError: the recorded path cannot be read, or ``out`` cannot be written (checked first).
-        UnknownNameError: an unknown scenario, controller or perception (lists the known ones).
+        UnknownNameError: an unknown scenario, controller, perception or duty preset (lists the known
+            ones).
     """
     if out is not None:
         check_writable(out, folder=True)
     spec = PERCEPTIONS[perception](seed=seed, siren=siren, noise=noise)
+    law = DUTY_PRESETS[duty]
     if path is not None:
         try:
             scenario = on_recorded_path(load_path_csv(path))
@@ -46,6 +52,8 @@ def simulate(
             raise InputError(path, str(exc)) from None
     else:
         scenario = SCENARIOS[name]()
-    result = run_scenario(scenario, controller=controller, perception=spec)
+    result = run_scenario(
+        scenario, controller=controller, perception=spec, yield_config=YieldConfig(duty=law)
+    )
     files = write_closed_loop_report(result, scenario, out) if out is not None else {}
     return result, scenario, files

@@ -440,22 +440,33 @@ def simulate(
         typer.Option(
             help="simulated: a model of perception (latency, dropouts, noise); siren: the siren stack "
             "itself — the roof array's audio rendered as the car drives, the shipped siren networks, "
-            "the fused EV track (about 0.5× real time; hears the siren only, not the lights)."
+            "the fused EV track (about 0.5× real time; hears the siren only, not the lights); vision: "
+            "the camera rig's lights detector (modelled: recall by distance, day/night, occlusion, "
+            "flashing, false lights); v2x: verified signed alerts of equipped EVs; fused: siren stack, "
+            "cameras and V2X fused into one track per EV."
         ),
     ] = "simulated",
     siren: Annotated[
         str,
         typer.Option(
-            help="With --perception siren: synth (procedural siren) or real (a held-out real siren; "
+            help="With --perception siren or fused: synth (procedural siren) or real (a held-out real siren; "
             "needs the data)."
         ),
     ] = "synth",
     noise: Annotated[
         str,
         typer.Option(
-            help="With --perception siren: generated street noise, or real held-out street recordings."
+            help="With --perception siren or fused: generated street noise, or real held-out street "
+            "recordings."
         ),
     ] = "generated",
+    duty: Annotated[
+        str,
+        typer.Option(
+            help="The duty to yield: audible_and_visual (default: siren and lights, or a verified V2X "
+            "alert → yield; siren only → prepare until close; lights only → yield), germany, uk."
+        ),
+    ] = "audible_and_visual",
     as_json: Annotated[bool, typer.Option("--json", help="Print the metrics as one JSON line last.")] = False,
 ) -> None:
     """Drive a simulated scenario in closed loop.
@@ -474,6 +485,7 @@ def simulate(
         seed=seed,
         siren=siren,
         noise=noise,
+        duty=duty,
         path=path,
         out=out,
     )

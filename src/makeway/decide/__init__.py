@@ -1,5 +1,7 @@
-"""Decision stage: when and how to yield to an emergency vehicle (SPEC §6)."""
+"""Decision stage: when and how to yield to an emergency vehicle (SPEC §6), and the duty to yield
+as configuration (:mod:`makeway.decide.duty`)."""
 
+from makeway.decide.duty import DUTY_PRESETS, DutyToYield, duty_of
 from makeway.decide.yield_fsm import (
     YieldConfig,
     YieldStateMachine,
@@ -8,4 +10,13 @@ from makeway.decide.yield_fsm import (
     needs_yield,
 )
 
-__all__ = ["YieldConfig", "YieldStateMachine", "clear_stop_point", "lane_change_length_m", "needs_yield"]
+__all__ = [
+    "DUTY_PRESETS",
+    "DutyToYield",
+    "YieldConfig",
+    "YieldStateMachine",
+    "clear_stop_point",
+    "duty_of",
+    "lane_change_length_m",
+    "needs_yield",
+]

@@ -4,7 +4,7 @@ The law it serves (Texas Transportation Code 545.156): on an emergency vehicle (
 visual signals, yield the right of way, drive immediately to a position parallel to and as close as
 possible to the right-hand edge, clear of any intersection, and stop until the EV has passed.
 
-:class:`YieldStateMachine` consumes one fused :class:`~makeway.messages.EVBelief`, the ego
+:class:`YieldStateMachine` consumes the fused :class:`~makeway.messages.EVBelief` of each EV, the ego
 :class:`~makeway.messages.VehicleState` and the map's :class:`~makeway.messages.RoadContext` per
 decision period and returns a :class:`~makeway.messages.YieldDecision`. Its clock is the later of
 ``ego.time_s`` and ``belief.time_s`` (it must not go backwards; equal times are fine).
@@ -19,9 +19,11 @@ States::
        (an EV needing a yield, confirmed during EV_PASSED or RESUMING → EV_CONFIRMED)
 
 **Perceiving an EV.** Per belief: *seen* = ``detected`` and ``confidence >= release_confidence``;
-*active* = seen, within ``max_relevant_distance_m`` (an unknown distance counts as within), and
-showing lights **or** siren (an EV that switches its siren off but keeps its lights on is still
-active; ``signals_required=False`` drops the signal test for producers that do not report them);
+*active* = seen, within ``max_relevant_distance_m`` (an unknown distance counts as within; an EV
+announced by a verified V2X alert counts up to the duty's ``v2x_horizon_m``), showing lights **or**
+siren (an EV that switches its siren off but keeps its lights on is still active;
+``signals_required=False`` drops the signal test for producers that do not report them), and with
+evidence the duty to yield does not ignore;
 *strong* = active with ``confidence >= confirm_confidence``. Confirmation (hysteresis on) needs strong
 beliefs without a break for ``confirm_time_s``, so a single-frame spike confirms nothing. Once
 confirmed, the EV is released (hysteresis off) only by the rules below: a dip under
@@ -60,10 +62,22 @@ not placed)                                                                    i
 UNKNOWN            no                          ``continue``                    a receding siren
 =================  ==========================  ==============================  ==========================
 
+**The duty to yield** (``YieldConfig.duty``, :mod:`makeway.decide.duty`): the table's yields apply
+to an EV whose evidence carries the duty ``"yield"`` (default: siren and lights, a verified V2X
+alert, lights alone, or a siren alone that is close and approaching). One whose evidence only
+carries ``"prepare"`` (default: a siren alone, far or not placed) gets ``prepare`` instead: keep the
+lane at ``prepare_speed_fraction`` of the speed limit until the evidence grows to a yield.
+
+**Several EVs** (:meth:`YieldStateMachine.update_all`, one belief per EV track): the machine follows
+one EV — one that needs a yield first, the one it followed last time next, then the nearest — and
+does not leave STOPPED_WAITING while any other EV still needs a yield: it yields until every EV
+that requires it has passed. A change of the followed EV (its ``track_id``) clears what was learnt
+about the last one's distance and side.
+
 By state: NO_EV ``continue`` at the speed limit; EV_CONFIRMED the table (the confirming decision
-already starts the manoeuvre); MOVING_OVER the table's manoeuvre with a latched stop point;
-STOPPED_WAITING and EV_PASSED ``wait`` at 0 m/s; RESUMING ``resume`` at ``resume_speed_mps``
-(default: the speed limit).
+already starts the manoeuvre; ``prepare`` under the duty above); MOVING_OVER the table's
+manoeuvre with a latched stop point; STOPPED_WAITING and EV_PASSED ``wait`` at 0 m/s; RESUMING
+``resume`` at ``resume_speed_mps`` (default: the speed limit).
 
 **Stop point** (``stop_s_m``, arc length along the ego path, same frame as ``RoadContext.s_m``),
 chosen once when the manoeuvre starts and kept (re-chosen only when the EV changes from crossing to
@@ -117,9 +131,10 @@ Every transition is appended to :attr:`YieldStateMachine.history` as ``(time, fr
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable
-from dataclasses import dataclass, fields
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, field, fields
 
+from makeway.decide.duty import DutyToYield, duty_of
 from makeway.messages import EVBelief, EVRelation, RoadContext, VehicleState, YieldDecision, YieldState
 
 __all__ = [
@@ -177,6 +192,10 @@ class YieldConfig:
             room before the intersection (``False``: stop in lane).
         arrive_tolerance_m: stopped within this distance of the stop point counts as arrived.
         stuck_timeout_s: stopped short of the stop point for this long counts as arrived too.
+
+    The law:
+        duty: which evidence obliges a yield (:class:`~makeway.decide.duty.DutyToYield`; default the
+            "audible and visual" rule; presets in :data:`~makeway.decide.duty.DUTY_PRESETS`).
     """
 
     confirm_confidence: float = 0.6
@@ -205,11 +224,12 @@ class YieldConfig:
     pull_over_before_intersection: bool = True
     arrive_tolerance_m: float = 3.0
     stuck_timeout_s: float = 3.0
+    duty: DutyToYield = field(default_factory=DutyToYield)
 
     def __post_init__(self) -> None:
         for f in fields(self):
             value = getattr(self, f.name)
-            if isinstance(value, bool) or value is None:
+            if isinstance(value, bool) or value is None or not isinstance(value, (int, float)):
                 continue
             if not (math.isfinite(value) and value >= 0.0):
                 raise ValueError(f"YieldConfig.{f.name} must be finite and >= 0, got {value}")
@@ -419,9 +439,22 @@ class YieldStateMachine:
         self._stopped_since: float | None = None
         self._passed_note: str | None = None  # the EV passed while we were still moving over
         self._pull_over = False
+        self._duty = "ignore"  # the duty the followed EV's evidence carries
+        self._others_wanting = False  # another EV than the followed one needs a yield
+        self._lights_since: dict[int | None, float] = {}  # per track: lights shown without a break since
 
     def update(self, belief: EVBelief, ego: VehicleState, road: RoadContext) -> YieldDecision:
-        """Take this period's belief, ego state and road; return the decision (stamped "now").
+        """:meth:`update_all` with one belief."""
+        return self.update_all([belief], ego, road)
+
+    def update_all(self, beliefs: Sequence[EVBelief], ego: VehicleState, road: RoadContext) -> YieldDecision:
+        """Take this period's beliefs (one per EV; at least one, "nothing" beliefs allowed), ego state
+        and road; return the decision (stamped "now").
+
+        The state machine follows one EV at a time: of the EVs seen, one whose duty is a yield and
+        that needs one (decision table), the one it followed last time first, then the nearest.
+        While any other EV still needs a yield the car does not leave STOPPED_WAITING: it yields
+        until every EV that requires it has passed.
 
         "Now" is the later of ``ego.time_s`` and ``belief.time_s``: a belief may be older than the
         vehicle state (perception latency, a message held between measurements).
@@ -429,6 +462,15 @@ class YieldStateMachine:
         Raises:
             ValueError: "now" is earlier than the previous update's.
         """
+        if not beliefs:
+            raise ValueError("update_all needs at least one belief")
+        for b in beliefs:  # how long each track has shown lights without a break
+            if b.detected and b.lights:
+                self._lights_since.setdefault(b.track_id, b.time_s)
+            else:
+                self._lights_since.pop(b.track_id, None)
+        belief = self._choose(beliefs)
+        self._others_wanting = any(b is not belief and self._belief_wants(b) for b in beliefs)
         stamps = [float(x) for x in (ego.time_s, belief.time_s) if _finite(x)]
         if not stamps:
             raise ValueError("ego.time_s and belief.time_s are both not finite")
@@ -442,6 +484,50 @@ class YieldStateMachine:
 
     # ------------------------------------------------------------------------------- perception
 
+    def _duty_for(self, b: EVBelief) -> str:
+        """The duty of ``b``'s evidence; a producer that reports no signals (``signals_required``
+        off) is taken as showing both."""
+        cfg = self.config
+        if not (b.lights or b.siren or "v2x" in b.sources or cfg.signals_required):
+            return cfg.duty.siren_and_lights if b.detected else "ignore"
+        since = self._lights_since.get(b.track_id)
+        lights_for = b.time_s - since if since is not None else 0.0
+        return duty_of(b, cfg.duty, lights_for)
+
+    def _relevant(self, b: EVBelief) -> bool:
+        dist = _distance(b)
+        if not _finite(dist) or dist <= self.config.max_relevant_distance_m:
+            return True
+        return "v2x" in b.sources and dist <= self.config.duty.v2x_horizon_m
+
+    def _belief_wants(self, b: EVBelief) -> bool:
+        """Whether ``b`` alone is a strong, active EV whose duty is a yield and that needs one."""
+        cfg = self.config
+        conf = float(b.confidence) if _finite(b.confidence) else 0.0
+        return (
+            bool(b.detected)
+            and conf >= cfg.confirm_confidence
+            and (b.lights or b.siren or not cfg.signals_required)
+            and self._relevant(b)
+            and self._duty_for(b) == "yield"
+            and needs_yield(b.relation, b.approaching, yield_to_oncoming=cfg.yield_to_oncoming)
+        )
+
+    def _choose(self, beliefs: Sequence[EVBelief]) -> EVBelief:
+        """The belief the state machine follows this period (see :meth:`update_all`)."""
+        if len(beliefs) == 1:
+            return beliefs[0]
+        cfg = self.config
+        last = self._belief.track_id if self._belief is not None else None
+
+        def key(b: EVBelief) -> tuple[bool, bool, bool, float]:
+            conf = float(b.confidence) if _finite(b.confidence) else 0.0
+            seen = bool(b.detected) and conf >= cfg.release_confidence
+            d = _distance(b)
+            return (not seen, not self._belief_wants(b), b.track_id != last, d if _finite(d) else math.inf)
+
+        return min(beliefs, key=key)
+
     def _observe(self, b: EVBelief, now: float) -> None:
         cfg = self.config
         conf = float(b.confidence) if _finite(b.confidence) else 0.0
@@ -450,6 +536,11 @@ class YieldStateMachine:
         if not seen:
             self._run_since = self._yield_run_since = None
             return
+        if self._belief is not None and b.track_id != self._belief.track_id:
+            # another EV: what was learnt about the last one's distance and side does not carry over
+            self._last_distance = math.nan
+            self._ev_was_ahead = False
+        self._duty = self._duty_for(b)
         dist = _distance(b)
         approach = b.approaching
         held = self._belief is not None and self._belief.time_s == b.time_s  # the same message again
@@ -464,14 +555,18 @@ class YieldStateMachine:
         rel_x = _rel_x(b)
         if _finite(rel_x) and rel_x > cfg.passed_margin_m:
             self._ev_was_ahead = True
-        relevant = not _finite(dist) or dist <= cfg.max_relevant_distance_m
+        relevant = self._relevant(b)
         signals = b.lights or b.siren or not cfg.signals_required
-        active = relevant and signals
+        active = relevant and signals and self._duty != "ignore"
         if active:
             self._last_active_s = now
         strong = active and conf >= cfg.confirm_confidence
         self._run_since = (self._run_since if self._run_since is not None else now) if strong else None
-        wants = strong and needs_yield(b.relation, approach, yield_to_oncoming=cfg.yield_to_oncoming)
+        wants = (
+            strong
+            and self._duty == "yield"
+            and needs_yield(b.relation, approach, yield_to_oncoming=cfg.yield_to_oncoming)
+        )
         self._yield_run_since = (
             (self._yield_run_since if self._yield_run_since is not None else now) if wants else None
         )
@@ -481,8 +576,18 @@ class YieldStateMachine:
 
     def _wants_yield(self) -> bool:
         b = self._belief
-        return b is not None and needs_yield(
-            b.relation, self._approach, yield_to_oncoming=self.config.yield_to_oncoming
+        return (
+            b is not None
+            and self._duty == "yield"
+            and needs_yield(b.relation, self._approach, yield_to_oncoming=self.config.yield_to_oncoming)
+        )
+
+    def _prepares(self) -> bool:
+        b = self._belief
+        return (
+            b is not None
+            and self._duty == "prepare"
+            and needs_yield(b.relation, self._approach, yield_to_oncoming=self.config.yield_to_oncoming)
         )
 
     def _gone_reason(self, now: float) -> str | None:
@@ -580,7 +685,7 @@ class YieldStateMachine:
                 self._go(YieldState.STOPPED_WAITING, now, arrived)
         elif st is YieldState.STOPPED_WAITING:
             passed = self._passed_note or self._passed_reason(now)
-            if passed is not None:
+            if passed is not None and not self._others_wanting:
                 self._go(YieldState.EV_PASSED, now, passed)
         elif st is YieldState.EV_PASSED:
             if self._confirmed(self._yield_run_since, now):
@@ -724,6 +829,10 @@ class YieldStateMachine:
             if b is not None and b.relation is EVRelation.AHEAD:
                 why = f"Following the {what} without overtaking it."
                 return YieldDecision(now, st, "follow", False, min(v, limit), None, why)
+            if self._prepares():
+                slow = self.config.duty.prepare_speed_fraction * limit
+                why = f"Heard an {what} but the law asks for more before a yield: slowing, ready to yield."
+                return YieldDecision(now, st, "prepare", False, slow, None, why)
             return YieldDecision(now, st, "continue", False, limit, None, f"No yield needed for the {what}.")
         if st in (YieldState.STOPPED_WAITING, YieldState.EV_PASSED):
             stop = self._plan.stop_s_m if self._plan is not None else float(road.s_m)

@@ -38,8 +38,10 @@ def compute_metrics(
     * ``settled_abs_e_lat_m``: the largest |e_lat| in the last second before the vehicle stopped
       (the last 2 s of the run if it never stopped);
     * ``max_lat_accel_mps2`` = max |v_x·ψ̇|, ``max_jerk_mps3`` = max |d a_x / dt| (0.1 s smoothing);
-    * times from the EV's signals switching on to EV_CONFIRMED and to STOPPED_WAITING;
-    * ``min_distance_to_ev_m``: the smallest gap between the two vehicles' rectangles.
+    * times from the first EV's signals switching on to EV_CONFIRMED, to the first MOVING_OVER (the
+      yield starts) and to STOPPED_WAITING; ``yields``: how many manoeuvres were started;
+    * ``min_distance_to_ev_m``: the smallest gap between the ego's rectangle and any EV's;
+      ``collision``: a gap ≤ 0 to an EV or to any other vehicle of the scenario.
 
     ``log`` holds the closed loop's columns (:data:`makeway.pipeline.closed_loop.LOG_COLUMNS`) at a
     fixed step; ``ego_length_m`` places the ego's front and rear for the intersection check.
@@ -51,6 +53,7 @@ def compute_metrics(
     t_on = float(t[on[0]]) if on.size else None
     t_conf = first_transition_time(transitions, YieldState.EV_CONFIRMED)
     t_stop = first_transition_time(transitions, YieldState.STOPPED_WAITING)
+    t_yield = first_transition_time(transitions, YieldState.MOVING_OVER)
     start = replans[0][0] if replans and replans[0][1] != "resume" else None
     end = t_stop if t_stop is not None else float(t[-1])
     man = (t >= start) & (t <= end) if start is not None else np.ones_like(t, dtype=bool)
@@ -65,6 +68,7 @@ def compute_metrics(
     jerk = jerk[k:-k] if len(jerk) > 2 * k else jerk
 
     gap = log["gap_to_ev"]
+    traffic_gap = log.get("gap_to_traffic", np.full_like(gap, np.nan))
     stopped = t_stop is not None
     action = decided_action(actions)
     rest = speeds < 0.2
@@ -83,8 +87,13 @@ def compute_metrics(
         "max_jerk_mps3": float(np.max(jerk)) if jerk.size else 0.0,
         "time_active_to_detected_s": (t_conf - t_on) if (t_conf is not None and t_on is not None) else None,
         "time_active_to_stopped_s": (t_stop - t_on) if (t_stop is not None and t_on is not None) else None,
+        "time_active_to_yield_s": (t_yield - t_on) if (t_yield is not None and t_on is not None) else None,
+        "yields": sum(1 for _, _, to, _ in transitions if to == YieldState.MOVING_OVER.value),
         "min_distance_to_ev_m": float(np.nanmin(gap)) if np.isfinite(gap).any() else None,
-        "collision": bool(np.isfinite(gap).any() and np.nanmin(gap) <= 0.0),
+        "collision": bool(
+            (np.isfinite(gap).any() and np.nanmin(gap) <= 0.0)
+            or (np.isfinite(traffic_gap).any() and np.nanmin(traffic_gap) <= 0.0)
+        ),
         "stopped": stopped,
         "stopped_clear_of_intersections": inter_ok,
         "action": action,

@@ -53,8 +53,9 @@ the distance); relation (:func:`~makeway.fuse.relation.classify_relation`) once 
 then, else the listener's last call; ``sources`` — the senses that supported the track within
 ``sense_hold_s``; ``confidence`` the noisy-OR ``1 − Π(1 − p_s)`` over those senses, ``p_s`` the last
 detector probability of sense ``s`` (the listener's smoothed probability, the light detector's,
-``v2x_confidence`` for a verified alert). :meth:`MultiEVFusion.most_urgent` picks the one belief
-today's single-EV yield decision reads.
+``v2x_confidence`` for a verified alert). :meth:`MultiEVFusion.most_urgent` picks the most urgent
+belief (what :meth:`~makeway.fuse.source.BeliefSource.update` publishes); the yield decision reads
+every track's (:meth:`FusedBeliefSource.beliefs`).
 """
 
 from __future__ import annotations
@@ -457,7 +458,7 @@ class MultiEVFusion:
 
     @staticmethod
     def most_urgent(beliefs: Sequence[EVBelief], time_s: float) -> EVBelief:
-        """The one belief today's single-EV yield decision reads: approaching EVs before others, then
+        """The most urgent belief: approaching EVs before others, then
         the nearest (an unranged one after the ranged ones), then the most confident;
         :meth:`EVBelief.nothing` at ``time_s`` without any."""
         live = [b for b in beliefs if b.detected]
@@ -490,3 +491,7 @@ class FusedBeliefSource:
         pending, self._pending = self._pending, []
         self.beliefs_ = self.fusion.update(time_s, ego, pending)
         return MultiEVFusion.most_urgent(self.beliefs_, time_s)
+
+    def beliefs(self) -> list[EVBelief]:
+        """One belief per confirmed EV track as of the last :meth:`update`."""
+        return list(self.beliefs_)

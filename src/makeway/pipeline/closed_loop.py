@@ -2,17 +2,22 @@
 
 :func:`run_scenario` steps a built-in :class:`~makeway.sim.scenarios.Scenario` at 100 Hz:
 
-1. the EV (:class:`~makeway.sim.ev_actor.EVActor`) moves along its own path, keeping a gap behind a
-   vehicle in its lane, and the simulated world (:class:`~makeway.sim.world.SimWorld`) shows it;
+1. every EV, and every truck of the scenario, (:class:`~makeway.sim.ev_actor.EVActor`) moves along
+   its own path, keeping a gap behind a vehicle in its lane, and the simulated world
+   (:class:`~makeway.sim.world.SimWorld`) shows them;
 2. a belief source (:class:`~makeway.fuse.source.BeliefSource`) publishes an
    :class:`~makeway.messages.EVBelief`. ``perception`` picks it: any object with
    ``build(scenario, world) -> BeliefSource``, e.g. a
    :class:`~makeway.sim.perception.PerceptionConfig` (a model of perception: latency, dropouts,
    noise; the default) or a :class:`~makeway.pipeline.siren_perception.SirenPerceptionConfig` (the
-   siren stack itself on the array's audio rendered as the car drives). :data:`PERCEPTIONS` names
-   them for the command line;
-3. the yield state machine decides at 20 Hz; the planner replans the reference path on a new
-   manoeuvre;
+   siren stack itself on the array's audio rendered as the car drives) or a
+   :class:`~makeway.pipeline.fused_perception.FusedPerceptionConfig` (siren stack, cameras and V2X
+   fused into one track per EV). :data:`PERCEPTIONS` names them for the command line (``simulated``,
+   ``siren``, ``vision``, ``v2x``, ``fused``); every source gives a belief per EV
+   (:meth:`~makeway.fuse.source.BeliefSource.beliefs`) and the most urgent one;
+3. the yield state machine decides at 20 Hz from every EV's belief
+   (:meth:`~makeway.decide.yield_fsm.YieldStateMachine.update_all`); the planner replans the
+   reference path on a new manoeuvre;
 4. the lateral controller (feed-forward + feedback by default, or a baseline) and the longitudinal
    controller command the single-track vehicle model.
 
@@ -24,7 +29,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, Protocol
 
 import numpy as np
@@ -36,6 +41,7 @@ from makeway.frames import to_vehicle_frame
 from makeway.fuse.source import BeliefSource
 from makeway.geometry import rect_distance, rectangle_corners
 from makeway.messages import ControlCommand, EVBelief, RoadContext, SirenObservation, VehicleState, YieldState
+from makeway.pipeline.fused_perception import FusedPerceptionConfig
 from makeway.pipeline.siren_perception import SirenPerceptionConfig
 from makeway.plan.path import nearest_index, point_at
 from makeway.plan.planner import YieldPlanner
@@ -80,6 +86,7 @@ LOG_COLUMNS = [
     "state",
     "target_speed",
     "gap_to_ev",
+    "gap_to_traffic",
 ]
 
 
@@ -117,8 +124,32 @@ def siren_perception(
     return SirenPerceptionConfig(audio=LiveAudioConfig(seed=seed, siren=siren, noise=noise))
 
 
+def vision_perception(seed: int = 0, **_: Any) -> PerceptionSpec:
+    """The camera rig's lights detector (modelled) into the multi-EV fusion, seeded."""
+    return FusedPerceptionConfig(senses=("light",), seed=seed)
+
+
+def v2x_perception(seed: int = 0, **_: Any) -> PerceptionSpec:
+    """Signed V2X alerts of equipped EVs, verified, into the multi-EV fusion, seeded."""
+    return FusedPerceptionConfig(senses=("v2x",), seed=seed)
+
+
+def fused_perception(
+    seed: int = 0, siren: str = "synth", noise: str = "generated", **_: Any
+) -> PerceptionSpec:
+    """Siren stack + cameras + V2X into the multi-EV fusion; ``siren``/``noise`` as for ``siren``."""
+    return FusedPerceptionConfig(audio=LiveAudioConfig(seed=seed, siren=siren, noise=noise), seed=seed)
+
+
 PERCEPTIONS: Registry[Callable[..., PerceptionSpec]] = Registry(
-    "perception", {"simulated": simulated_perception, "siren": siren_perception}
+    "perception",
+    {
+        "simulated": simulated_perception,
+        "siren": siren_perception,
+        "vision": vision_perception,
+        "v2x": v2x_perception,
+        "fused": fused_perception,
+    },
 )
 """Kinds of perception by name: ``PERCEPTIONS[name](seed=..., **options)`` gives a spec for
 :func:`run_scenario` (``makeway simulate --perception NAME``)."""
@@ -150,28 +181,39 @@ def run_scenario(
     )
     x0, y0, h0 = point_at(scenario.lane, scenario.ego_start_s_m)
     ego = VehicleState(0.0, x0, y0, h0, scenario.ego_speed_mps)
-    ev_actor = EVActor(scenario.ev, params.length_m, params.width_m) if scenario.ev is not None else None
+    ev_actors = [EVActor(p, params.length_m, params.width_m) for p in scenario.evs]
+    others = [EVActor(p, params.length_m, params.width_m) for p in scenario.traffic]
+    world.night = scenario.night
 
     n = int(round(scenario.duration_s / DT_S))
     log: dict[str, list[float]] = {k: [] for k in LOG_COLUMNS}
     states = list(YieldState)
-    decision = fsm.update(sensing.update(0.0, ego), ego, _road(scenario, 0.0))
+    decision = fsm.update_all(_beliefs(sensing, 0.0, ego), ego, _road(scenario, 0.0))
     path = planner.path
     hint: int | None = None
     lane_hint: int | None = None
     paths: list[tuple[float, np.ndarray, np.ndarray]] = [(0.0, path.x_m, path.y_m)]
     ev_truth: EVTruth | None = None
+    truths: list[EVTruth] = []
+    traffic: list[EVTruth] = []
     actions: list[tuple[float, str, str]] = []  # (time, state, action) whenever the action changes
     for i in range(n):
         t = i * DT_S
-        if ev_actor is not None:
-            ev_truth = world.ev = ev_actor.step(t, DT_S, ego.x_m, ego.y_m)
-        belief = sensing.update(t, ego)
+        if ev_actors or others:
+            truths = [
+                _with_station(a.step(t, DT_S, ego.x_m, ego.y_m), a.plan, k + 1)
+                for k, a in enumerate(ev_actors)
+            ]
+            traffic = [_with_station(a.step(t, DT_S, ego.x_m, ego.y_m), a.plan, 0) for a in others]
+            world.evs, world.traffic = tuple(truths), tuple(traffic)
+            ev_truth = world.ev = truths[0] if truths else None
+        beliefs = _beliefs(sensing, t, ego)
+        belief = beliefs[0]
         lane_k = nearest_index(scenario.lane, ego.x_m, ego.y_m, lane_hint)
         lane_hint = lane_k
         lane_s = float(scenario.lane.s_m[lane_k])
         if i % DECIDE_EVERY == 0:
-            decision = fsm.update(belief, ego, _road(scenario, lane_s))
+            decision = fsm.update_all(beliefs, ego, _road(scenario, lane_s))
             if not actions or actions[-1][1:] != (decision.state.value, decision.action):
                 actions.append((t, decision.state.value, decision.action))
             new_path = planner.update(decision, x=ego.x_m, y=ego.y_m, speed_mps=ego.vx_mps)
@@ -182,21 +224,12 @@ def run_scenario(
         steer_cmd, errors, hint = lateral.steer(ego, path, hint)
         stop_d = planner.distance_to_stop(ego.x_m, ego.y_m, hint) if decision.stop_s_m is not None else None
         target = decision.target_speed_mps
-        if ev_truth is not None and scenario.ev is not None:
-            target = min(target, _follow_speed(ego, ev_truth, scenario.ev, params))
+        for truth in truths + traffic:
+            target = min(target, _follow_speed(ego, truth, params))
         accel_cmd = longitudinal.accel(ego, target, stop_d)
-        gap = math.nan
-        if ev_truth is not None and scenario.ev is not None:
-            gap = rect_distance(
-                rectangle_corners(ego.x_m, ego.y_m, ego.yaw_rad, params.length_m, params.width_m),
-                rectangle_corners(
-                    ev_truth.x_m,
-                    ev_truth.y_m,
-                    ev_truth.heading_rad,
-                    scenario.ev.length_m,
-                    scenario.ev.width_m,
-                ),
-            )
+        ego_box = rectangle_corners(ego.x_m, ego.y_m, ego.yaw_rad, params.length_m, params.width_m)
+        gap = min((_gap(ego_box, v) for v in truths), default=math.nan)
+        gap_traffic = min((_gap(ego_box, v) for v in traffic), default=math.nan)
         row = {
             "t": t,
             "x": ego.x_m,
@@ -217,7 +250,7 @@ def run_scenario(
             "ev_x": ev_truth.x_m if ev_truth is not None else math.nan,
             "ev_y": ev_truth.y_m if ev_truth is not None else math.nan,
             "ev_yaw": ev_truth.heading_rad if ev_truth is not None else math.nan,
-            "ev_on": float(ev_truth is not None and (ev_truth.lights or ev_truth.siren)),
+            "ev_on": float(any(v.lights or v.siren for v in truths)),
             "belief_detected": float(belief.detected),
             "belief_conf": belief.confidence,
             "belief_distance": belief.distance_m,
@@ -225,6 +258,7 @@ def run_scenario(
             "state": float(states.index(decision.state)),
             "target_speed": decision.target_speed_mps,
             "gap_to_ev": gap,
+            "gap_to_traffic": gap_traffic,
         }
         for k, v in row.items():
             log[k].append(float(v))
@@ -239,16 +273,36 @@ def run_scenario(
     )
 
 
-def _follow_speed(
-    ego: VehicleState, ev: EVTruth, plan: EVPlan, params: VehicleParams, time_gap_s: float = 1.5
-) -> float:
-    """Speed that keeps a 1.5 s gap (+ 2 m) behind the EV when it is ahead in the ego's lane (ACC)."""
-    along, across = (float(v) for v in to_vehicle_frame(ev.x_m - ego.x_m, ev.y_m - ego.y_m, ego.yaw_rad))
-    if along <= 0.0 or abs(across) > 0.5 * (plan.width_m + params.width_m) + 0.3:
+def _follow_speed(ego: VehicleState, other: EVTruth, params: VehicleParams, time_gap_s: float = 1.5) -> float:
+    """Speed that keeps a 1.5 s gap (+ 2 m) behind another vehicle when it is ahead in the ego's lane
+    (ACC)."""
+    along, across = (
+        float(v) for v in to_vehicle_frame(other.x_m - ego.x_m, other.y_m - ego.y_m, ego.yaw_rad)
+    )
+    if along <= 0.0 or abs(across) > 0.5 * (other.width_m + params.width_m) + 0.3:
         return math.inf
-    gap = along - 0.5 * (plan.length_m + params.length_m)
+    gap = along - 0.5 * (other.length_m + params.length_m)
     desired = 2.0 + time_gap_s * ego.vx_mps
-    return max(0.0, ev.speed_mps + (gap - desired) / 2.0)
+    return max(0.0, other.speed_mps + (gap - desired) / 2.0)
+
+
+def _gap(ego_box: np.ndarray, other: EVTruth) -> float:
+    """The smallest distance (m) between the ego's rectangle and another vehicle's (≤ 0: touching)."""
+    return rect_distance(
+        ego_box, rectangle_corners(other.x_m, other.y_m, other.heading_rad, other.length_m, other.width_m)
+    )
+
+
+def _with_station(truth: EVTruth, plan: EVPlan, station: int) -> EVTruth:
+    """The actor's truth with its plan's size, V2X equipment and station number."""
+    return replace(truth, length_m=plan.length_m, width_m=plan.width_m, v2x=plan.v2x, station_id=station)
+
+
+def _beliefs(sensing: BeliefSource, time_s: float, ego: VehicleState) -> list[EVBelief]:
+    """This step's beliefs: the one :meth:`~makeway.fuse.source.BeliefSource.update` publishes (the
+    most urgent) first, then every other EV the source tracks."""
+    first = sensing.update(time_s, ego)
+    return [first, *(b for b in sensing.beliefs() if b is not first and b.detected)]
 
 
 def _road(scenario: Scenario, lane_s: float) -> RoadContext:

@@ -117,3 +117,7 @@ class SirenPerception:
         while self._pending and self._pending[0].time_s + self.config.latency_s <= time_s + 1e-9:
             self._last = self._pending.popleft()
         return self._last
+
+    def beliefs(self) -> list[EVBelief]:
+        """The last published belief when it hears an EV (one EV track)."""
+        return [self._last] if self._last.detected else []

@@ -98,6 +98,10 @@ class SimulatedPerception:
             return EVBelief.nothing(time_s)
         return self._last
 
+    def beliefs(self) -> list[EVBelief]:
+        """The last published belief when it perceives an EV (this model sees one EV)."""
+        return [self._last] if self._last is not None and self._last.detected else []
+
     def _measure(self, t: float, ego_x: float, ego_y: float, ego_yaw: float, ev: EVTruth | None) -> EVBelief:
         cfg = self.config
         rng = self._rng

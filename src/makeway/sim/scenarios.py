@@ -19,7 +19,19 @@ name               situation                                                    
 ``signals_off``    EV from behind switches lights and siren off after 4 s and     yield, then resume
                    slows down (it was not called after all)
 ``no_ev``          an ordinary drive                                             continue
+``two_evs``        undivided road: an EV overtakes from behind on the centre      pull over and stop
+                   line while another comes the other way; both active at once    until both have passed
+``occluded_behind`` a truck follows the ego; an EV comes up in the other lane,    pull over and stop
+                   hidden from the cameras behind the truck until close
+``night_lights_``  night; an EV from behind with lights on and siren off          pull over and stop
+``only``
+``siren_only``     an EV from behind with its siren on and no lights to see       pull over and stop
+``v2x_corridor``   an EV 500 m behind, announced by roadside units (V2X), closes  pull over and stop
+                   at 25 m/s: the corridor should open long before it is heard
 =================  ============================================================  ======================
+
+An :class:`EVPlan` also drives the other vehicles of a scenario (``traffic``, signals never on): a
+truck follows the same car-following rule as an EV. ``night`` tells the cameras it is dark.
 """
 
 from __future__ import annotations
@@ -56,6 +68,7 @@ class EVPlan:
     min_gap_m: float = 8.0
     length_m: float = 6.0
     width_m: float = 2.2
+    v2x: bool = False  # broadcasts signed alerts (directly or relayed by roadside units)
 
 
 @dataclass(frozen=True)
@@ -74,6 +87,14 @@ class Scenario:
     ev: EVPlan | None = None
     ego_start_s_m: float = 0.0
     road_lines: tuple[ReferencePath, ...] = field(default_factory=tuple)  # for plots: lane edges
+    more_evs: tuple[EVPlan, ...] = ()  # further emergency vehicles
+    traffic: tuple[EVPlan, ...] = ()  # other vehicles (trucks that hide an EV)
+    night: bool = False
+
+    @property
+    def evs(self) -> tuple[EVPlan, ...]:
+        """Every emergency vehicle, ``ev`` first."""
+        return ((self.ev,) if self.ev is not None else ()) + self.more_evs
 
 
 def _const(v: float) -> Callable[[float], float]:
@@ -251,6 +272,154 @@ def on_recorded_path(lane: ReferencePath, *, ego_speed_mps: float = 13.4, ev_gap
     )
 
 
+def two_evs() -> Scenario:
+    """Undivided two-way road: an EV overtakes from behind on the centre line while a second one
+    comes the other way; the ego must wait until both have passed."""
+    lane = straight_road(500.0)
+    behind = EVPlan(
+        path=straight_road(700.0, start=(-200.0, LANE_WIDTH_M / 2)),
+        start_s_m=160.0,  # 40 m behind the ego
+        speed_mps=lambda t: 13.4 if t < 1.0 else 18.0,
+        signals_on_s=1.0,
+    )
+    oncoming = EVPlan(
+        path=straight_road(600.0, start=(400.0, LANE_WIDTH_M + 0.5), heading_rad=math.pi),
+        start_s_m=250.0,  # 150 m ahead of the ego
+        speed_mps=_const(12.0),
+        signals_on_s=0.5,
+    )
+    return Scenario(
+        name="two_evs",
+        description="ego 13.4 m/s on an undivided two-way road; an EV 40 m behind switches on at 1 s and "
+        "overtakes on the centre line at 18 m/s while a second EV, 150 m ahead, comes the other way at "
+        "12 m/s: stop and wait until both have passed",
+        lane=lane,
+        ego_speed_mps=13.4,
+        duration_s=30.0,
+        expected_action="pull_over_and_stop",
+        right_edge_offset_m=-1.3,
+        speed_limit_mps=13.4,
+        ev=behind,
+        more_evs=(oncoming,),
+        road_lines=_lane_lines(lane, [LANE_WIDTH_M / 2, -LANE_WIDTH_M / 2, 1.5 * LANE_WIDTH_M]),
+    )
+
+
+def occluded_behind() -> Scenario:
+    """A truck follows the ego; an EV comes up in the other lane, hidden from the cameras behind the
+    truck until it is close (the siren is heard all along)."""
+    lane = straight_road(600.0)
+    truck = EVPlan(
+        path=straight_road(800.0, start=(-200.0, 0.0)),
+        start_s_m=184.0,  # 16 m behind the ego (centre to centre)
+        speed_mps=_const(13.4),
+        signals_on_s=math.inf,
+        siren=False,
+        lights=False,
+        min_gap_m=5.0,
+        length_m=12.0,
+        width_m=2.5,
+    )
+    ev = EVPlan(
+        path=straight_road(800.0, start=(-200.0, LANE_WIDTH_M)),
+        start_s_m=120.0,  # 80 m behind the ego, in the other lane
+        speed_mps=lambda t: 13.4 if t < 1.0 else 22.0,
+        signals_on_s=1.0,
+    )
+    return Scenario(
+        name="occluded_behind",
+        description="ego 13.4 m/s in the right lane with a truck 16 m behind it; an EV 80 m behind in "
+        "the left lane switches on at 1 s and closes at 22 m/s, hidden from the cameras by the truck "
+        "until it is ~20 m away",
+        lane=lane,
+        ego_speed_mps=13.4,
+        duration_s=30.0,
+        expected_action="pull_over_and_stop",
+        right_edge_offset_m=-1.3,
+        speed_limit_mps=13.4,
+        ev=ev,
+        traffic=(truck,),
+        road_lines=_lane_lines(lane, [-LANE_WIDTH_M / 2, LANE_WIDTH_M / 2, 1.5 * LANE_WIDTH_M]),
+    )
+
+
+def night_lights_only() -> Scenario:
+    """Night: an EV from behind with its lights on and its siren off (seed 004's case)."""
+    base = seed003()
+    assert base.ev is not None
+    ev = EVPlan(
+        path=base.ev.path,
+        start_s_m=140.0,  # 60 m behind
+        speed_mps=lambda t: 13.4 if t < 2.0 else 20.0,
+        signals_on_s=2.0,
+        siren=False,
+    )
+    return Scenario(
+        name="night_lights_only",
+        description="night; as seed003 with the EV 60 m behind, lights on and siren off",
+        lane=base.lane,
+        ego_speed_mps=13.4,
+        duration_s=30.0,
+        expected_action="pull_over_and_stop",
+        right_edge_offset_m=base.right_edge_offset_m,
+        speed_limit_mps=13.4,
+        ev=ev,
+        night=True,
+        road_lines=base.road_lines,
+    )
+
+
+def siren_only() -> Scenario:
+    """An EV from behind with its siren on and no light the cameras can see."""
+    base = seed003()
+    assert base.ev is not None
+    ev = EVPlan(
+        path=base.ev.path,
+        start_s_m=120.0,  # 80 m behind
+        speed_mps=lambda t: 13.4 if t < 2.0 else 20.0,
+        signals_on_s=2.0,
+        lights=False,
+    )
+    return Scenario(
+        name="siren_only",
+        description="as seed003 with the EV 80 m behind, siren on and no lights visible: prepare, then "
+        "yield once the siren is close and approaching",
+        lane=base.lane,
+        ego_speed_mps=13.4,
+        duration_s=30.0,
+        expected_action="pull_over_and_stop",
+        right_edge_offset_m=base.right_edge_offset_m,
+        speed_limit_mps=13.4,
+        ev=ev,
+        road_lines=base.road_lines,
+    )
+
+
+def v2x_corridor() -> Scenario:
+    """An EV 500 m behind, announced by roadside units, closes at 25 m/s on a two-lane road."""
+    lane = straight_road(1000.0)
+    ev = EVPlan(
+        path=straight_road(1600.0, start=(-600.0, 0.0)),
+        start_s_m=100.0,  # 500 m behind the ego
+        speed_mps=lambda t: 13.4 if t < 1.0 else 25.0,
+        signals_on_s=1.0,
+        v2x=True,
+    )
+    return Scenario(
+        name="v2x_corridor",
+        description="ego 13.4 m/s in the left lane of a straight two-lane road; an EV 500 m behind, "
+        "announced by roadside units, switches on at 1 s and closes at 25 m/s",
+        lane=lane,
+        ego_speed_mps=13.4,
+        duration_s=50.0,
+        expected_action="pull_over_and_stop",
+        right_edge_offset_m=-LANE_WIDTH_M - 0.5,
+        speed_limit_mps=13.4,
+        ev=ev,
+        road_lines=_lane_lines(lane, [LANE_WIDTH_M / 2, -LANE_WIDTH_M / 2, -1.5 * LANE_WIDTH_M]),
+    )
+
+
 SCENARIOS: Registry[Callable[[], Scenario]] = Registry(
     "scenario",
     {
@@ -260,6 +429,11 @@ SCENARIOS: Registry[Callable[[], Scenario]] = Registry(
         "crossing": crossing,
         "signals_off": signals_off,
         "no_ev": no_ev,
+        "two_evs": two_evs,
+        "occluded_behind": occluded_behind,
+        "night_lights_only": night_lights_only,
+        "siren_only": siren_only,
+        "v2x_corridor": v2x_corridor,
     },
 )
 """Built-in scenarios by name: ``SCENARIOS[name]()`` builds one (``makeway simulate NAME``)."""

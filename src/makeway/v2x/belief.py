@@ -76,6 +76,7 @@ class V2XBeliefSource:
         self.frame = frame
         self.hold_s = hold_s
         self._alerts: dict[int, Alert] = {}  # newest alert per station
+        self._beliefs: list[EVBelief] = []
 
     def receive(self, alert: Alert) -> None:
         """Take one verified alert (older ones from the same station are ignored)."""
@@ -91,6 +92,7 @@ class V2XBeliefSource:
             for a in self._alerts.values()
             if 0.0 <= time_s - a.generation_time_s <= self.hold_s and (a.siren or a.lights)
         ]
+        self._beliefs = []
         if not live:
             return EVBelief.nothing(time_s, source="v2x")
         if ego is None:
@@ -105,10 +107,15 @@ class V2XBeliefSource:
         best: EVBelief | None = None
         for a in live:
             b = self._belief(a, time_s, ego)
+            self._beliefs.append(b)
             if best is None or b.distance_m < best.distance_m:
                 best = b
         assert best is not None
         return best
+
+    def beliefs(self) -> list[EVBelief]:
+        """Every live station's belief as of the last :meth:`update` with a known ego."""
+        return list(self._beliefs)
 
     def _belief(self, a: Alert, time_s: float, ego: VehicleState) -> EVBelief:
         ex, ey = self.frame.to_local(a.lat_deg, a.lon_deg)
