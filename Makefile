@@ -8,7 +8,7 @@ OUT    ?= reports/demo
 
 .PHONY: venv demo test lint typecheck bench bench-sort bench-video bench-crops bench-detection bench-pull-over \
 	bench-siren-loop bench-audio bench-rig bench-v2x bench-fusion bench-roadside bench-lights bench-active-rule \
-	bench-rsu clean
+	bench-rsu bench-fusion-ablation clean
 
 # `make demo` installs the runtime only; `make test` and the benchmarks add the dev extra (linters,
 # scikit-learn, XGBoost, torch for the training tests).
@@ -90,6 +90,10 @@ bench-v2x: venv
 bench-fusion: venv
 	$(BIN)/python benchmarks/bench_fusion_step.py
 
+# audio only / vision only / V2X only / fused on every closed-loop scenario, and no-EV drives
+bench-fusion-ablation: venv
+	$(BIN)/python benchmarks/bench_fusion_ablation.py
+
 bench-roadside: venv
 	$(BIN)/python benchmarks/bench_pixel_to_road.py
 
@@ -106,7 +110,8 @@ bench-rsu: venv
 	$(BIN)/python benchmarks/bench_rsu.py
 
 bench: bench-sort bench-video bench-crops bench-detection bench-pull-over bench-siren-loop bench-audio bench-rig \
-	bench-v2x bench-fusion bench-roadside bench-lights bench-active-rule bench-rsu
+	bench-v2x bench-fusion bench-roadside bench-lights bench-active-rule bench-rsu \
+	bench-fusion-ablation
 
 clean:
 	rm -rf $(VENV) reports .pytest_cache .mypy_cache .ruff_cache

@@ -46,12 +46,17 @@ preset                   siren and    siren only   lights only  basis
 
 A verified V2X alert is a ``"yield"`` in every preset (the signed alert says lights and siren are in
 use; the EV is on a call).
+
+**A car that cannot see lights** (no camera among its senses) can never corroborate a siren, so
+waiting for the lights would only delay the yield until the EV is on top of it:
+:meth:`DutyToYield.for_senses` turns a ``"prepare"`` for a siren alone into a ``"yield"`` for such a
+car (the hearing-only perception of the closed loop uses it).
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 from makeway.messages import EVBelief, EVRelation
 from makeway.registry import Registry
@@ -94,6 +99,14 @@ class DutyToYield:
                 "siren_close_m, v2x_horizon_m, lights_only_min_s >= 0 and 0 < prepare_speed_fraction <= 1 "
                 "are needed"
             )
+
+
+    def for_senses(self, sees_lights: bool) -> DutyToYield:
+        """This duty for a car whose senses do (``True``) or do not include cameras that see lights:
+        without them a siren alone that would only be prepared for is a yield (module docstring)."""
+        if sees_lights or self.siren_only != "prepare":
+            return self
+        return replace(self, siren_only="yield")
 
 
 def duty_of(belief: EVBelief, duty: DutyToYield, lights_for_s: float = math.inf) -> str:

@@ -107,7 +107,12 @@ class ClosedLoopResult:
 
 
 class PerceptionSpec(Protocol):
-    """Settings of one kind of perception that can build its belief source for a run."""
+    """Settings of one kind of perception that can build its belief source for a run;
+    ``sees_lights`` says whether its senses include cameras that see an EV's lights (the duty to
+    yield of a car without them: :meth:`~makeway.decide.duty.DutyToYield.for_senses`)."""
+
+    @property
+    def sees_lights(self) -> bool: ...
 
     def build(self, scenario: Scenario, world: SimWorld) -> BeliefSource: ...
 
@@ -173,9 +178,11 @@ def run_scenario(
     lateral = LATERAL_CONTROLLERS[controller](params)
     model = SingleTrackModel(params)
     longitudinal = LongitudinalController()
-    fsm = YieldStateMachine(yield_config)
+    spec: PerceptionSpec = perception if perception is not None else PerceptionConfig()
+    config = yield_config if yield_config is not None else YieldConfig()
+    fsm = YieldStateMachine(replace(config, duty=config.duty.for_senses(spec.sees_lights)))
     world = SimWorld()
-    sensing = (perception if perception is not None else PerceptionConfig()).build(scenario, world)
+    sensing = spec.build(scenario, world)
     planner = YieldPlanner(
         scenario.lane, right_edge_offset_m=scenario.right_edge_offset_m, intersections=scenario.intersections
     )

@@ -97,6 +97,11 @@ class FusedPerceptionConfig:
                 f"senses must be a non-empty subset of {', '.join(SENSE_NAMES)}, not {self.senses}"
             )
 
+    @property
+    def sees_lights(self) -> bool:
+        """Whether the cameras (``"light"``) are among the senses."""
+        return "light" in self.senses
+
     def build(self, scenario: Scenario, world: SimWorld) -> FusedPerception:
         """The fused perception for a closed-loop run of ``scenario`` in ``world``."""
         return FusedPerception(

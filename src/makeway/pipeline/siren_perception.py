@@ -51,6 +51,11 @@ class SirenPerceptionConfig:
         if self.hop_s <= 0 or self.latency_s < 0:
             raise ValueError("hop_s must be > 0 and latency_s >= 0")
 
+    @property
+    def sees_lights(self) -> bool:
+        """The siren stack hears only: no camera sees the lights."""
+        return False
+
     def build(self, scenario: Scenario, world: SimWorld) -> SirenPerception:
         """The siren stack for a closed-loop run of ``scenario`` in ``world``."""
         return SirenPerception(

@@ -60,6 +60,11 @@ class PerceptionConfig:
         if not (0.0 <= self.dropout_prob < 1.0 and self.burst_prob_per_s >= 0.0):
             raise ValueError("dropout_prob must lie in [0, 1) and burst_prob_per_s be >= 0")
 
+    @property
+    def sees_lights(self) -> bool:
+        """The model of perception reports the EV's lights."""
+        return True
+
     def build(self, scenario: Scenario, world: SimWorld) -> SimulatedPerception:
         """The belief source of these settings for a closed-loop run in ``world``."""
         return SimulatedPerception(self, world)
