@@ -65,3 +65,33 @@ def lights_train(
         console.print(f"left out (source not in the split table): {', '.join(s['left_out'])}")
     if json_out:
         print_json_line(s)
+
+
+@friendly_errors
+def lights_train_verifier(
+    out: Annotated[
+        Path,
+        typer.Argument(help="ONNX file to write (the shipped one: src/makeway/models/lights_verifier.onnx)."),
+    ],
+    seed: Annotated[int, typer.Option(help="Random seed.")] = 0,
+    data: Annotated[
+        Path | None,
+        typer.Option("--data", help="Shared data folder (default: ../shared/data or MAKEWAY_DATA)."),
+    ] = None,
+    json_out: Annotated[bool, typer.Option("--json", help="Print the summary as one JSON line.")] = False,
+) -> None:
+    """Train the verifier of the 'verified' light detector (rule proposals scored by boosted trees).
+
+    Train split rows, threshold chosen on the validation split; see docs/model_card_lights.md.
+    """
+    from makeway.train.light_verifier import train_light_verifier
+
+    s = train_light_verifier(out, data_root=data, seed=seed)
+    v = s["validation"]
+    console.print(
+        f"wrote {s['model']} ({s['size_bytes'] / 1e6:.2f} MB): {s['train_rows']} train proposals "
+        f"({s['train_positives']} positive), threshold {s['threshold']:.2f}; validation array P "
+        f"{v['array_precision']:.3f} R {v['array_recall']:.3f}; {s['seconds']:.0f} s"
+    )
+    if json_out:
+        print_json_line(s)
