@@ -511,7 +511,7 @@ def info() -> None:
 from makeway.cli.audio import audio_app  # noqa: E402  (sub-apps register after the main commands)
 from makeway.cli.classify import classify_app  # noqa: E402
 from makeway.cli.light_labels import light_labels_app  # noqa: E402
-from makeway.cli.lights_train import lights_train, lights_train_verifier  # noqa: E402
+from makeway.cli.lights_train import lights_train  # noqa: E402
 from makeway.cli.rig import rig_app  # noqa: E402
 from makeway.cli.roadside import roadside_app  # noqa: E402
 from makeway.cli.rsu import rsu_app  # noqa: E402
@@ -524,7 +524,6 @@ app.add_typer(roadside_app, name="roadside")
 app.add_typer(rsu_app, name="rsu")
 app.add_typer(light_labels_app, name="light-labels")
 app.command("lights-train")(lights_train)
-app.command("lights-train-verifier")(lights_train_verifier)
 app.add_typer(v2x_app, name="v2x")
 app.add_typer(vehicle_app, name="vehicle")
 
