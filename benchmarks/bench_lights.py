@@ -10,7 +10,7 @@ mAP50:95 and ms/frame for four detectors:
   the block's gain). Read from ``benchmarks/out/lights_det_no_attention.onnx``; trained there first
   (about 15 min on one core) when missing and torch is installed;
 * ``verified`` — rule proposals scored by the learned verifier (``LIGHT_DETECTORS["verified"]``,
-  ``src/makeway/models/lights_verifier.onnx``; ``makeway lights-train-verifier``).
+  ``src/makeway/models/lights_verifier.onnx``; ``makeway lights-train --verifier``).
 
 Test split (by source clip, :mod:`makeway.train.light_split`): ``night_ambulance_lights``,
 ``highway_cam_no_ev`` and the held-out ``ambulance_yolo`` images once labelled. Every labelled colour

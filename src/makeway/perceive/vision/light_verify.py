@@ -13,7 +13,7 @@ cues and the settings that found it — and gradient-boosted trees (ONNX, ONNX R
 probability that it is a lit emergency light. Kept boxes (probability ≥ the model's threshold) pass a
 greedy non-maximum suppression (IoU > 0.3, or one box at least 80 % inside a higher-scoring one).
 Boxes are pixels of the input frame, ``x2``/``y2`` exclusive. Trained by
-:mod:`makeway.train.light_verifier` (``makeway lights-train-verifier``).
+:mod:`makeway.train.light_verifier` (``makeway lights-train --verifier``).
 """
 
 from __future__ import annotations
@@ -220,7 +220,7 @@ class LightVerifier:
 
         path = Path(model) if model is not None else DEFAULT_VERIFIER_MODEL
         if not path.is_file():
-            raise InputError(path, "light verifier model not found (makeway lights-train-verifier)")
+            raise InputError(path, "light verifier model not found (makeway lights-train --verifier)")
         opts = ort.SessionOptions()
         opts.intra_op_num_threads = num_threads
         opts.inter_op_num_threads = 1
