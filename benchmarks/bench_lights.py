@@ -1,14 +1,16 @@
 """Lit-light detection on the held-out labelled frames: seed 004's metrics beside their targets.
 
 Prints, per test source and for the worst source, array (bulb) P/R at IoU 0.5, vehicle P/R, mAP50,
-mAP50:95 and ms/frame for three detectors:
+mAP50:95 and ms/frame for four detectors:
 
 * ``colour`` — the rule-based finder (``LIGHT_DETECTORS["colour"]``, the baseline);
 * ``cnn+att`` — the shipped learned detector with seed 004's colour-attention block
   (``src/makeway/models/lights_det.onnx``);
 * ``cnn-att`` — the same network trained by the same command with ``--no-attention`` (the ablation:
   the block's gain). Read from ``benchmarks/out/lights_det_no_attention.onnx``; trained there first
-  (about 15 min on one core) when missing and torch is installed.
+  (about 15 min on one core) when missing and torch is installed;
+* ``verified`` — rule proposals scored by the learned verifier (``LIGHT_DETECTORS["verified"]``,
+  ``src/makeway/models/lights_verifier.onnx``; ``makeway lights-train --verifier``).
 
 Test split (by source clip, :mod:`makeway.train.light_split`): ``night_ambulance_lights``,
 ``highway_cam_no_ev`` and the held-out ``ambulance_yolo`` images once labelled. Every labelled colour
@@ -30,6 +32,7 @@ from typing import Any
 from makeway.eval.lights import run_detector, summarise
 from makeway.paths import data_dir
 from makeway.perceive.vision.light_cnn import default_lights_model
+from makeway.perceive.vision.light_verify import DEFAULT_VERIFIER_MODEL
 from makeway.perceive.vision.lights import LIGHT_DETECTORS
 from makeway.train.light_split import load_split
 
@@ -67,6 +70,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--threads", type=int, default=1, help="ONNX Runtime threads (default 1)")
     ap.add_argument("--model", type=Path, default=default_lights_model(), help="the attention model")
     ap.add_argument("--ablation", type=Path, default=ABLATION, help="the no-attention model")
+    ap.add_argument("--verifier", type=Path, default=DEFAULT_VERIFIER_MODEL, help="the verifier model")
     ap.add_argument("--split", default="test", choices=["test", "val"], help="which split to score")
     ap.add_argument(
         "--map-threshold",
@@ -93,6 +97,17 @@ def main(argv: list[str] | None = None) -> int:
         detectors[name] = LIGHT_DETECTORS["cnn"](
             colours="all", model=path, num_threads=args.threads, threshold=args.map_threshold
         )
+    if args.verifier.is_file():
+        probe_v = LIGHT_DETECTORS["verified"](colours="all", model=args.verifier, num_threads=args.threads)
+        operating["verified"] = probe_v.threshold
+        detectors["verified"] = LIGHT_DETECTORS["verified"](
+            colours="all",
+            model=args.verifier,
+            num_threads=args.threads,
+            threshold=min(args.map_threshold, probe_v.threshold),
+        )
+    else:
+        print(f"(no {args.verifier}: the verified row is skipped)")
     report: dict[str, Any] = {
         "split": args.split,
         "frames": len(items),

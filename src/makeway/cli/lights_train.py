@@ -35,12 +35,35 @@ def lights_train(
         typer.Option("--labels", help="Folder of label CSVs (default: the package's data/lights)."),
     ] = None,
     json_out: Annotated[bool, typer.Option("--json", help="Print the summary as one JSON line.")] = False,
+    verifier: Annotated[
+        bool,
+        typer.Option(
+            "--verifier",
+            help="Train the 'verified' detector's proposal verifier (boosted trees; the shipped one: "
+            "src/makeway/models/lights_verifier.onnx) instead of the CNN; uses --seed and --data only.",
+        ),
+    ] = False,
 ) -> None:
-    """Train the lit-light detector on the checked labels (split by source clip) and export ONNX.
+    """Train a lit-light model (CNN or verifier) as ONNX.
+
+    Uses the checked labels, split by source clip.
 
     Train: fire_trucks_red_lights, traffic_no_ev, ambulance_yolo (not held out); validation:
     intersection_cam_ambulance (picks the step when it has lit lights). See docs/model_card_lights.md.
     """
+    if verifier:
+        from makeway.train.light_verifier import train_light_verifier
+
+        v = train_light_verifier(out, data_root=data, seed=seed)
+        val = v["validation"]
+        console.print(
+            f"wrote {v['model']} ({v['size_bytes'] / 1e6:.2f} MB): {v['train_rows']} train proposals "
+            f"({v['train_positives']} positive), threshold {v['threshold']:.2f}; validation array P "
+            f"{val['array_precision']:.3f} R {val['array_recall']:.3f}; {v['seconds']:.0f} s"
+        )
+        if json_out:
+            print_json_line(v)
+        return
     from makeway.apps.lights_train import train_lights
 
     s = train_lights(

@@ -10,6 +10,9 @@ each factory accepts ``colours``, the set of emergency-light colours that count 
 bright cores with a coloured halo): no training, a baseline and the labelling tool's proposer.
 ``cnn`` is the learned heat-map detector with seed 004's colour attention
 (:mod:`makeway.perceive.vision.light_cnn`, ONNX Runtime; trained by ``makeway lights-train``).
+``verified`` is two-stage: the rule finder's proposals (wide hue ranges, several settings) scored by
+a learned verifier, gradient-boosted trees in ONNX (:mod:`makeway.perceive.vision.light_verify`;
+trained by ``makeway lights-train --verifier``).
 """
 
 from __future__ import annotations
@@ -22,6 +25,7 @@ import numpy as np
 from makeway.messages import Box, LightDetection
 from makeway.perceive.vision.light_cnn import CnnLightDetector
 from makeway.perceive.vision.light_colour import COLOURS, HSV_PRESETS, ProposalConfig, propose
+from makeway.perceive.vision.light_verify import VerifiedLightDetector
 from makeway.registry import Registry
 
 __all__ = [
@@ -31,6 +35,7 @@ __all__ = [
     "CnnLightDetector",
     "ColourLightDetector",
     "LightDetector",
+    "VerifiedLightDetector",
     "colour_set",
 ]
 
@@ -75,6 +80,7 @@ class LightDetector(Protocol):
 
 LIGHT_DETECTORS: Registry[type[LightDetector]] = Registry("light detector")
 LIGHT_DETECTORS.register("cnn")(CnnLightDetector)
+LIGHT_DETECTORS.register("verified")(VerifiedLightDetector)
 
 #: The detector a command uses when none is named.
 DEFAULT_LIGHT_DETECTOR = "colour"
