@@ -100,7 +100,6 @@ class DutyToYield:
                 "are needed"
             )
 
-
     def for_senses(self, sees_lights: bool) -> DutyToYield:
         """This duty for a car whose senses do (``True``) or do not include cameras that see lights:
         without them a siren alone that would only be prepared for is a yield (module docstring)."""
