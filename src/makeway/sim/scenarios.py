@@ -105,12 +105,10 @@ def _lane_lines(lane: ReferencePath, offsets: tuple[float, ...]) -> tuple[Refere
     return tuple(offset_path(lane, o) for o in offsets)
 
 
-_LEFT_LANE_EDGES = (LANE_WIDTH_M / 2, -LANE_WIDTH_M / 2, -1.5 * LANE_WIDTH_M)  # ego in the left of two lanes
-_TWO_WAY_EDGES = [
-    LANE_WIDTH_M / 2,
-    -LANE_WIDTH_M / 2,
-    1.5 * LANE_WIDTH_M,
-]  # ego in its lane of a two-way road
+# Lane-edge lines (m left of the ego lane's centre line): ego in the left of two lanes; ego in its
+# lane of a two-way road.
+_LEFT_LANE_EDGES = (LANE_WIDTH_M / 2, -LANE_WIDTH_M / 2, -1.5 * LANE_WIDTH_M)
+_TWO_WAY_EDGES = (LANE_WIDTH_M / 2, -LANE_WIDTH_M / 2, 1.5 * LANE_WIDTH_M)
 
 
 def _scenario(
