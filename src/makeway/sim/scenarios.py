@@ -225,23 +225,43 @@ def crossing() -> Scenario:
     )
 
 
-def signals_off() -> Scenario:
-    """EV from behind switches its signals off after 4 s and falls back: yield, then resume."""
+def _seed003_variant(
+    name: str,
+    description: str,
+    ev_start_s_m: float,
+    *,
+    ev_speed_mps: Callable[[float], float] = lambda t: 13.4 if t < 2.0 else 20.0,
+    signals_off_s: float = math.inf,
+    siren: bool = True,
+    lights: bool = True,
+    duration_s: float = 30.0,
+    night: bool = False,
+) -> Scenario:
+    """seed003's road and EV path with another EV: it starts ``ev_start_s_m`` along its path (the ego
+    is at 200 m of it), switches its signals on at t = 2 s and by default drives 13.4 m/s, then 20 m/s."""
     base = seed003()
     assert base.ev is not None
     ev = EVPlan(
         path=base.ev.path,
-        start_s_m=150.0,
-        speed_mps=lambda t: 13.4 if t < 2.0 else (18.0 if t < 6.0 else 8.0),
+        start_s_m=ev_start_s_m,
+        speed_mps=ev_speed_mps,
         signals_on_s=2.0,
-        signals_off_s=6.0,
+        signals_off_s=signals_off_s,
+        siren=siren,
+        lights=lights,
     )
-    return _scenario(
+    return _scenario(name, description, base.lane, ev, duration_s=duration_s, night=night)
+
+
+def signals_off() -> Scenario:
+    """EV from behind switches its signals off after 4 s and falls back: yield, then resume."""
+    return _seed003_variant(
         "signals_off",
         "as seed003, but the EV switches lights and siren off at t = 6 s and slows to 8 m/s "
         "(call cancelled): the ego yields, waits, then resumes",
-        base.lane,
-        ev,
+        150.0,
+        ev_speed_mps=lambda t: 13.4 if t < 2.0 else (18.0 if t < 6.0 else 8.0),
+        signals_off_s=6.0,
         duration_s=35.0,
     )
 
@@ -351,41 +371,23 @@ def occluded_behind() -> Scenario:
 
 def night_lights_only() -> Scenario:
     """Night: an EV from behind with its lights on and its siren off (seed 004's case)."""
-    base = seed003()
-    assert base.ev is not None
-    ev = EVPlan(
-        path=base.ev.path,
-        start_s_m=140.0,  # 60 m behind
-        speed_mps=lambda t: 13.4 if t < 2.0 else 20.0,
-        signals_on_s=2.0,
-        siren=False,
-    )
-    return _scenario(
+    return _seed003_variant(
         "night_lights_only",
         "night; as seed003 with the EV 60 m behind, lights on and siren off",
-        base.lane,
-        ev,
+        140.0,  # 60 m behind
+        siren=False,
         night=True,
     )
 
 
 def siren_only() -> Scenario:
     """An EV from behind with its siren on and no light the cameras can see."""
-    base = seed003()
-    assert base.ev is not None
-    ev = EVPlan(
-        path=base.ev.path,
-        start_s_m=120.0,  # 80 m behind
-        speed_mps=lambda t: 13.4 if t < 2.0 else 20.0,
-        signals_on_s=2.0,
-        lights=False,
-    )
-    return _scenario(
+    return _seed003_variant(
         "siren_only",
         "as seed003 with the EV 80 m behind, siren on and no lights visible: prepare, then "
         "yield once the siren is close and approaching",
-        base.lane,
-        ev,
+        120.0,  # 80 m behind
+        lights=False,
     )
 
 
