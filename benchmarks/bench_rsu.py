@@ -17,7 +17,6 @@ import argparse
 import json
 import os
 import signal
-import socket
 import subprocess
 import sys
 import tempfile
@@ -33,28 +32,13 @@ sys.path.insert(0, str(ROOT / "src"))
 from makeway.apps.rsu import run_rsu  # noqa: E402
 from makeway.roadside.calibrate import leave_one_out_errors, read_road_points  # noqa: E402
 from makeway.v2x.security import keygen  # noqa: E402
+from makeway.v2x.transport import free_loopback_port, wait_listening  # noqa: E402
 
 DATA = ROOT / "src" / "makeway" / "data"
 ANCHOR_RATE_HZ = 10.0
 ANCHOR_P99_MS = 5.0
 ANCHOR_BUDGET_MS = 100.0
 ANCHOR_HELDOUT_M = 0.5
-
-
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
-
-
-def _wait_listening(port: int, timeout_s: float) -> None:
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        with socket.socket() as s:
-            if s.connect_ex(("127.0.0.1", port)) == 0:
-                return
-        time.sleep(0.05)
-    raise SystemExit(f"the car process does not listen on 127.0.0.1:{port}")
 
 
 def main() -> None:
@@ -90,7 +74,7 @@ def main() -> None:
         writer.release()
         cap.release()
         keygen(tmp / "k", "rsu")
-        port = _free_port()
+        port = free_loopback_port()
         env = {**os.environ, "PYTHONPATH": str(ROOT / "src"), "PYTHONUNBUFFERED": "1"}
         car = subprocess.Popen(
             [sys.executable, "-m", "makeway", "vehicle", "listen", "--trust", str(tmp / "k" / "trust"),
@@ -98,7 +82,7 @@ def main() -> None:
             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env,
         )  # fmt: skip
         try:
-            _wait_listening(port, 30.0)
+            wait_listening(port, 30.0)
             summary = run_rsu(
                 seg,
                 DATA / "intersection_cam_ambulance.yaml",

@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import importlib
 import os
+import subprocess
+import sys
 from pathlib import Path
 from types import ModuleType
 
@@ -56,6 +58,26 @@ def pytest_terminal_summary(terminalreporter: pytest.TerminalReporter) -> None:
         terminalreporter.write_line(
             f"CI: {skipped} test(s) skipped" + (" — CI fails on any skip" if skipped else "")
         )
+
+
+def start_car_listener(
+    trust: Path, segment: str, endpoint: str, *, count: int, duration_s: float, ego_lat: float, ego_lon: float
+) -> subprocess.Popen[str]:
+    """Start a car process, ``makeway vehicle listen``, on loopback ``endpoint`` (``tcp/127.0.0.1:PORT``):
+    it verifies alerts on ``segment`` against the trust store ``trust`` and prints one JSON line each,
+    stopping after ``count`` alerts or ``duration_s`` seconds; the ego sits at WGS84 ``ego_lat``,
+    ``ego_lon`` (degrees) and holds a belief 30 s. stdout/stderr are pipes (text); kill it when done."""
+    env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1] / "src")}
+    args = ["vehicle", "listen", "--trust", str(trust), "--segment", segment, "--count", str(count)]
+    args += ["--duration", f"{duration_s:g}", "--listen", endpoint, "--hold-s", "30"]
+    args += ["--ego-lat", repr(ego_lat), "--ego-lon", repr(ego_lon)]
+    return subprocess.Popen(
+        [sys.executable, "-m", "makeway", *args],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env=env,
+    )
 
 
 @pytest.hookimpl(trylast=True)

@@ -5,11 +5,6 @@ into a V2X belief, and bad inputs refused before the video is processed."""
 from __future__ import annotations
 
 import json
-import os
-import socket
-import subprocess
-import sys
-import time
 from pathlib import Path
 
 import cv2
@@ -17,12 +12,14 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
+from conftest import start_car_listener
 from makeway.apps.rsu import run_rsu
 from makeway.cli.main import app
 from makeway.errors import InputError
 from makeway.roadside.calibrate import fit_road_camera, leave_one_out_errors, read_road_points
 from makeway.roadside.transform import read_transform_calibration
 from makeway.v2x.security import SIGNED_SIZE, keygen
+from makeway.v2x.transport import free_loopback_port, wait_listening
 
 DATA = Path(__file__).resolve().parents[1] / "src" / "makeway" / "data"
 POINTS = DATA / "intersection_cam_ambulance_points.csv"
@@ -90,62 +87,25 @@ def segment(video_dir: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
     return out
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
-
-
-def _wait_listening(port: int, timeout_s: float) -> None:
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        with socket.socket() as s:
-            if s.connect_ex(("127.0.0.1", port)) == 0:
-                return
-        time.sleep(0.05)
-    raise AssertionError(f"nothing listens on 127.0.0.1:{port}")
-
-
 def test_node_alerts_verify_and_reach_a_car_process(segment: Path, tmp_path: Path) -> None:
     """The node on the real segment publishes signed alerts at 10 Hz of video time while the pipeline
     flags the ambulance; a car process listening on loopback verifies them and holds a V2X belief
     of an EV about 20 m from the road frame's origin; ``makeway v2x verify`` accepts every logged one."""
     keygen(tmp_path / "k", "rsu")
-    port = _free_port()
+    port = free_loopback_port()
     endpoint = f"tcp/127.0.0.1:{port}"
     wanted = 3
-    env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1] / "src")}
-    car = subprocess.Popen(
-        [
-            sys.executable,
-            "-m",
-            "makeway",
-            "vehicle",
-            "listen",
-            "--trust",
-            str(tmp_path / "k" / "trust"),
-            "--segment",
-            "rsu-test",
-            "--count",
-            str(wanted),
-            "--duration",
-            "60",
-            "--listen",
-            endpoint,
-            "--ego-lat",
-            "59.4370",
-            "--ego-lon",
-            "24.7536",
-            "--hold-s",
-            "30",
-        ],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-        env=env,
+    car = start_car_listener(
+        tmp_path / "k" / "trust",
+        "rsu-test",
+        endpoint,
+        count=wanted,
+        duration_s=60,
+        ego_lat=59.4370,
+        ego_lon=24.7536,
     )
     try:
-        _wait_listening(port, 20.0)
+        wait_listening(port, 20.0)
         summary = run_rsu(
             segment,
             CALIB,

@@ -11,7 +11,6 @@ import json
 import math
 import os
 import random
-import socket
 import subprocess
 import sys
 import time
@@ -23,6 +22,7 @@ from cryptography.hazmat.primitives.asymmetric import ec
 from cryptography.hazmat.primitives.asymmetric.utils import decode_dss_signature
 from typer.testing import CliRunner
 
+from conftest import start_car_listener
 from makeway.cli.main import app
 from makeway.fuse.source import BeliefSource
 from makeway.messages import EVRelation, VehicleState
@@ -45,7 +45,13 @@ from makeway.v2x.security import (
     revoke,
     sign_alert,
 )
-from makeway.v2x.transport import AlertPublisher, AlertSubscriber, open_peer
+from makeway.v2x.transport import (
+    AlertPublisher,
+    AlertSubscriber,
+    free_loopback_port,
+    open_peer,
+    wait_listening,
+)
 
 runner = CliRunner()
 N_P256 = int("FFFFFFFF00000000FFFFFFFFFFFFFFFFBCE6FAADA7179E84F3B9CAC2FC632551", 16)
@@ -366,22 +372,6 @@ def test_cli_contract(tmp_path: Path) -> None:
 
 
 # ---------------------------------------------------------------------------------------- pub/sub
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
-
-
-def _wait_listening(port: int, timeout_s: float) -> None:
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        with socket.socket() as s:
-            if s.connect_ex(("127.0.0.1", port)) == 0:
-                return
-        time.sleep(0.05)
-    raise AssertionError(f"nothing listens on 127.0.0.1:{port}")
-
-
 def test_alerts_over_zenoh_between_two_processes(tmp_path: Path) -> None:
     """A car process listens on loopback, a unit process sends a forged alert and then N signed ones:
     all arrive in order and verify, the forged one is rejected and never reaches the belief."""
@@ -398,40 +388,20 @@ def test_alerts_over_zenoh_between_two_processes(tmp_path: Path) -> None:
             )
         )
         files.append(f)
-    port = _free_port()
+    port = free_loopback_port()
     endpoint = f"tcp/127.0.0.1:{port}"
     env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1] / "src")}
-    car = subprocess.Popen(
-        [
-            sys.executable,
-            "-m",
-            "makeway",
-            "vehicle",
-            "listen",
-            "--trust",
-            str(tmp_path / "k" / "trust"),
-            "--segment",
-            "a7-km12",
-            "--count",
-            str(n + 1),
-            "--duration",
-            "40",
-            "--listen",
-            endpoint,
-            "--ego-lat",
-            "48.137",
-            "--ego-lon",
-            "11.574",
-            "--hold-s",
-            "30",
-        ],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-        env=env,
+    car = start_car_listener(
+        tmp_path / "k" / "trust",
+        "a7-km12",
+        endpoint,
+        count=n + 1,
+        duration_s=40,
+        ego_lat=48.137,
+        ego_lon=11.574,
     )
     try:
-        _wait_listening(port, 20.0)
+        wait_listening(port, 20.0)
         sender = subprocess.run(
             [
                 sys.executable,
@@ -491,7 +461,7 @@ def test_belief_holds_through_ten_percent_packet_loss(keys: dict) -> None:
     runs = sum(d and (k == 0 or not drop[k - 1]) for k, d in enumerate(drop))
     assert 0.08 < sum(drop) / n < 0.12
 
-    port = _free_port()
+    port = free_loopback_port()
     car = open_peer(listen=[f"tcp/127.0.0.1:{port}"])
     unit = open_peer(connect=[f"tcp/127.0.0.1:{port}"])
     try:

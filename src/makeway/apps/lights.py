@@ -219,29 +219,69 @@ def lights(
         rig_obj.camera(camera)
     out_dir = Path(out) if out is not None else Path("makeway_out") / f"{src.stem}_lights"
     check_writable(out_dir, folder=True)
+    job = _Job(src, out_dir, det, detector, colour_names, rig_obj, camera, max_frames, progress)
     if src.is_dir():
-        return _run_images(
-            src, out_dir, det, detector, colour_names, rig_obj, camera, max_frames, write_video, progress
+        return _run_images(job, write_video)
+    return _run_video(job, write_video, tracker)
+
+
+@dataclass(frozen=True)
+class _Job:
+    """One :func:`lights` run, checked: the source, the output folder and the detector set up."""
+
+    src: Path
+    out_dir: Path
+    det: Any
+    detector: str
+    colours: tuple[str, ...]
+    rig: Rig | None
+    camera: str | None
+    max_frames: int | None
+    progress: bool
+
+    def finish(
+        self,
+        kind: str,
+        *,
+        frames: int,
+        width: int,
+        height: int,
+        fps: float | None,
+        light_detections: int,
+        light_tracks: int,
+        flashing_tracks: list[int],
+        wall_s: float,
+        realtime_factor: float | None,
+        outputs: dict[str, str],
+    ) -> LightsSummary:
+        """The run's :class:`LightsSummary`, also written to ``out_dir/summary.json``."""
+        summary = LightsSummary(
+            source=str(self.src),
+            kind=kind,
+            out_dir=str(self.out_dir),
+            detector=self.detector,
+            colours=list(self.colours),
+            camera=self.camera,
+            frames=frames,
+            width=width,
+            height=height,
+            fps=fps,
+            light_detections=light_detections,
+            light_tracks=light_tracks,
+            flashing_tracks=flashing_tracks,
+            wall_seconds=round(wall_s, 3),
+            ms_per_frame=round(1000 * wall_s / max(frames, 1), 3),
+            realtime_factor=realtime_factor,
+            outputs=outputs,
         )
-    return _run_video(
-        src, out_dir, det, detector, colour_names, rig_obj, camera, max_frames, write_video, tracker, progress
-    )
+        summary.outputs["summary"] = str(self.out_dir / "summary.json")
+        write_text_atomic(self.out_dir / "summary.json", json.dumps(summary.to_json(), indent=2) + "\n")
+        return summary
 
 
-def _run_video(
-    src: Path,
-    out_dir: Path,
-    det: Any,
-    detector: str,
-    colours: tuple[str, ...],
-    rig: Rig | None,
-    camera: str | None,
-    max_frames: int | None,
-    write_video: bool,
-    tracker: LightTracker | None,
-    progress: bool,
-) -> LightsSummary:
-    reader = VideoReader(src, max_frames=max_frames)
+def _run_video(job: _Job, write_video: bool, tracker: LightTracker | None) -> LightsSummary:
+    src, out_dir, rig, camera = job.src, job.out_dir, job.rig, job.camera
+    reader = VideoReader(src, max_frames=job.max_frames)
     info = reader.info
     try:
         _check_size(rig, camera, src, info.width, info.height)
@@ -250,13 +290,16 @@ def _run_video(
         raise
     trk = tracker if tracker is not None else LightTracker()
     total = info.frame_count if info.frame_count > 0 else None
-    if total is not None and max_frames is not None:
-        total = min(total, max_frames)
+    if total is not None and job.max_frames is not None:
+        total = min(total, job.max_frames)
     n_frames = n_dets = 0
     track_ids: set[int] = set()
     flashing: set[int] = set()
     outputs: dict[str, str] = {}
-    with removed_on_error(out_dir), progress_bar(f"lights {src.name}", total, enabled=progress) as advance:
+    with (
+        removed_on_error(out_dir),
+        progress_bar(f"lights {src.name}", total, enabled=job.progress) as advance,
+    ):
         out_dir.mkdir(parents=True, exist_ok=True)
         writer = (
             H264Writer(out_dir / "annotated.mp4", info.fps, info.width, info.height) if write_video else None
@@ -265,7 +308,7 @@ def _run_video(
             with atomic_path(out_dir / "lights.jsonl") as tmp, tmp.open("w", encoding="utf-8") as fh:
                 wall0 = time.perf_counter()
                 for index, t_s, image in reader:
-                    tracks = trk.update(det.detect(image, index), t_s, image)
+                    tracks = trk.update(job.det.detect(image, index), t_s, image)
                     seen = [lt for lt in tracks if lt.detected]
                     recs = [_track_record(lt, index, rig, camera) for lt in seen]
                     fh.write(
@@ -304,13 +347,8 @@ def _run_video(
         finally:
             reader.close()
         video_s = n_frames / info.fps if info.fps > 0 else 0.0
-        summary = LightsSummary(
-            source=str(src),
-            kind="video",
-            out_dir=str(out_dir),
-            detector=detector,
-            colours=list(colours),
-            camera=camera,
+        summary = job.finish(
+            "video",
             frames=n_frames,
             width=info.width,
             height=info.height,
@@ -318,13 +356,10 @@ def _run_video(
             light_detections=n_dets,
             light_tracks=len(track_ids),
             flashing_tracks=sorted(flashing),
-            wall_seconds=round(wall, 3),
-            ms_per_frame=round(1000 * wall / max(n_frames, 1), 3),
+            wall_s=wall,
             realtime_factor=round(video_s / wall, 3) if wall > 0 else None,
             outputs=outputs,
         )
-        summary.outputs["summary"] = str(out_dir / "summary.json")
-        write_text_atomic(out_dir / "summary.json", json.dumps(summary.to_json(), indent=2) + "\n")
     return summary
 
 
@@ -336,25 +371,15 @@ def _read_images(files: list[Path]) -> Iterator[tuple[int, Path, np.ndarray]]:
         yield i, path, img
 
 
-def _run_images(
-    src: Path,
-    out_dir: Path,
-    det: Any,
-    detector: str,
-    colours: tuple[str, ...],
-    rig: Rig | None,
-    camera: str | None,
-    max_frames: int | None,
-    write_images: bool,
-    progress: bool,
-) -> LightsSummary:
-    files = _image_files(src)[:max_frames]
+def _run_images(job: _Job, write_images: bool) -> LightsSummary:
+    src, out_dir, rig, camera = job.src, job.out_dir, job.rig, job.camera
+    files = _image_files(src)[: job.max_frames]
     n_dets = 0
     width = height = 0
     outputs: dict[str, str] = {}
     with (
         removed_on_error(out_dir),
-        progress_bar(f"lights {src.name}", len(files), enabled=progress, unit="images") as advance,
+        progress_bar(f"lights {src.name}", len(files), enabled=job.progress, unit="images") as advance,
     ):
         out_dir.mkdir(parents=True, exist_ok=True)
         ann_ctx = atomic_dir(out_dir / "annotated") if write_images else contextlib.nullcontext()
@@ -368,7 +393,7 @@ def _run_images(
                 h, w = image.shape[:2]
                 _check_size(rig, camera, path, w, h)
                 width, height = max(width, w), max(height, h)
-                dets = det.detect(image, i)
+                dets = job.det.detect(image, i)
                 recs = [_detection_record(d, rig, camera) for d in dets]
                 fh.write(
                     json.dumps({"frame": i, "image": path.name, "lights": recs}, separators=(",", ":")) + "\n"
@@ -385,13 +410,8 @@ def _run_images(
         outputs["lights"] = str(out_dir / "lights.jsonl")
         if write_images:
             outputs["annotated"] = str(out_dir / "annotated")
-        summary = LightsSummary(
-            source=str(src),
-            kind="images",
-            out_dir=str(out_dir),
-            detector=detector,
-            colours=list(colours),
-            camera=camera,
+        summary = job.finish(
+            "images",
             frames=len(files),
             width=width,
             height=height,
@@ -399,11 +419,8 @@ def _run_images(
             light_detections=n_dets,
             light_tracks=0,
             flashing_tracks=[],
-            wall_seconds=round(wall, 3),
-            ms_per_frame=round(1000 * wall / max(len(files), 1), 3),
+            wall_s=wall,
             realtime_factor=None,
             outputs=outputs,
         )
-        summary.outputs["summary"] = str(out_dir / "summary.json")
-        write_text_atomic(out_dir / "summary.json", json.dumps(summary.to_json(), indent=2) + "\n")
     return summary

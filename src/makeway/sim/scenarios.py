@@ -101,8 +101,52 @@ def _const(v: float) -> Callable[[float], float]:
     return lambda t: v
 
 
-def _lane_lines(lane: ReferencePath, offsets: list[float]) -> tuple[ReferencePath, ...]:
+def _lane_lines(lane: ReferencePath, offsets: tuple[float, ...]) -> tuple[ReferencePath, ...]:
     return tuple(offset_path(lane, o) for o in offsets)
+
+
+# Lane-edge lines (m left of the ego lane's centre line): ego in the left of two lanes; ego in its
+# lane of a two-way road.
+_LEFT_LANE_EDGES = (LANE_WIDTH_M / 2, -LANE_WIDTH_M / 2, -1.5 * LANE_WIDTH_M)
+_TWO_WAY_EDGES = (LANE_WIDTH_M / 2, -LANE_WIDTH_M / 2, 1.5 * LANE_WIDTH_M)
+
+
+def _scenario(
+    name: str,
+    description: str,
+    lane: ReferencePath,
+    ev: EVPlan | None,
+    *,
+    ego_speed_mps: float = 13.4,
+    duration_s: float = 30.0,
+    expected_action: str = "pull_over_and_stop",
+    right_edge_offset_m: float = -LANE_WIDTH_M - 0.5,
+    edge_offsets_m: tuple[float, ...] = _LEFT_LANE_EDGES,
+    intersections: tuple[tuple[float, float], ...] = (),
+    ego_start_s_m: float = 0.0,
+    more_evs: tuple[EVPlan, ...] = (),
+    traffic: tuple[EVPlan, ...] = (),
+    night: bool = False,
+) -> Scenario:
+    """A scenario whose speed limit is the ego's start speed (m/s) and whose plotted road lines are
+    ``lane`` offset by ``edge_offsets_m`` (m, left of the lane centre line positive)."""
+    return Scenario(
+        name=name,
+        description=description,
+        lane=lane,
+        ego_speed_mps=ego_speed_mps,
+        duration_s=duration_s,
+        expected_action=expected_action,
+        right_edge_offset_m=right_edge_offset_m,
+        speed_limit_mps=ego_speed_mps,
+        intersections=intersections,
+        ev=ev,
+        ego_start_s_m=ego_start_s_m,
+        road_lines=_lane_lines(lane, edge_offsets_m),
+        more_evs=more_evs,
+        traffic=traffic,
+        night=night,
+    )
 
 
 def seed003() -> Scenario:
@@ -115,18 +159,12 @@ def seed003() -> Scenario:
         speed_mps=lambda t: 13.4 if t < 2.0 else 20.0,
         signals_on_s=2.0,
     )
-    return Scenario(
-        name="seed003",
-        description="ego 13.4 m/s in the left lane of a straight two-lane road; EV 50 m behind switches "
+    return _scenario(
+        "seed003",
+        "ego 13.4 m/s in the left lane of a straight two-lane road; EV 50 m behind switches "
         "lights and siren on at t = 2 s and closes at 20 m/s",
-        lane=lane,
-        ego_speed_mps=13.4,
-        duration_s=30.0,
-        expected_action="pull_over_and_stop",
-        right_edge_offset_m=-LANE_WIDTH_M - 0.5,
-        speed_limit_mps=13.4,
-        ev=ev,
-        road_lines=_lane_lines(lane, [LANE_WIDTH_M / 2, -LANE_WIDTH_M / 2, -1.5 * LANE_WIDTH_M]),
+        lane,
+        ev,
     )
 
 
@@ -140,18 +178,13 @@ def curve_behind() -> Scenario:
     ev = EVPlan(
         path=ev_path, start_s_m=100.0, speed_mps=lambda t: 15.0 if t < 1.5 else 21.0, signals_on_s=1.5
     )
-    return Scenario(
-        name="curve_behind",
-        description="ego 15 m/s in the left lane entering a left curve (R = 250 m); EV 50 m behind "
+    return _scenario(
+        "curve_behind",
+        "ego 15 m/s in the left lane entering a left curve (R = 250 m); EV 50 m behind "
         "switches on at t = 1.5 s and closes at 21 m/s",
-        lane=lane,
+        lane,
+        ev,
         ego_speed_mps=15.0,
-        duration_s=30.0,
-        expected_action="pull_over_and_stop",
-        right_edge_offset_m=-LANE_WIDTH_M - 0.5,
-        speed_limit_mps=15.0,
-        ev=ev,
-        road_lines=_lane_lines(lane, [LANE_WIDTH_M / 2, -LANE_WIDTH_M / 2, -1.5 * LANE_WIDTH_M]),
     )
 
 
@@ -160,18 +193,14 @@ def oncoming() -> Scenario:
     lane = straight_road(500.0)
     ev_path = straight_road(600.0, start=(400.0, LANE_WIDTH_M), heading_rad=math.pi)
     ev = EVPlan(path=ev_path, start_s_m=0.0, speed_mps=_const(20.0), signals_on_s=0.5)
-    return Scenario(
-        name="oncoming",
-        description="ego 13.4 m/s on an undivided two-way road; an EV 400 m ahead comes the other way "
+    return _scenario(
+        "oncoming",
+        "ego 13.4 m/s on an undivided two-way road; an EV 400 m ahead comes the other way "
         "at 20 m/s with lights and siren on",
-        lane=lane,
-        ego_speed_mps=13.4,
-        duration_s=30.0,
-        expected_action="pull_over_and_stop",
+        lane,
+        ev,
         right_edge_offset_m=-1.3,
-        speed_limit_mps=13.4,
-        ev=ev,
-        road_lines=_lane_lines(lane, [LANE_WIDTH_M / 2, -LANE_WIDTH_M / 2, 1.5 * LANE_WIDTH_M]),
+        edge_offsets_m=_TWO_WAY_EDGES,
     )
 
 
@@ -182,61 +211,71 @@ def crossing() -> Scenario:
     centre_x = 0.5 * (box[0] + box[1])
     ev_path = straight_road(400.0, start=(centre_x - 1.75, -200.0), heading_rad=math.pi / 2)
     ev = EVPlan(path=ev_path, start_s_m=60.0, speed_mps=_const(10.0), signals_on_s=0.5)
-    return Scenario(
-        name="crossing",
-        description="ego 13.4 m/s towards an intersection 160 m ahead; an EV on the crossing road, "
+    return _scenario(
+        "crossing",
+        "ego 13.4 m/s towards an intersection 160 m ahead; an EV on the crossing road, "
         "140 m from it, heads for it at 10 m/s with lights and siren on",
-        lane=lane,
-        ego_speed_mps=13.4,
+        lane,
+        ev,
         duration_s=35.0,
         expected_action="stop_before_intersection",
         right_edge_offset_m=-1.3,
-        speed_limit_mps=13.4,
+        edge_offsets_m=(LANE_WIDTH_M / 2, -LANE_WIDTH_M / 2),
         intersections=(box,),
-        ev=ev,
-        road_lines=_lane_lines(lane, [LANE_WIDTH_M / 2, -LANE_WIDTH_M / 2]),
     )
 
 
-def signals_off() -> Scenario:
-    """EV from behind switches its signals off after 4 s and falls back: yield, then resume."""
+def _seed003_variant(
+    name: str,
+    description: str,
+    ev_start_s_m: float,
+    *,
+    ev_speed_mps: Callable[[float], float] = lambda t: 13.4 if t < 2.0 else 20.0,
+    signals_off_s: float = math.inf,
+    siren: bool = True,
+    lights: bool = True,
+    duration_s: float = 30.0,
+    night: bool = False,
+) -> Scenario:
+    """seed003's road and EV path with another EV: it starts ``ev_start_s_m`` along its path (the ego
+    is at 200 m of it), switches its signals on at t = 2 s and by default drives 13.4 m/s, then 20 m/s."""
     base = seed003()
     assert base.ev is not None
     ev = EVPlan(
         path=base.ev.path,
-        start_s_m=150.0,
-        speed_mps=lambda t: 13.4 if t < 2.0 else (18.0 if t < 6.0 else 8.0),
+        start_s_m=ev_start_s_m,
+        speed_mps=ev_speed_mps,
         signals_on_s=2.0,
-        signals_off_s=6.0,
+        signals_off_s=signals_off_s,
+        siren=siren,
+        lights=lights,
     )
-    return Scenario(
-        name="signals_off",
-        description="as seed003, but the EV switches lights and siren off at t = 6 s and slows to 8 m/s "
+    return _scenario(name, description, base.lane, ev, duration_s=duration_s, night=night)
+
+
+def signals_off() -> Scenario:
+    """EV from behind switches its signals off after 4 s and falls back: yield, then resume."""
+    return _seed003_variant(
+        "signals_off",
+        "as seed003, but the EV switches lights and siren off at t = 6 s and slows to 8 m/s "
         "(call cancelled): the ego yields, waits, then resumes",
-        lane=base.lane,
-        ego_speed_mps=13.4,
+        150.0,
+        ev_speed_mps=lambda t: 13.4 if t < 2.0 else (18.0 if t < 6.0 else 8.0),
+        signals_off_s=6.0,
         duration_s=35.0,
-        expected_action="pull_over_and_stop",
-        right_edge_offset_m=base.right_edge_offset_m,
-        speed_limit_mps=13.4,
-        ev=ev,
-        road_lines=base.road_lines,
     )
 
 
 def no_ev() -> Scenario:
     """An ordinary drive: nothing to yield to."""
     base = seed003()
-    return Scenario(
-        name="no_ev",
-        description="ego 13.4 m/s on the straight two-lane road, no emergency vehicle",
-        lane=base.lane,
-        ego_speed_mps=13.4,
+    return _scenario(
+        "no_ev",
+        "ego 13.4 m/s on the straight two-lane road, no emergency vehicle",
+        base.lane,
+        None,
         duration_s=20.0,
         expected_action="continue",
-        right_edge_offset_m=base.right_edge_offset_m,
-        speed_limit_mps=13.4,
-        road_lines=base.road_lines,
     )
 
 
@@ -256,19 +295,14 @@ def on_recorded_path(lane: ReferencePath, *, ego_speed_mps: float = 13.4, ev_gap
         speed_mps=lambda t: ego_speed_mps if t < 2.0 else ego_speed_mps + 6.6,
         signals_on_s=2.0,
     )
-    return Scenario(
-        name="recorded_path",
-        description=f"seed003 on a recorded path ({lane.s_m[-1]:.0f} m): ego {ego_speed_mps:g} m/s, EV "
+    return _scenario(
+        "recorded_path",
+        f"seed003 on a recorded path ({lane.s_m[-1]:.0f} m): ego {ego_speed_mps:g} m/s, EV "
         f"{ev_gap_m:g} m behind switches on at t = 2 s",
-        lane=lane,
+        lane,
+        ev,
         ego_speed_mps=ego_speed_mps,
-        duration_s=30.0,
-        expected_action="pull_over_and_stop",
-        right_edge_offset_m=-LANE_WIDTH_M - 0.5,
-        speed_limit_mps=ego_speed_mps,
-        ev=ev,
         ego_start_s_m=start,
-        road_lines=_lane_lines(lane, [LANE_WIDTH_M / 2, -LANE_WIDTH_M / 2, -1.5 * LANE_WIDTH_M]),
     )
 
 
@@ -288,20 +322,16 @@ def two_evs() -> Scenario:
         speed_mps=_const(12.0),
         signals_on_s=0.5,
     )
-    return Scenario(
-        name="two_evs",
-        description="ego 13.4 m/s on an undivided two-way road; an EV 40 m behind switches on at 1 s and "
+    return _scenario(
+        "two_evs",
+        "ego 13.4 m/s on an undivided two-way road; an EV 40 m behind switches on at 1 s and "
         "overtakes on the centre line at 18 m/s while a second EV, 150 m ahead, comes the other way at "
         "12 m/s: stop and wait until both have passed",
-        lane=lane,
-        ego_speed_mps=13.4,
-        duration_s=30.0,
-        expected_action="pull_over_and_stop",
+        lane,
+        behind,
         right_edge_offset_m=-1.3,
-        speed_limit_mps=13.4,
-        ev=behind,
+        edge_offsets_m=_TWO_WAY_EDGES,
         more_evs=(oncoming,),
-        road_lines=_lane_lines(lane, [LANE_WIDTH_M / 2, -LANE_WIDTH_M / 2, 1.5 * LANE_WIDTH_M]),
     )
 
 
@@ -326,72 +356,38 @@ def occluded_behind() -> Scenario:
         speed_mps=lambda t: 13.4 if t < 1.0 else 22.0,
         signals_on_s=1.0,
     )
-    return Scenario(
-        name="occluded_behind",
-        description="ego 13.4 m/s in the right lane with a truck 16 m behind it; an EV 80 m behind in "
+    return _scenario(
+        "occluded_behind",
+        "ego 13.4 m/s in the right lane with a truck 16 m behind it; an EV 80 m behind in "
         "the left lane switches on at 1 s and closes at 22 m/s, hidden from the cameras by the truck "
         "until it is ~20 m away",
-        lane=lane,
-        ego_speed_mps=13.4,
-        duration_s=30.0,
-        expected_action="pull_over_and_stop",
+        lane,
+        ev,
         right_edge_offset_m=-1.3,
-        speed_limit_mps=13.4,
-        ev=ev,
+        edge_offsets_m=(-LANE_WIDTH_M / 2, LANE_WIDTH_M / 2, 1.5 * LANE_WIDTH_M),
         traffic=(truck,),
-        road_lines=_lane_lines(lane, [-LANE_WIDTH_M / 2, LANE_WIDTH_M / 2, 1.5 * LANE_WIDTH_M]),
     )
 
 
 def night_lights_only() -> Scenario:
     """Night: an EV from behind with its lights on and its siren off (seed 004's case)."""
-    base = seed003()
-    assert base.ev is not None
-    ev = EVPlan(
-        path=base.ev.path,
-        start_s_m=140.0,  # 60 m behind
-        speed_mps=lambda t: 13.4 if t < 2.0 else 20.0,
-        signals_on_s=2.0,
+    return _seed003_variant(
+        "night_lights_only",
+        "night; as seed003 with the EV 60 m behind, lights on and siren off",
+        140.0,  # 60 m behind
         siren=False,
-    )
-    return Scenario(
-        name="night_lights_only",
-        description="night; as seed003 with the EV 60 m behind, lights on and siren off",
-        lane=base.lane,
-        ego_speed_mps=13.4,
-        duration_s=30.0,
-        expected_action="pull_over_and_stop",
-        right_edge_offset_m=base.right_edge_offset_m,
-        speed_limit_mps=13.4,
-        ev=ev,
         night=True,
-        road_lines=base.road_lines,
     )
 
 
 def siren_only() -> Scenario:
     """An EV from behind with its siren on and no light the cameras can see."""
-    base = seed003()
-    assert base.ev is not None
-    ev = EVPlan(
-        path=base.ev.path,
-        start_s_m=120.0,  # 80 m behind
-        speed_mps=lambda t: 13.4 if t < 2.0 else 20.0,
-        signals_on_s=2.0,
-        lights=False,
-    )
-    return Scenario(
-        name="siren_only",
-        description="as seed003 with the EV 80 m behind, siren on and no lights visible: prepare, then "
+    return _seed003_variant(
+        "siren_only",
+        "as seed003 with the EV 80 m behind, siren on and no lights visible: prepare, then "
         "yield once the siren is close and approaching",
-        lane=base.lane,
-        ego_speed_mps=13.4,
-        duration_s=30.0,
-        expected_action="pull_over_and_stop",
-        right_edge_offset_m=base.right_edge_offset_m,
-        speed_limit_mps=13.4,
-        ev=ev,
-        road_lines=base.road_lines,
+        120.0,  # 80 m behind
+        lights=False,
     )
 
 
@@ -405,18 +401,13 @@ def v2x_corridor() -> Scenario:
         signals_on_s=1.0,
         v2x=True,
     )
-    return Scenario(
-        name="v2x_corridor",
-        description="ego 13.4 m/s in the left lane of a straight two-lane road; an EV 500 m behind, "
+    return _scenario(
+        "v2x_corridor",
+        "ego 13.4 m/s in the left lane of a straight two-lane road; an EV 500 m behind, "
         "announced by roadside units, switches on at 1 s and closes at 25 m/s",
-        lane=lane,
-        ego_speed_mps=13.4,
+        lane,
+        ev,
         duration_s=50.0,
-        expected_action="pull_over_and_stop",
-        right_edge_offset_m=-LANE_WIDTH_M - 0.5,
-        speed_limit_mps=13.4,
-        ev=ev,
-        road_lines=_lane_lines(lane, [LANE_WIDTH_M / 2, -LANE_WIDTH_M / 2, -1.5 * LANE_WIDTH_M]),
     )
 
 

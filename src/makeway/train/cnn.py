@@ -891,7 +891,6 @@ def export_onnx(
     (comma-separated, per channel after scaling), ``arch``, ``width``, ``training``. Written
     all-or-nothing.
     """
-    import onnx
 
     path = Path(path)
     wrapped = _WithSigmoid(copy.deepcopy(model).cpu().eval())
@@ -908,26 +907,35 @@ def export_onnx(
             opset_version=opset,
             dynamo=False,
         )
-        proto = onnx.load(str(tmp))
-        meta = {
-            "makeway.format": ONNX_FORMAT,
-            "input_size": str(int(input_size)),
-            "threshold": repr(float(threshold)),
-            "channel_order": "RGB",
-            "layout": "NCHW",
-            "scale": repr(1.0 / 255.0),
-            "mean": ",".join(repr(v) for v in MEAN_RGB),
-            "std": ",".join(repr(v) for v in STD_RGB),
-            "arch": arch,
-            "width": str(int(width)),
-            "training": training,
-        }
-        del proto.metadata_props[:]
-        for key, value in meta.items():
-            entry = proto.metadata_props.add()
-            entry.key, entry.value = key, value
-        onnx.save(proto, str(tmp))
+        write_onnx_metadata(
+            tmp,
+            {
+                "makeway.format": ONNX_FORMAT,
+                "input_size": str(int(input_size)),
+                "threshold": repr(float(threshold)),
+                "channel_order": "RGB",
+                "layout": "NCHW",
+                "scale": repr(1.0 / 255.0),
+                "mean": ",".join(repr(v) for v in MEAN_RGB),
+                "std": ",".join(repr(v) for v in STD_RGB),
+                "arch": arch,
+                "width": str(int(width)),
+                "training": training,
+            },
+        )
     return path
+
+
+def write_onnx_metadata(path: Path, meta: dict[str, str]) -> None:
+    """Replace the metadata properties of the ONNX model at ``path`` by ``meta`` (in place)."""
+    import onnx
+
+    proto = onnx.load(str(path))
+    del proto.metadata_props[:]
+    for key, value in meta.items():
+        entry = proto.metadata_props.add()
+        entry.key, entry.value = key, value
+    onnx.save(proto, str(path))
 
 
 # ------------------------------------------------------------------------------- study adapter

@@ -46,6 +46,7 @@ from makeway.atomic import atomic_path
 from makeway.errors import InputError
 from makeway.perceive.vision.light_cnn import LIGHTS_ONNX_FORMAT, decode
 from makeway.perceive.vision.light_colour import WIDE_HSV
+from makeway.train.cnn import write_onnx_metadata
 from makeway.train.light_augment import AugmentConfig, augment
 from makeway.train.light_split import SPLITS, LightFrame, label_files, load_split, split_of
 
@@ -422,7 +423,6 @@ def export_onnx(
     (:mod:`makeway.perceive.vision.light_cnn`). Metadata: ``makeway.format``, ``input_width``,
     ``input_height``, ``stride``, ``threshold``, ``attention`` (the colours, or ``off``),
     ``training``. Written all-or-nothing."""
-    import onnx
 
     path = Path(path)
     deploy = _Deploy(copy.deepcopy(net).cpu().eval())
@@ -438,23 +438,20 @@ def export_onnx(
             opset_version=opset,
             dynamo=False,
         )
-        proto = onnx.load(str(tmp))
-        meta = {
-            "makeway.format": LIGHTS_ONNX_FORMAT,
-            "input_width": str(cfg.input_width),
-            "input_height": str(cfg.input_height),
-            "stride": str(LightNet.stride),
-            "threshold": repr(float(cfg.threshold)),
-            "attention": ",".join(cfg.attention_colours) if cfg.attention else "off",
-            "channel_order": "RGB",
-            "scale": repr(1.0 / 255.0),
-            "training": training,
-        }
-        del proto.metadata_props[:]
-        for key, value in meta.items():
-            entry = proto.metadata_props.add()
-            entry.key, entry.value = key, value
-        onnx.save(proto, str(tmp))
+        write_onnx_metadata(
+            tmp,
+            {
+                "makeway.format": LIGHTS_ONNX_FORMAT,
+                "input_width": str(cfg.input_width),
+                "input_height": str(cfg.input_height),
+                "stride": str(LightNet.stride),
+                "threshold": repr(float(cfg.threshold)),
+                "attention": ",".join(cfg.attention_colours) if cfg.attention else "off",
+                "channel_order": "RGB",
+                "scale": repr(1.0 / 255.0),
+                "training": training,
+            },
+        )
     return path
 
 

@@ -14,6 +14,7 @@ from __future__ import annotations
 import json
 import queue
 import re
+import socket
 import time
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
@@ -25,9 +26,11 @@ __all__ = [
     "AlertPublisher",
     "AlertSubscriber",
     "Received",
+    "free_loopback_port",
     "open_peer",
     "peer_config",
     "segment_key",
+    "wait_listening",
 ]
 
 KEY_PREFIX = "makeway/v2x/segment"
@@ -54,6 +57,26 @@ def peer_config(listen: Sequence[str] = (), connect: Sequence[str] = ()) -> zeno
     conf.insert_json5("scouting/multicast/enabled", "false")
     conf.insert_json5("scouting/gossip/enabled", "false")
     return conf
+
+
+def free_loopback_port() -> int:
+    """A TCP port on 127.0.0.1 that nothing listens on right now (the OS picks it), for an endpoint
+    like ``tcp/127.0.0.1:PORT``."""
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def wait_listening(port: int, timeout_s: float) -> None:
+    """Return once something accepts TCP connections on 127.0.0.1:``port``; raise ``TimeoutError``
+    after ``timeout_s`` seconds (wall clock) otherwise."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        with socket.socket() as s:
+            if s.connect_ex(("127.0.0.1", port)) == 0:
+                return
+        time.sleep(0.05)
+    raise TimeoutError(f"nothing listens on 127.0.0.1:{port} after {timeout_s:g} s")
 
 
 def open_peer(listen: Sequence[str] = (), connect: Sequence[str] = ()) -> zenoh.Session:
