@@ -49,7 +49,8 @@ def test_lights_video_writes_video_jsonl_and_azimuths(video_dir: Path, tmp_path:
         app,
         [
             *("lights", str(video_dir / CLIP), "--out", str(out), "--rig", str(rig), "--camera", "dash"),
-            *("--colours", "us", "--max-frames", "40", "--json", "-q"),
+            # the rules box every coloured lamp of this no-EV clip: plenty of boxes to check the plumbing
+            *("--colours", "us", "--detector", "colour", "--max-frames", "40", "--json", "-q"),
         ],
     )
     assert r.exit_code == 0, r.output
@@ -155,3 +156,15 @@ def test_detect_default_rule_flags_the_flashing_ambulance(video_dir: Path, tmp_p
     r = runner.invoke(app, ["detect", str(clip), "-o", str(tmp_path / "y"), "--rule", "vibes", "-q"])
     assert r.exit_code == 2 and "unknown rule" in r.output
     assert not (tmp_path / "x").exists() and not (tmp_path / "y").exists()
+
+
+def test_lights_default_detector_is_quiet_on_a_no_ev_clip(video_dir: Path, tmp_path: Path) -> None:
+    """`makeway lights` reviews footage with the verified detector: few boxes where no EV is lit."""
+    out = tmp_path / "quiet"
+    r = runner.invoke(
+        app, ["lights", str(video_dir / CLIP), "--out", str(out), "--max-frames", "20", "--json", "-q"]
+    )
+    assert r.exit_code == 0, r.output
+    summary = json.loads(r.stdout.strip().splitlines()[-1])
+    assert summary["detector"] == "verified" and summary["frames"] == 20
+    assert summary["light_detections"] <= 10

@@ -2,7 +2,7 @@
 flash frequency and (given a rig and a camera) their azimuth.
 
 For a video: the light detector (:data:`~makeway.perceive.vision.lights.LIGHT_DETECTORS`, default
-:data:`~makeway.perceive.vision.lights.DEFAULT_LIGHT_DETECTOR`) runs on every frame, the
+:data:`~makeway.perceive.vision.lights.REVIEW_LIGHT_DETECTOR`) runs on every frame, the
 :class:`~makeway.track.lights.LightTracker` follows each light and measures its flash pattern, and the
 output folder gets
 
@@ -37,7 +37,7 @@ import numpy as np
 from makeway.atomic import atomic_dir, atomic_path, check_writable, removed_on_error, write_text_atomic
 from makeway.errors import InputError
 from makeway.messages import LightDetection
-from makeway.perceive.vision.lights import DEFAULT_LIGHT_DETECTOR, colour_set
+from makeway.perceive.vision.lights import REVIEW_LIGHT_DETECTOR, colour_set
 from makeway.progress import progress_bar
 from makeway.sense.crops import IMAGE_SUFFIXES
 from makeway.sense.rig import Rig, load_rig
@@ -175,7 +175,7 @@ def lights(
     *,
     rig: str | Path | None = None,
     camera: str | None = None,
-    detector: str = DEFAULT_LIGHT_DETECTOR,
+    detector: str = REVIEW_LIGHT_DETECTOR,
     colours: str = "eu",
     max_frames: int | None = None,
     write_video: bool = True,

@@ -168,7 +168,8 @@ def lights(
         ),
     ] = None,
     detector: Annotated[
-        str | None, typer.Option(help="Light detector (registry name; default: the project's default).")
+        str | None,
+        typer.Option(help="Light detector: verified (default; most accurate), colour (fastest) or cnn."),
     ] = None,
     colours: Annotated[
         str,
@@ -189,14 +190,14 @@ def lights(
     flashing, and azimuth_deg / elevation_deg with --rig/--camera) and OUT/summary.json.
     """
     from makeway.apps.lights import lights as run
-    from makeway.perceive.vision.lights import DEFAULT_LIGHT_DETECTOR
+    from makeway.perceive.vision.lights import REVIEW_LIGHT_DETECTOR
 
     summary = run(
         source,
         out,
         rig=rig,
         camera=camera,
-        detector=detector or DEFAULT_LIGHT_DETECTOR,
+        detector=detector or REVIEW_LIGHT_DETECTOR,
         colours=colours,
         max_frames=max_frames,
         write_video=not no_video,

@@ -32,6 +32,7 @@ __all__ = [
     "COLOUR_SETS",
     "DEFAULT_LIGHT_DETECTOR",
     "LIGHT_DETECTORS",
+    "REVIEW_LIGHT_DETECTOR",
     "CnnLightDetector",
     "ColourLightDetector",
     "LightDetector",
@@ -82,8 +83,14 @@ LIGHT_DETECTORS: Registry[type[LightDetector]] = Registry("light detector")
 LIGHT_DETECTORS.register("cnn")(CnnLightDetector)
 LIGHT_DETECTORS.register("verified")(VerifiedLightDetector)
 
-#: The detector a command uses when none is named.
+#: The detector the real-time video pipeline (``makeway detect``'s lights rules) uses when none is
+#: named: the fastest.
 DEFAULT_LIGHT_DETECTOR = "colour"
+
+#: The detector ``makeway lights`` uses when none is named: the most accurate on the held-out
+#: labels (docs/results.md), about 4× slower than the rules — a person reviewing footage wants few
+#: false boxes more than speed.
+REVIEW_LIGHT_DETECTOR = "verified"
 
 
 @LIGHT_DETECTORS.register("colour")
