@@ -27,7 +27,6 @@ The points file (CSV, ``#`` comments, a header line ``u,v,x_m,y_m``)::
 
 from __future__ import annotations
 
-import csv
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -38,6 +37,7 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from makeway.errors import InputError
+from makeway.roadside.csvfile import data_lines
 from makeway.roadside.geodesy import LocalFrame
 from makeway.roadside.transform import RoadCamera
 from makeway.sense.camera import KannalaBrandtCamera, PinholeCamera
@@ -72,20 +72,10 @@ class RoadPoints:
 def read_road_points(path: str | Path) -> RoadPoints:
     """Read a points file (module docstring); InputError names the file and the line otherwise."""
     path = Path(path)
-    try:
-        lines = path.read_text(encoding="utf-8").splitlines()
-    except FileNotFoundError:
-        raise InputError(path, "points file not found") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise InputError(path, f"cannot be read as a points CSV ({exc})") from None
     rows: list[list[float]] = []
     vps: list[list[float]] = []
     header_seen = False
-    for n, line in enumerate(lines, start=1):
-        text = line.strip()
-        if not text or text.startswith("#"):
-            continue
-        cells = [c.strip() for c in next(csv.reader([text]))]
+    for n, text, cells in data_lines(path, "points"):
         if not header_seen and cells == ["u", "v", "x_m", "y_m"]:
             header_seen = True
             continue

@@ -8,7 +8,6 @@ written.
 
 from __future__ import annotations
 
-import csv
 from pathlib import Path
 from typing import Any
 
@@ -17,6 +16,7 @@ import yaml
 
 from makeway.atomic import atomic_path, write_text_atomic
 from makeway.errors import InputError
+from makeway.roadside.csvfile import data_lines
 from makeway.roadside.reference import (
     DEFAULT_SMOOTHING,
     LocationReference,
@@ -71,19 +71,9 @@ def read_pixel_rows(path: str | Path) -> tuple[np.ndarray, np.ndarray, str]:
     ``(n, 2 or 4)``, the pixels to locate ``(n, 2)`` (a box's bottom centre), and ``"pixel"`` or
     ``"box"``; InputError naming the file and line otherwise."""
     path = Path(path)
-    try:
-        lines = path.read_text(encoding="utf-8").splitlines()
-    except FileNotFoundError:
-        raise InputError(path, "pixels file not found") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise InputError(path, f"cannot be read as a CSV of pixels ({exc})") from None
     rows: list[list[float]] = []
     first = True
-    for n, line in enumerate(lines, start=1):
-        text = line.strip()
-        if not text or text.startswith("#"):
-            continue
-        cells = [c.strip() for c in next(csv.reader([text]))]
+    for n, text, cells in data_lines(path, "pixels"):
         try:
             vals = [float(c) for c in cells]
         except ValueError:
