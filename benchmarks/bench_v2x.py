@@ -22,7 +22,6 @@ import itertools
 import json
 import os
 import random
-import socket
 import subprocess
 import sys
 import tempfile
@@ -46,7 +45,7 @@ from makeway.v2x.security import (
     revoke,
     sign_alert,
 )
-from makeway.v2x.transport import AlertPublisher, AlertSubscriber, open_peer
+from makeway.v2x.transport import AlertPublisher, AlertSubscriber, free_loopback_port, open_peer
 
 TARGET_VERIFY_PER_S = 2000.0
 GOAL_P99_MS = 5.0
@@ -158,9 +157,7 @@ def publisher(key: Path, port: int, n: int, rate_hz: float, created_out: Path) -
 def latency(keys: Path, n: int, rate_hz: float) -> dict[str, Any]:
     """The car in this process, the unit in a child process; created → verified per alert."""
     keygen(keys / "lat", "rsu")
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        port = int(s.getsockname()[1])
+    port = free_loopback_port()
     verifier = Verifier(TrustStore.load(keys / "lat" / "trust"))
     session = open_peer(listen=[f"tcp/127.0.0.1:{port}"])
     sub = AlertSubscriber(session, [SEGMENT])

@@ -30,7 +30,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import socket
 import subprocess
 import sys
 import tempfile
@@ -44,7 +43,7 @@ import numpy as np
 
 from makeway.v2x.message import Alert
 from makeway.v2x.security import TrustStore, Verifier, keygen, load_identity, sign_alert
-from makeway.v2x.transport import AlertPublisher, AlertSubscriber, open_peer
+from makeway.v2x.transport import AlertPublisher, AlertSubscriber, free_loopback_port, open_peer
 
 FLAT_MIB = 5.0
 FLAT_PCT = 5.0  # every RSS sample after the first minute within ± this % of the first minute's mean
@@ -233,9 +232,7 @@ def run(minutes: float, units: int, n_cars: int, car_procs: int, rate_hz: float)
         work.mkdir()
         for u in range(units):
             keygen(keys, f"rsu{u:02d}")
-        with socket.socket() as s:
-            s.bind(("127.0.0.1", 0))
-            port = int(s.getsockname()[1])
+        port = free_loopback_port()
         common = ["--keys", str(keys), "--port", str(port), "--work", str(work), "--units", str(units)]
         common += ["--minutes", str(minutes), "--rate-hz", str(rate_hz)]
         procs = [subprocess.Popen([sys.executable, __file__, "--role", "publisher", *common])]
