@@ -271,6 +271,9 @@ def run_scenario(
             log[k].append(float(v))
         ego = model.step(ego, ControlCommand(t, steer_cmd, accel_cmd), DT_S)
 
+    close = getattr(sensing, "close", None)  # a belief source that holds a network releases it
+    if close is not None:
+        close()
     arrays = {k: np.asarray(v) for k, v in log.items()}
     transitions = [(t, a.value, b.value, why) for t, a, b, why in fsm.history]
     metrics = compute_metrics(scenario, arrays, transitions, planner.replans, actions, params.length_m)

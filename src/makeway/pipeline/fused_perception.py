@@ -13,10 +13,15 @@ collects what the chosen senses published by then and hands it to the multi-EV f
 * ``light`` — the camera rig's lights detector, modelled (:class:`~makeway.sim.cameras.CameraSense`):
   :class:`~makeway.messages.LightObservation` messages per frame, published ``latency_s`` after the
   frame;
-* ``v2x`` — each V2X-equipped EV's alert (directly or relayed by roadside units within
-  ``V2XLink.range_m``) at ``rate_hz``: encoded and signed as on the air
-  (:func:`~makeway.v2x.security.sign_alert`, a unit identity per EV under a local root made once per
-  process), lost with ``loss_prob``, received ``latency_s`` later, checked by the car's
+* ``v2x`` — alerts at ``rate_hz`` from each V2X-equipped EV (its own broadcast, within
+  ``V2XLink.range_m``) and from each of the scenario's roadside units (``Scenario.roadside_units``)
+  about every active EV within ``unit_sight_m`` of its pole (position with ``unit_position_sigma_m``
+  of noise, as its pixel → road step measures it): encoded and signed as on the air
+  (:func:`~makeway.v2x.security.sign_alert`, an identity per EV and per unit under a local root made
+  once per process), lost with ``loss_prob``, carried to the car by ``V2XLink.transport``
+  (:data:`~makeway.sim.radio.RADIOS`: by default a real zenoh network on loopback, one key per road
+  segment, the car subscribed to every segment of its route), read ``latency_s`` after generation,
+  checked by the car's
   :class:`~makeway.v2x.security.Verifier` (signature, trust, freshness, replay) and, when valid,
   turned into a verified :class:`~makeway.messages.V2XObservation` in the world frame (the local
   east-north plane of :class:`~makeway.roadside.geodesy.LocalFrame`). The EVs' identities are made
@@ -48,6 +53,7 @@ from makeway.pipeline.siren_perception import SirenPerception, SirenPerceptionCo
 from makeway.roadside.geodesy import LocalFrame
 from makeway.sim.cameras import CameraFigures, CameraSense
 from makeway.sim.live_array import LiveAudioConfig
+from makeway.sim.radio import RADIOS, Radio
 from makeway.sim.scenarios import Scenario
 from makeway.sim.world import EVTruth, SimWorld
 from makeway.v2x.message import Alert
@@ -61,17 +67,26 @@ ORIGIN = LocalFrame(48.137, 11.575)  # the simulated world's east-north plane (a
 
 @dataclass(frozen=True)
 class V2XLink:
-    """The radio link of the simulated alerts: ``rate_hz`` per EV, ``range_m`` (direct or through
-    roadside units), ``loss_prob`` per message, ``latency_s`` from generation to the car's check."""
+    """The radio link of the simulated alerts: ``rate_hz`` per sender, ``range_m`` of an EV's own
+    broadcast, ``loss_prob`` per message, ``latency_s`` from generation to the car's check;
+    ``unit_sight_m`` (m) how far a roadside unit's camera sees an EV and ``unit_position_sigma_m``
+    (m, per axis) the noise of the position it reports; ``transport`` the carrier of the bytes
+    (:data:`~makeway.sim.radio.RADIOS`: ``zenoh`` or ``memory``)."""
 
     rate_hz: float = 10.0
     range_m: float = 1000.0
     loss_prob: float = 0.1
     latency_s: float = 0.05
+    unit_sight_m: float = 60.0
+    unit_position_sigma_m: float = 0.5
+    transport: str = "zenoh"
 
     def __post_init__(self) -> None:
         if self.rate_hz <= 0 or self.range_m <= 0 or not 0.0 <= self.loss_prob < 1.0 or self.latency_s < 0:
             raise ValueError("rate_hz, range_m > 0, 0 <= loss_prob < 1 and latency_s >= 0 are needed")
+        if self.unit_sight_m <= 0 or self.unit_position_sigma_m < 0:
+            raise ValueError("unit_sight_m > 0 and unit_position_sigma_m >= 0 are needed")
+        RADIOS[self.transport]  # an unknown name fails here, listing the known ones
 
 
 @dataclass(frozen=True)
@@ -110,6 +125,7 @@ class FusedPerceptionConfig:
             world=world,
             initial_speed_mps=scenario.ego_speed_mps,
             stations=len(scenario.evs),
+            units=scenario.roadside_units,
         )
 
 
@@ -121,10 +137,17 @@ def _keys() -> Path:
     return folder
 
 
-@functools.lru_cache(maxsize=16)
-def _identity(station: int) -> Identity:
-    """The signing identity of the simulated EV number ``station`` (made once per process)."""
-    return keygen(_keys(), f"ev{station}")
+@functools.lru_cache(maxsize=256)
+def _identity(name: str) -> Identity:
+    """The signing identity ``name`` (``ev<station>`` or ``rsu<k>``; made once per process)."""
+    return keygen(_keys(), name)
+
+
+_DIRECT_SEGMENT = "ev-direct"  # the key EVs' own broadcasts travel on
+
+
+def _unit_segment(k: int) -> str:
+    return f"rsu-{k}"
 
 
 class FusedPerception:
@@ -138,8 +161,10 @@ class FusedPerception:
         world: SimWorld | None = None,
         initial_speed_mps: float = 0.0,
         stations: int = 2,
+        units: tuple[tuple[float, float], ...] = (),
     ) -> None:
-        """``stations``: how many EVs may send alerts (numbered 1, 2, …: ``EVTruth.station_id``)."""
+        """``stations``: how many EVs may send alerts (numbered 1, 2, …: ``EVTruth.station_id``);
+        ``units``: the roadside units' poles ``(x, y)`` (m, world frame)."""
         self.config = config if config is not None else FusedPerceptionConfig()
         cfg = self.config
         self.world = world if world is not None else SimWorld()
@@ -157,15 +182,22 @@ class FusedPerception:
         self._siren_done = 0  # siren observations handed over so far
         self._next_frame_s = 0.0
         self._next_alert_s = 0.0
-        self._pending: deque[tuple[float, Observation | _Signed]] = deque()  # (publish time, message)
+        self._pending: deque[tuple[float, Observation]] = deque()  # (publish time, message)
         self._sequence = 0
         self._verifier: Verifier | None = None
+        self._radio: Radio | None = None
         self._epoch = 0.0
+        self.units = np.asarray(units, dtype=float).reshape(-1, 2)
+        self._unit_rng = np.random.default_rng(np.random.SeedSequence([cfg.seed, 1609]))
         if "v2x" in cfg.senses:
             for k in range(1, max(stations, 1) + 1):
-                _identity(k)
+                _identity(f"ev{k}")
+            for k in range(len(self.units)):
+                _identity(f"rsu{k}")
             self._verifier = Verifier(TrustStore.load(_keys() / "trust"))
             self._epoch = float(round(time.time()))
+            segments = [_DIRECT_SEGMENT] + [_unit_segment(k) for k in range(len(self.units))]
+            self._radio = RADIOS[cfg.v2x.transport](segments)
         self.rejected = 0  # alerts the verifier refused
         self.counts = dict.fromkeys(SENSE_NAMES, 0)  # observations handed to the fusion, per sense
 
@@ -177,16 +209,27 @@ class FusedPerception:
         while self._next_alert_s <= time_s + 1e-9:
             t = self._next_alert_s
             self._next_alert_s += 1.0 / link.rate_hz
-            for ev in ego_evs:
-                if ev.v2x and (ev.lights or ev.siren):
-                    self._send(t, ev)
+            active = [ev for ev in ego_evs if ev.lights or ev.siren]
+            for ev in active:
+                if ev.v2x:
+                    self._send(t, ev, _identity(f"ev{max(ev.station_id, 1)}"), _DIRECT_SEGMENT)
+            for k, (ux, uy) in enumerate(self.units):
+                for ev in active:
+                    if math.hypot(ev.x_m - ux, ev.y_m - uy) <= link.unit_sight_m:
+                        noise = self._unit_rng.normal(0.0, link.unit_position_sigma_m, 2)
+                        self._send(
+                            t, ev, _identity(f"rsu{k}"), _unit_segment(k), (float(noise[0]), float(noise[1]))
+                        )
 
-    def _send(self, t: float, ev: EVTruth) -> None:
+    def _send(
+        self, t: float, ev: EVTruth, ident: Identity, segment: str, offset_m: tuple[float, float] = (0.0, 0.0)
+    ) -> None:
+        """One alert about ``ev`` generated at ``t`` by ``ident`` on ``segment`` (unless lost);
+        ``offset_m``: the sender's error in the reported position (m, world frame)."""
         link = self.config.v2x
-        ident = _identity(max(ev.station_id, 1))
         if self._rng.random() < link.loss_prob:
             return
-        lat, lon, _ = ORIGIN.to_geodetic([ev.x_m, ev.y_m])
+        lat, lon, _ = ORIGIN.to_geodetic([ev.x_m + offset_m[0], ev.y_m + offset_m[1]])
         self._sequence = (self._sequence + 1) % 65536
         alert = Alert.from_physical(
             station_id=ident.station_id,
@@ -199,11 +242,12 @@ class FusedPerception:
             siren=ev.siren,
             lights=ev.lights,
         )
-        self._pending.append((t + link.latency_s, _Signed(sign_alert(alert, ident), ev)))
+        assert self._radio is not None
+        self._radio.send(segment, sign_alert(alert, ident), t + link.latency_s)
 
-    def _receive(self, now_s: float, signed: _Signed) -> V2XObservation | None:
+    def _receive(self, now_s: float, data: bytes) -> V2XObservation | None:
         assert self._verifier is not None
-        verdict = self._verifier.verify(signed.data, self._epoch + now_s)
+        verdict = self._verifier.verify(data, self._epoch + now_s)
         if not verdict.valid or verdict.alert is None:
             self.rejected += 1
             return None
@@ -241,13 +285,14 @@ class FusedPerception:
                 self._next_frame_s += 1.0 / cfg.cameras.rate_hz
                 for lo in self.cameras.observe(t, ego, self.world):
                     self._pending.append((t + cfg.cameras.latency_s, lo))
-        if self._verifier is not None:
-            self._v2x(time_s)
-        ready = [p for p in self._pending if p[0] <= time_s + 1e-9]
+        ready: list[tuple[float, Observation | bytes]] = [p for p in self._pending if p[0] <= time_s + 1e-9]
         if ready:
             self._pending = deque(p for p in self._pending if p[0] > time_s + 1e-9)
+        if self._radio is not None:
+            self._v2x(time_s)
+            ready.extend(self._radio.deliver(time_s))
         for _, msg in sorted(ready, key=lambda p: p[0]):
-            o = self._receive(time_s, msg) if isinstance(msg, _Signed) else msg
+            o = self._receive(time_s, msg) if isinstance(msg, bytes) else msg
             if o is None:
                 continue
             self.counts[_sense_of(o)] += 1
@@ -263,13 +308,15 @@ class FusedPerception:
         """The siren listener's observations with the siren track's belief (for reports)."""
         return self.siren.observations if self.siren is not None else []
 
+    @property
+    def lost(self) -> int:
+        """Alerts the carrier failed to move (0 on a healthy loopback network)."""
+        return self._radio.lost if self._radio is not None else 0
 
-@dataclass(frozen=True)
-class _Signed:
-    """One signed alert on the air (the EV's truth kept for nothing but debugging)."""
-
-    data: bytes
-    ev: EVTruth
+    def close(self) -> None:
+        """Release the V2X carrier's network sessions (idempotent)."""
+        if self._radio is not None:
+            self._radio.close()
 
 
 def _sense_of(o: Observation) -> str:

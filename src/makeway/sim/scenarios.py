@@ -38,12 +38,12 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from makeway.messages import ReferencePath
-from makeway.plan.path import curved_road, make_path, offset_path, straight_road
+from makeway.plan.path import curved_road, make_path, offset_path, point_at, straight_road
 from makeway.registry import Registry
 
 LANE_WIDTH_M = 3.5
@@ -90,6 +90,7 @@ class Scenario:
     more_evs: tuple[EVPlan, ...] = ()  # further emergency vehicles
     traffic: tuple[EVPlan, ...] = ()  # other vehicles (trucks that hide an EV)
     night: bool = False
+    roadside_units: tuple[tuple[float, float], ...] = ()  # poles (x, y) of V2X roadside units, m
 
     @property
     def evs(self) -> tuple[EVPlan, ...]:
@@ -391,23 +392,41 @@ def siren_only() -> Scenario:
     )
 
 
+def units_along(
+    path: ReferencePath, spacing_m: float, offset_m: float = -6.0
+) -> tuple[tuple[float, float], ...]:
+    """Roadside unit poles every ``spacing_m`` (m) along ``path``, ``offset_m`` to its left
+    (negative: right of the road), starting at its first point."""
+    if spacing_m <= 0:
+        raise ValueError(f"spacing_m must be > 0, not {spacing_m}")
+    poles = []
+    for s in np.arange(0.0, float(path.s_m[-1]) + 1e-9, spacing_m):
+        x, y, yaw = point_at(path, float(s))
+        poles.append((x - offset_m * math.sin(yaw), y + offset_m * math.cos(yaw)))
+    return tuple(poles)
+
+
 def v2x_corridor() -> Scenario:
-    """An EV 500 m behind, announced by roadside units, closes at 25 m/s on a two-lane road."""
+    """An EV 500 m behind, announced by roadside units every 50 m, closes at 25 m/s on a two-lane
+    road; the EV itself sends nothing."""
     lane = straight_road(1000.0)
+    road = straight_road(1600.0, start=(-600.0, 0.0))
     ev = EVPlan(
-        path=straight_road(1600.0, start=(-600.0, 0.0)),
+        path=road,
         start_s_m=100.0,  # 500 m behind the ego
         speed_mps=lambda t: 13.4 if t < 1.0 else 25.0,
         signals_on_s=1.0,
-        v2x=True,
     )
-    return _scenario(
-        "v2x_corridor",
-        "ego 13.4 m/s in the left lane of a straight two-lane road; an EV 500 m behind, "
-        "announced by roadside units, switches on at 1 s and closes at 25 m/s",
-        lane,
-        ev,
-        duration_s=50.0,
+    return replace(
+        _scenario(
+            "v2x_corridor",
+            "ego 13.4 m/s in the left lane of a straight two-lane road; an EV 500 m behind, seen by "
+            "roadside units every 50 m that announce it, switches on at 1 s and closes at 25 m/s",
+            lane,
+            ev,
+            duration_s=50.0,
+        ),
+        roadside_units=units_along(road, 50.0),
     )
 
 
