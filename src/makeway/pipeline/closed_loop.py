@@ -41,6 +41,7 @@ from typing import Any, Protocol
 import numpy as np
 
 from makeway.control import LATERAL_CONTROLLERS, LongitudinalController
+from makeway.control.delay import DelayCompensated
 from makeway.decide import YieldConfig, YieldStateMachine
 from makeway.eval.closed_loop import compute_metrics
 from makeway.frames import to_vehicle_frame
@@ -180,6 +181,7 @@ def run_scenario(
     plant: PlantSpec | None = None,
     localization: LocalizationConfig | None = None,
     localization_seed: int = 0,
+    delay_compensation_s: float = 0.0,
 ) -> ClosedLoopResult:
     """Run ``scenario`` in closed loop with the lateral controller ``controller`` (a name of
     :data:`~makeway.control.LATERAL_CONTROLLERS`) and the belief source ``perception`` builds
@@ -188,10 +190,15 @@ def run_scenario(
     ``params`` is the controllers' design car (and, with no ``plant``, the simulated car too);
     ``plant`` picks another simulated car (module docstring; its metrics then add ``plant``,
     ``friction_limit_mps2``, ``friction_modelled`` and ``friction_exceeded``); ``localization``
-    the noise of the car's estimate of its own state, seeded with ``localization_seed``.
+    the noise of the car's estimate of its own state, seeded with ``localization_seed``;
+    ``delay_compensation_s`` > 0 wraps the lateral controller in
+    :class:`~makeway.control.delay.DelayCompensated` for that nominal steering delay (design model
+    only).
     """
     params = params if params is not None else VehicleParams()
     lateral = LATERAL_CONTROLLERS[controller](params)
+    if delay_compensation_s > 0.0:
+        lateral = DelayCompensated(lateral, params, delay_compensation_s, DT_S)
     model: Plant
     if plant is None:
         model = LinearPlant(params)
@@ -307,6 +314,7 @@ def run_scenario(
         metrics["friction_limit_mps2"] = limit
         metrics["friction_modelled"] = bool(getattr(model, "friction_modelled", False))
         metrics["friction_exceeded"] = bool(metrics["max_lat_accel_mps2"] > limit)
+        metrics["delay_compensation_s"] = delay_compensation_s
     if localization is not None:
         metrics["localization_perfect"] = localization.perfect
     siren = list(getattr(sensing, "observations", []))
