@@ -104,6 +104,8 @@ class Plant(Protocol):
 
     def reset(self, state: VehicleState) -> None: ...
 
+    def state(self) -> VehicleState: ...
+
     def advance(self, command: ControlCommand, dt: float) -> VehicleState: ...
 
 
@@ -185,6 +187,12 @@ class LinearPlant:
     def reset(self, state: VehicleState) -> None:
         self._state = state
         self._delay = None
+
+    def state(self) -> VehicleState:
+        """The car's :class:`~makeway.messages.VehicleState` now."""
+        if self._state is None:
+            raise RuntimeError("reset the plant first")
+        return self._state
 
     def advance(self, command: ControlCommand, dt: float) -> VehicleState:
         if self._state is None:
@@ -442,7 +450,8 @@ PLANTS: Registry[Callable[[PlantSpec], Plant]] = Registry(
 class PlantSpec:
     """Which plant the closed loop steers: ``plant`` (a name of :data:`PLANTS`), ``vehicle`` (a name
     of :data:`VEHICLES`; ``None``: the BMW 320i on the CommonRoad plants, the design car on
-    ``linear``), ``road`` (``dry`` or ``wet``) and the steering transport delay in seconds."""
+    ``linear``), ``road`` (``dry`` or ``wet``) and the steering transport delay in seconds (whole
+    0.01 s steps, the closed loop's period)."""
 
     plant: str = "linear"
     vehicle: str | None = None
@@ -457,6 +466,8 @@ class PlantSpec:
         ROADS[self.road]  # noqa: B018
         if not 0.0 <= self.steer_delay_s <= 0.5:
             raise ValueError(f"steering delay {self.steer_delay_s} s is outside 0–0.5 s")
+        if abs(self.steer_delay_s * 100.0 - round(self.steer_delay_s * 100.0)) > 1e-6:
+            raise ValueError(f"steering delay {self.steer_delay_s} s is not a whole number of 0.01 s steps")
 
     def build(self) -> Plant:
         """The plant, checked first (:meth:`check`)."""
