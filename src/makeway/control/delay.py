@@ -53,7 +53,9 @@ def predict_state(
     for cmd in pending:
         target = _clip(cmd, -p.max_steer_rad, p.max_steer_rad)
         for _ in range(substeps):
-            d_delta = _clip((target - delta) / p.steer_time_constant_s, -p.max_steer_rate_radps, p.max_steer_rate_radps)
+            d_delta = _clip(
+                (target - delta) / p.steer_time_constant_s, -p.max_steer_rate_radps, p.max_steer_rate_radps
+            )
             if vx > kinematic_below_mps:
                 d_vy = (cf * delta - (cf + cr) / vx * vy - (a * cf - b * cr) / vx * r) / m - vx * r
                 d_r = (a * cf * delta - (a * cf - b * cr) / vx * vy - (a * a * cf + b * b * cr) / vx * r) / iz
@@ -118,7 +120,9 @@ class DelayCompensated:
             self._pending.append(delta)
         return delta, errors, index
 
-    def errors(self, state: VehicleState, path: ReferencePath, hint: int | None = None) -> tuple[TrackingErrors, int]:
+    def errors(
+        self, state: VehicleState, path: ReferencePath, hint: int | None = None
+    ) -> tuple[TrackingErrors, int]:
         """The errors of ``state`` (no prediction) and the nearest index."""
         result: tuple[TrackingErrors, int] = self.inner.errors(state, path, hint)
         return result

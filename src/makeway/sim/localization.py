@@ -86,7 +86,9 @@ class Localization:
         if c.perfect:
             return truth
         phi = math.exp(-dt / c.bias_time_constant_s)
-        sig = np.array([c.position_bias_m, c.position_bias_m, c.heading_bias_rad]) * math.sqrt(1.0 - phi * phi)
+        sig = np.array([c.position_bias_m, c.position_bias_m, c.heading_bias_rad]) * math.sqrt(
+            1.0 - phi * phi
+        )
         w = self._rng.standard_normal(8)
         self._bias = phi * self._bias + sig * w[:3]
         bx, by, bpsi = (float(v) for v in self._bias)

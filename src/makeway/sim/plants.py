@@ -112,11 +112,12 @@ class Plant(Protocol):
 class DelayLine:
     """A pure transport delay of ``delay_s`` on a signal sampled every ``dt`` seconds (a ring buffer).
 
-    ``push(u)`` returns the value pushed ``n = delay_s/dt`` calls before (the first value pushed
-    until the buffer has filled); ``delay_s`` must be a whole number of periods.
+    ``push(u)`` returns the value pushed ``n = delay_s/dt`` calls before (until the buffer has
+    filled: ``initial``, or the first value pushed when it is ``None``); ``delay_s`` must be a whole
+    number of periods.
     """
 
-    def __init__(self, delay_s: float, dt: float) -> None:
+    def __init__(self, delay_s: float, dt: float, initial: float | None = None) -> None:
         if delay_s < 0.0 or not dt > 0.0:
             raise ValueError("the delay must be ≥ 0 and the period > 0")
         n = round(delay_s / dt)
@@ -124,6 +125,8 @@ class DelayLine:
             raise ValueError(f"a delay of {delay_s} s is not a whole number of {dt} s periods")
         self.steps = n
         self._buffer: deque[float] = deque(maxlen=n + 1)
+        if initial is not None:
+            self._buffer.extend([initial] * n)
 
     def push(self, value: float) -> float:
         """Insert ``value``; return the one ``steps`` pushes ago."""
@@ -199,7 +202,7 @@ class LinearPlant:
             raise RuntimeError("reset the plant before advancing it")
         if self.steer_delay_s > 0.0:
             if self._delay is None or self._dt != dt:
-                self._delay, self._dt = DelayLine(self.steer_delay_s, dt), dt
+                self._delay, self._dt = DelayLine(self.steer_delay_s, dt, self._state.steer_rad), dt
             command = replace(command, steer_rad=self._delay.push(command.steer_rad))
         self._state = self.model.step(self._state, command, dt)
         return self._state
@@ -277,8 +280,9 @@ class CommonRoadPlant:
             self._x = [state.x_m, state.y_m, state.steer_rad, speed, state.yaw_rad]
             return
         self._kinematic = False
-        self._x = self._full_state(state.x_m, state.y_m, state.steer_rad, vx, state.vy_mps, state.yaw_rad,
-                                   state.yaw_rate_radps)
+        self._x = self._full_state(
+            state.x_m, state.y_m, state.steer_rad, vx, state.vy_mps, state.yaw_rad, state.yaw_rate_radps
+        )
 
     def _full_state(
         self, x: float, y: float, delta: float, vx: float, vy: float, yaw: float, yaw_rate: float
@@ -339,8 +343,8 @@ class CommonRoadPlant:
         act = self.actuators
         steer = command.steer_rad
         if act.steer_delay_s > 0.0:
-            if self._delay is None or self._dt != dt:
-                self._delay, self._dt = DelayLine(act.steer_delay_s, dt), dt
+            if self._delay is None or self._dt != dt:  # until then the wheel holds its angle
+                self._delay, self._dt = DelayLine(act.steer_delay_s, dt, self._x[2]), dt
             steer = self._delay.push(steer)
         sp = self.p.steering
         steer = _clip(steer, sp.min, sp.max)
@@ -364,7 +368,9 @@ class CommonRoadPlant:
         v = self._speed()
         if self._kinematic and v > self.handover_high_mps:
             s = self.state()
-            self._x = self._full_state(s.x_m, s.y_m, s.steer_rad, s.vx_mps, s.vy_mps, s.yaw_rad, s.yaw_rate_radps)
+            self._x = self._full_state(
+                s.x_m, s.y_m, s.steer_rad, s.vx_mps, s.vy_mps, s.yaw_rad, s.yaw_rate_radps
+            )
             self._kinematic = False
         elif not self._kinematic and v < self.handover_low_mps:
             s = self.state()
@@ -381,7 +387,9 @@ class CommonRoadPlant:
         # actuators: servo rate (the model clips it to its published limit) and a_x's lag
         steer_rate = (steer_target - x[2]) / act.steer_time_constant_s
         steer_rate = _clip(steer_rate, sp.v_min, sp.v_max)
-        d_ax = _clip((accel_cmd - self._ax) / act.accel_time_constant_s, -act.max_jerk_mps3, act.max_jerk_mps3)
+        d_ax = _clip(
+            (accel_cmd - self._ax) / act.accel_time_constant_s, -act.max_jerk_mps3, act.max_jerk_mps3
+        )
         ax0, ax1 = self._ax, self._ax + h * d_ax
         ax1 = _clip(ax1, -act.max_decel_mps2, act.max_accel_mps2)
         at_rest = x[3] <= 0.0
@@ -460,10 +468,10 @@ class PlantSpec:
 
     def check(self) -> None:
         """Raise ``UnknownNameError``/``ValueError`` for an unknown name or a bad combination."""
-        PLANTS[self.plant]  # noqa: B018 (look-up raises on an unknown name)
+        PLANTS[self.plant]  # each look-up raises on an unknown name
         if self.vehicle is not None:
-            VEHICLES[self.vehicle]  # noqa: B018
-        ROADS[self.road]  # noqa: B018
+            VEHICLES[self.vehicle]
+        ROADS[self.road]
         if not 0.0 <= self.steer_delay_s <= 0.5:
             raise ValueError(f"steering delay {self.steer_delay_s} s is outside 0–0.5 s")
         if abs(self.steer_delay_s * 100.0 - round(self.steer_delay_s * 100.0)) > 1e-6:
@@ -481,7 +489,9 @@ class PlantSpec:
 
     def describe(self) -> dict[str, Any]:
         """Name, vehicle, road, μ and delay (for metrics and reports)."""
-        vehicle = self.vehicle if self.vehicle is not None else ("design" if self.plant == "linear" else "bmw320i")
+        vehicle = (
+            self.vehicle if self.vehicle is not None else ("design" if self.plant == "linear" else "bmw320i")
+        )
         return {
             "plant": self.plant,
             "vehicle": vehicle,
