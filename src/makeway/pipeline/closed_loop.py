@@ -182,6 +182,7 @@ def run_scenario(
     localization: LocalizationConfig | None = None,
     localization_seed: int = 0,
     delay_compensation_s: float = 0.0,
+    delay_predictor: str = "design",
 ) -> ClosedLoopResult:
     """Run ``scenario`` in closed loop with the lateral controller ``controller`` (a name of
     :data:`~makeway.control.LATERAL_CONTROLLERS`) and the belief source ``perception`` builds
@@ -192,13 +193,13 @@ def run_scenario(
     ``friction_limit_mps2``, ``friction_modelled`` and ``friction_exceeded``); ``localization``
     the noise of the car's estimate of its own state, seeded with ``localization_seed``;
     ``delay_compensation_s`` > 0 wraps the lateral controller in
-    :class:`~makeway.control.delay.DelayCompensated` for that nominal steering delay (design model
-    only).
+    :class:`~makeway.control.delay.DelayCompensated` for that nominal steering delay with the
+    predictor ``delay_predictor`` (``design`` or ``kinematic``; the design car only).
     """
     params = params if params is not None else VehicleParams()
     lateral = LATERAL_CONTROLLERS[controller](params)
     if delay_compensation_s > 0.0:
-        lateral = DelayCompensated(lateral, params, delay_compensation_s, DT_S)
+        lateral = DelayCompensated(lateral, params, delay_compensation_s, DT_S, delay_predictor)
     model: Plant
     if plant is None:
         model = LinearPlant(params)

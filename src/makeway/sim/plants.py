@@ -83,6 +83,7 @@ __all__ = [
     "DelayLine",
     "LinearPlant",
     "Plant",
+    "PlantDivergedError",
     "PlantSpec",
     "vehicle_parameters",
 ]
@@ -97,6 +98,15 @@ VEHICLES: Registry[Callable[[], Any]] = Registry(
 
 ROADS: Registry[float] = Registry("road", {"dry": 1.0, "wet": 0.5})
 """Peak tyre–road friction coefficient μ by road surface."""
+
+
+class PlantDivergedError(ValueError):
+    """The car went out of control and the model's equations broke down (a division by zero or
+    an overflow in CommonRoad's model, or a yaw rate beyond any car's): the loop was unstable."""
+
+
+MAX_YAW_RATE_RADPS = 5.0
+"""A yaw rate no car on tyres reaches (beyond it the car is spinning: the run has diverged)."""
 
 
 class Plant(Protocol):
@@ -357,10 +367,21 @@ class CommonRoadPlant:
             if not self._kinematic and self.model != "kinematic":
                 h = min(h, self._h_per_mps * max(v, self.handover_low_mps))
             h = min(h, t_left)
-            self._substep(steer, accel_cmd, h)
+            try:
+                self._substep(steer, accel_cmd, h)
+            except (ArithmeticError, ValueError) as exc:
+                raise PlantDivergedError(
+                    f"the {self.model} car went out of control at t = {self._time:.2f} s ({exc})"
+                ) from None
             t_left -= h
         self._time += dt
-        return self.state()
+        out = self.state()
+        if not (math.isfinite(out.x_m) and abs(out.yaw_rate_radps) < MAX_YAW_RATE_RADPS):
+            raise PlantDivergedError(
+                f"the {self.model} car went out of control at t = {self._time:.2f} s "
+                f"(yaw rate {out.yaw_rate_radps:.1f} rad/s)"
+            )
+        return out
 
     def _switch_mode(self) -> None:
         if self.model == "kinematic":
