@@ -17,10 +17,13 @@ the controllers compensate by prediction on their design model (nominal 0.15 s).
 2. seed003 on every plant (linear, kinematic, single_track, single_track_drift, multi_body; BMW;
    dry/wet; delay 0, and 0.15 s with and without compensation, and with the kinematic predictor)
    against seed 003's field test (max |e_lat| 0.55 m).
-3. Real-time factor of the multi-body plant alone (replaying a run's commands) and of the whole
+3. GNSS/IMU localization: seed003 and curve_behind on the multi-body BMW, dry/wet, 0.15 s delay,
+   the controllers steering on the ``rtk`` estimate (``makeway.sim.localization``) over 3 seeds.
+4. Real-time factor of the multi-body plant alone (replaying a run's commands) and of the whole
    closed loop with it, with the load average beside them (2 busy cores).
 
-``--quick``: seed003 and curve_behind only, the BMW only.
+``--quick``: seed003 and curve_behind only, the BMW only. ``--sections`` picks parts
+(``grid,plants,localization,speed``; all by default).
 """
 
 from __future__ import annotations
@@ -37,6 +40,7 @@ from typing import Any
 from makeway.jsonable import to_jsonable
 from makeway.messages import ControlCommand, VehicleState
 from makeway.pipeline.closed_loop import run_scenario
+from makeway.sim.localization import LOCALIZATIONS
 from makeway.sim.plants import PlantSpec
 from makeway.sim.scenarios import SCENARIOS
 
@@ -48,14 +52,16 @@ DESIGN_DELAY_S = 0.15
 TARGET_MAX = {"dry": 0.10, "wet": 0.20}
 TARGET_SETTLED = 0.05
 
-# scenario, controller, plant, vehicle, road, plant delay, compensated delay, predictor
-Job = tuple[str, str, str, str | None, str, float, float, str]
+# scenario, controller, plant, vehicle, road, plant delay, compensated delay, predictor,
+# localization preset, seed
+Job = tuple[str, str, str, str | None, str, float, float, str, str, int]
 
 
 def run_one(job: Job) -> dict[str, Any]:
     """One closed-loop run; the metrics the tables need (or why the plant diverged)."""
-    scenario, controller, plant, vehicle, road, delay, comp, predictor = job
+    scenario, controller, plant, vehicle, road, delay, comp, predictor, loc, seed = job
     spec = PlantSpec(plant=plant, vehicle=vehicle, road=road, steer_delay_s=delay)
+    config = LOCALIZATIONS[loc]()
     t0 = time.perf_counter()
     try:
         m = run_scenario(
@@ -64,6 +70,8 @@ def run_one(job: Job) -> dict[str, Any]:
             plant=spec,
             delay_compensation_s=comp,
             delay_predictor=predictor,
+            localization=None if config.perfect else config,
+            localization_seed=seed,
         ).metrics
     except ValueError as exc:  # PlantDivergedError: the loop was unstable
         return {"job": job, "failed": str(exc), "wall_s": time.perf_counter() - t0}
@@ -120,10 +128,7 @@ def targets_grid(
     rows = [
         r
         for r in results
-        if r["job"][2] == "multi_body"
-        and r["job"][5] == delay
-        and r["job"][6] == comp
-        and r["job"][7] == "design"
+        if r["job"][2] == "multi_body" and r["job"][5:9] == (delay, comp, "design", "perfect")
     ]
     print(
         f"\nmulti-body plant, steering delay {delay:.2f} s (compensated for {comp:.2f} s), "
@@ -181,12 +186,11 @@ def seed003_jobs() -> list[Job]:
         for road in ("dry",) if plant in ("linear", "kinematic", "single_track") else ("dry", "wet"):
             vehicle = None if plant == "linear" else "bmw320i"
             for ctrl in CONTROLLERS:
-                jobs.append(("seed003", ctrl, plant, vehicle, road, 0.0, 0.0, "design"))
-                jobs.append(("seed003", ctrl, plant, vehicle, road, DESIGN_DELAY_S, DESIGN_DELAY_S, "design"))
-                jobs.append(
-                    ("seed003", ctrl, plant, vehicle, road, DESIGN_DELAY_S, DESIGN_DELAY_S, "kinematic")
-                )
-            jobs.append(("seed003", "ffb", plant, vehicle, road, DESIGN_DELAY_S, 0.0, "design"))
+                jobs.append(("seed003", ctrl, plant, vehicle, road, 0.0, 0.0, "design", "perfect", 0))
+                for pred in ("design", "kinematic"):
+                    d = DESIGN_DELAY_S
+                    jobs.append(("seed003", ctrl, plant, vehicle, road, d, d, pred, "perfect", 0))
+            jobs.append(("seed003", "ffb", plant, vehicle, road, DESIGN_DELAY_S, 0.0, "design", "perfect", 0))
     return jobs
 
 
@@ -211,7 +215,7 @@ def seed003_per_plant(results: list[dict[str, Any]]) -> dict[str, Any]:
             ):
                 vehicle = None if plant == "linear" else "bmw320i"
                 cells = {
-                    c: by_job.get(("seed003", c, plant, vehicle, road, delay, comp, pred))
+                    c: by_job.get(("seed003", c, plant, vehicle, road, delay, comp, pred, "perfect", 0))
                     for c in CONTROLLERS
                 }
                 if cells["ffb"] is None:
@@ -242,6 +246,45 @@ def seed003_per_plant(results: list[dict[str, Any]]) -> dict[str, Any]:
                     for c, r in cells.items()
                 }
     print("(max |e_lat| in the manoeuvre, m; kinematic and single_track have no friction limit: dry only)")
+    return out
+
+
+LOCALIZATION_SEEDS = (0, 1, 2)
+
+
+def localization_jobs() -> list[Job]:
+    """seed003 and curve_behind on the multi-body BMW with the rtk estimate, over seeds."""
+    d = DESIGN_DELAY_S
+    return [
+        (scenario, ctrl, "multi_body", "bmw320i", road, d, d, "design", "rtk", seed)
+        for scenario in ("seed003", "curve_behind")
+        for road in ("dry", "wet")
+        for ctrl in CONTROLLERS
+        for seed in LOCALIZATION_SEEDS
+    ]
+
+
+def localization_table(results: list[dict[str, Any]]) -> dict[str, Any]:
+    """Worst over scenarios and seeds with the rtk estimate, per road and controller."""
+    wanted = set(localization_jobs())
+    rows = [r for r in results if r["job"] in wanted]
+    print(
+        f"\nrtk localization (2 cm noise, 3 cm wandering bias, 0.1° heading): multi-body BMW, 0.15 s delay, "
+        f"seed003 + curve_behind × {len(LOCALIZATION_SEEDS)} seeds, worst"
+    )
+    print(f"{'road':4s} {'controller':13s} {'max|e| m':>8s} {'settled m':>9s} {'coll':>4s} {'div':>3s}")
+    out: dict[str, Any] = {}
+    for road in ("dry", "wet"):
+        for ctrl in CONTROLLERS:
+            cell = [r for r in rows if r["job"][4] == road and r["job"][1] == ctrl]
+            if not cell:
+                continue
+            w = _worst(cell)
+            out[f"{road}/{ctrl}"] = w
+            print(
+                f"{road:4s} {ctrl:13s} {_fmt(w['max_abs_e_lat_m'], 8)} {_fmt(w['settled_abs_e_lat_m'], 9)} "
+                f"{w['collisions']:4d} {w['diverged']:3d}"
+            )
     return out
 
 
@@ -292,19 +335,28 @@ def main() -> int:
     ap.add_argument("--quick", action="store_true", help="seed003 and curve_behind, the BMW only")
     ap.add_argument("--full", action="store_true", help="also delays 0, 0.1 and 0.2 s on the multi-body grid")
     ap.add_argument("--workers", type=int, default=2, help="processes (2 at most)")
+    ap.add_argument(
+        "--sections", default="grid,plants,localization,speed", help="parts to run (comma-separated)"
+    )
     args = ap.parse_args()
+    sections = set(args.sections.split(","))
     scenarios = ["seed003", "curve_behind"] if args.quick else list(SCENARIOS)
     vehicles = ("bmw320i",) if args.quick else ALL_VEHICLES
     delays = [0.0, 0.1, DESIGN_DELAY_S, 0.2] if args.full else [DESIGN_DELAY_S]
     jobs: list[Job] = []
-    for delay in delays:
+    for delay in delays if "grid" in sections else []:
         comp = DESIGN_DELAY_S if delay > 0.0 else 0.0
         for scenario in scenarios:
             for vehicle in vehicles:
                 for road in ("dry", "wet"):
                     for ctrl in CONTROLLERS:
-                        jobs.append((scenario, ctrl, "multi_body", vehicle, road, delay, comp, "design"))
-    jobs += [j for j in seed003_jobs() if j not in jobs]
+                        jobs.append(
+                            (scenario, ctrl, "multi_body", vehicle, road, delay, comp, "design", "perfect", 0)
+                        )
+    if "plants" in sections:
+        jobs += [j for j in seed003_jobs() if j not in jobs]
+    if "localization" in sections:
+        jobs += localization_jobs()
     workers = max(1, min(args.workers, 2))
     print(f"{len(jobs)} closed-loop runs on {workers} processes (load {os.getloadavg()[0]:.2f})", flush=True)
     t0 = time.perf_counter()
@@ -320,18 +372,25 @@ def main() -> int:
 
     all_ok = True
     grids = {}
-    for delay in delays:
+    for delay in delays if "grid" in sections else []:
         ok, summary = targets_grid(results, delay, vehicles)
         grids[f"{delay:.2f}"] = summary
         if math.isclose(delay, DESIGN_DELAY_S):
             all_ok &= ok
-    per_plant = seed003_per_plant(results)
-    rtf = real_time_factor()
-    all_ok &= rtf["closed_loop_x"] >= 20.0
+    per_plant = seed003_per_plant(results) if "plants" in sections else {}
+    located = localization_table(results) if "localization" in sections else {}
+    rtf = real_time_factor() if "speed" in sections else {}
+    all_ok &= rtf.get("closed_loop_x", 0.0) >= 20.0 and "grid" in sections
     print(
         f"\nall targets met (0.15 s grid and the closed loop's real-time factor): {'yes' if all_ok else 'NO'}"
     )
-    summary = {"grids": grids, "seed003": per_plant, "real_time": rtf, "targets_met": all_ok}
+    summary = {
+        "grids": grids,
+        "seed003": per_plant,
+        "localization": located,
+        "real_time": rtf,
+        "targets_met": all_ok,
+    }
     print(json.dumps(to_jsonable(summary, digits=None), allow_nan=False))
     return 0
 
