@@ -214,7 +214,9 @@ def test_the_default_plant_is_today_s_model() -> None:
 
     sc = SCENARIOS["no_ev"]()
     a = run_scenario(sc).metrics
-    assert "plant" not in a
+    b = run_scenario(sc, plant=PlantSpec()).metrics
+    assert "plant" not in a and b["plant"]["vehicle"] == "design"
+    assert {k: b[k] for k in a} == a
     assert isinstance(PlantSpec().build(), LinearPlant)
     assert isinstance(LinearPlant().model, SingleTrackModel)
     assert FeedforwardFeedback(VehicleParams()).params == VehicleParams()
