@@ -468,6 +468,45 @@ def simulate(
             "alert → yield; siren only → prepare until close; lights only → yield), germany, uk."
         ),
     ] = "audible_and_visual",
+    plant: Annotated[
+        str,
+        typer.Option(
+            help="The simulated car: linear (the model the controllers were designed on), or one of "
+            "CommonRoad's published vehicle models: kinematic, single_track, single_track_drift "
+            "(tyres that saturate), multi_body (body roll and pitch, suspension, four tyres)."
+        ),
+    ] = "linear",
+    vehicle: Annotated[
+        str | None,
+        typer.Option(
+            help="With a CommonRoad plant: ford_escort, bmw320i (default) or vw_vanagon, their published "
+            "parameter sets."
+        ),
+    ] = None,
+    road: Annotated[
+        str,
+        typer.Option(
+            help="dry (friction 1.0) or wet (0.5); the tyres saturate on single_track_drift and multi_body."
+        ),
+    ] = "dry",
+    steer_delay: Annotated[
+        float,
+        typer.Option(
+            help="Steering actuator delay in seconds (0 to 0.5, whole 0.01 s steps); the controllers "
+            "then predict the car 0.15 s ahead on their own model."
+        ),
+    ] = 0.0,
+    delay_compensation: Annotated[
+        bool,
+        typer.Option(help="Predict over the steering delay (turn off to see the delay uncompensated)."),
+    ] = True,
+    localization: Annotated[
+        str,
+        typer.Option(
+            help="What the car knows of its own position: perfect, or rtk (RTK-GNSS with an IMU: a few "
+            "cm of noise and slowly wandering bias)."
+        ),
+    ] = "perfect",
     as_json: Annotated[bool, typer.Option("--json", help="Print the metrics as one JSON line last.")] = False,
 ) -> None:
     """Drive a simulated scenario in closed loop.
@@ -475,7 +514,8 @@ def simulate(
     The loop: perceived EV → yield decision → path → control → vehicle. Prints max/settled lateral
     error, yaw and yaw-rate error ranges, comfort, the time from the EV switching on to detection and to
     standstill, the closest approach, and the action taken. With --perception siren the EV is heard by
-    the siren stack (--out adds siren.png, siren.jsonl).
+    the siren stack (--out adds siren.png, siren.jsonl). --plant drives a car the controllers were not
+    designed on (with --vehicle, --road and --steer-delay); the metrics then add the friction limit.
     """
     from makeway.apps.simulate import simulate as run
 
@@ -489,6 +529,12 @@ def simulate(
         duty=duty,
         path=path,
         out=out,
+        plant=plant,
+        vehicle=vehicle,
+        road=road,
+        steer_delay_s=steer_delay,
+        delay_compensation=delay_compensation,
+        localization=localization,
     )
     if as_json:
         print_json_line(result.metrics)
@@ -499,6 +545,8 @@ def simulate(
             value = f"{value:.3f}"
         elif isinstance(value, list):
             value = "[" + ", ".join(f"{v:.3f}" for v in value) + "]"
+        elif isinstance(value, dict):
+            value = ", ".join(f"{k} {v}" for k, v in value.items())
         table.add_row(key, str(value))
     for key, file in files.items():
         table.add_row(f"→ {key}", file)

@@ -293,6 +293,15 @@ class _LocalFitController:
             state, path, hint, self.n_points, self.line_tolerance_m, self.point_spacing_m, self.ahead
         )
 
+    def errors(
+        self, state: VehicleState, path: ReferencePath, hint: int | None = None
+    ) -> tuple[TrackingErrors, int]:
+        """The errors of ``state`` against ``path`` as :meth:`steer` measures them, and the nearest
+        index, without steering (e.g. of the true state while the controller steers on an
+        estimate)."""
+        errors, index, _ = self._errors(state, path, hint)
+        return errors, index
+
 
 class FeedforwardFeedback(_LocalFitController):
     """Seed 003's steering law ``δ = δ_ff + δ_fb`` (module docstring) with scheduled gains.

@@ -19,7 +19,13 @@
    (:meth:`~makeway.decide.yield_fsm.YieldStateMachine.update_all`); the planner replans the
    reference path on a new manoeuvre;
 4. the lateral controller (feed-forward + feedback by default, or a baseline) and the longitudinal
-   controller command the single-track vehicle model.
+   controller command the plant: by default the linear single-track model the controllers were
+   designed on; ``plant`` picks another (:class:`~makeway.sim.plants.PlantSpec`: CommonRoad's
+   kinematic, single-track, single-track-drift or multi-body model with a published parameter set,
+   a dry or wet road and a steering delay). The controllers keep their design model
+   (:class:`~makeway.vehicle.VehicleParams`) and never see the plant's parameters;
+5. with ``localization`` the controllers and the planner see a GNSS/IMU estimate of the car's state
+   (:mod:`makeway.sim.localization`), not the truth; the metrics are always measured on the truth.
 
 Every step is logged; :class:`ClosedLoopResult` holds the log and the metrics of
 :func:`makeway.eval.closed_loop.compute_metrics`.
@@ -35,6 +41,7 @@ from typing import Any, Protocol
 import numpy as np
 
 from makeway.control import LATERAL_CONTROLLERS, LongitudinalController
+from makeway.control.delay import DelayCompensated
 from makeway.decide import YieldConfig, YieldStateMachine
 from makeway.eval.closed_loop import compute_metrics
 from makeway.frames import to_vehicle_frame
@@ -48,9 +55,10 @@ from makeway.plan.planner import YieldPlanner
 from makeway.registry import Registry
 from makeway.sim.ev_actor import EVActor
 from makeway.sim.live_array import LiveAudioConfig
+from makeway.sim.localization import Localization, LocalizationConfig
 from makeway.sim.perception import PerceptionConfig
+from makeway.sim.plants import G, LinearPlant, Plant, PlantSpec
 from makeway.sim.scenarios import EVPlan, Scenario
-from makeway.sim.vehicle import SingleTrackModel
 from makeway.sim.world import EVTruth, SimWorld
 from makeway.vehicle import VehicleParams
 
@@ -170,13 +178,36 @@ def run_scenario(
     perception: PerceptionSpec | None = None,
     params: VehicleParams | None = None,
     yield_config: YieldConfig | None = None,
+    plant: PlantSpec | None = None,
+    localization: LocalizationConfig | None = None,
+    localization_seed: int = 0,
+    delay_compensation_s: float = 0.0,
+    delay_predictor: str = "design",
 ) -> ClosedLoopResult:
     """Run ``scenario`` in closed loop with the lateral controller ``controller`` (a name of
     :data:`~makeway.control.LATERAL_CONTROLLERS`) and the belief source ``perception`` builds
-    (default: :class:`~makeway.sim.perception.PerceptionConfig`, the model of perception)."""
+    (default: :class:`~makeway.sim.perception.PerceptionConfig`, the model of perception).
+
+    ``params`` is the controllers' design car (and, with no ``plant``, the simulated car too);
+    ``plant`` picks another simulated car (module docstring; its metrics then add ``plant``,
+    ``friction_limit_mps2``, ``friction_modelled`` and ``friction_exceeded``); ``localization``
+    the noise of the car's estimate of its own state, seeded with ``localization_seed``;
+    ``delay_compensation_s`` > 0 wraps the lateral controller in
+    :class:`~makeway.control.delay.DelayCompensated` for that nominal steering delay with the
+    predictor ``delay_predictor`` (``design`` or ``kinematic``; the design car only).
+    """
     params = params if params is not None else VehicleParams()
     lateral = LATERAL_CONTROLLERS[controller](params)
-    model = SingleTrackModel(params)
+    if delay_compensation_s > 0.0:
+        lateral = DelayCompensated(lateral, params, delay_compensation_s, DT_S, delay_predictor)
+    model: Plant
+    if plant is None:
+        model = LinearPlant(params)
+        body = (params.length_m, params.width_m)
+    else:
+        model = plant.build()
+        body = getattr(model, "body_m", (params.length_m, params.width_m))
+    locator = Localization(localization, localization_seed) if localization is not None else None
     longitudinal = LongitudinalController()
     spec: PerceptionSpec = perception if perception is not None else PerceptionConfig()
     config = yield_config if yield_config is not None else YieldConfig()
@@ -188,8 +219,9 @@ def run_scenario(
     )
     x0, y0, h0 = point_at(scenario.lane, scenario.ego_start_s_m)
     ego = VehicleState(0.0, x0, y0, h0, scenario.ego_speed_mps)
-    ev_actors = [EVActor(p, params.length_m, params.width_m) for p in scenario.evs]
-    others = [EVActor(p, params.length_m, params.width_m) for p in scenario.traffic]
+    model.reset(ego)
+    ev_actors = [EVActor(p, body[0], body[1]) for p in scenario.evs]
+    others = [EVActor(p, body[0], body[1]) for p in scenario.traffic]
     world.night = scenario.night
 
     n = int(round(scenario.duration_s / DT_S))
@@ -216,6 +248,7 @@ def run_scenario(
             ev_truth = world.ev = truths[0] if truths else None
         beliefs = _beliefs(sensing, t, ego)
         belief = beliefs[0]
+        est = locator.estimate(ego, DT_S) if locator is not None else ego
         lane_k = nearest_index(scenario.lane, ego.x_m, ego.y_m, lane_hint)
         lane_hint = lane_k
         lane_s = float(scenario.lane.s_m[lane_k])
@@ -223,18 +256,20 @@ def run_scenario(
             decision = fsm.update_all(beliefs, ego, _road(scenario, lane_s))
             if not actions or actions[-1][1:] != (decision.state.value, decision.action):
                 actions.append((t, decision.state.value, decision.action))
-            new_path = planner.update(decision, x=ego.x_m, y=ego.y_m, speed_mps=ego.vx_mps)
+            new_path = planner.update(decision, x=est.x_m, y=est.y_m, speed_mps=est.vx_mps)
             if new_path is not path:
                 path = new_path
                 hint = None
                 paths.append((t, path.x_m, path.y_m))
-        steer_cmd, errors, hint = lateral.steer(ego, path, hint)
-        stop_d = planner.distance_to_stop(ego.x_m, ego.y_m, hint) if decision.stop_s_m is not None else None
+        steer_cmd, errors, hint = lateral.steer(est, path, hint)
+        if est is not ego:  # the metrics measure the truth
+            errors, _ = lateral.errors(ego, path, hint)
+        stop_d = planner.distance_to_stop(est.x_m, est.y_m, hint) if decision.stop_s_m is not None else None
         target = decision.target_speed_mps
         for truth in truths + traffic:
-            target = min(target, _follow_speed(ego, truth, params))
-        accel_cmd = longitudinal.accel(ego, target, stop_d)
-        ego_box = rectangle_corners(ego.x_m, ego.y_m, ego.yaw_rad, params.length_m, params.width_m)
+            target = min(target, _follow_speed(ego, truth, body))
+        accel_cmd = longitudinal.accel(est, target, stop_d)
+        ego_box = rectangle_corners(ego.x_m, ego.y_m, ego.yaw_rad, body[0], body[1])
         gap = min((_gap(ego_box, v) for v in truths), default=math.nan)
         gap_traffic = min((_gap(ego_box, v) for v in traffic), default=math.nan)
         row = {
@@ -269,29 +304,40 @@ def run_scenario(
         }
         for k, v in row.items():
             log[k].append(float(v))
-        ego = model.step(ego, ControlCommand(t, steer_cmd, accel_cmd), DT_S)
+        ego = model.advance(ControlCommand(t, steer_cmd, accel_cmd), DT_S)
 
     close = getattr(sensing, "close", None)  # a belief source that holds a network releases it
     if close is not None:
         close()
     arrays = {k: np.asarray(v) for k, v in log.items()}
     transitions = [(t, a.value, b.value, why) for t, a, b, why in fsm.history]
-    metrics = compute_metrics(scenario, arrays, transitions, planner.replans, actions, params.length_m)
+    metrics = compute_metrics(scenario, arrays, transitions, planner.replans, actions, body[0])
+    if plant is not None:
+        limit = plant.mu * G
+        metrics["plant"] = plant.describe()
+        metrics["friction_limit_mps2"] = limit
+        metrics["friction_modelled"] = bool(getattr(model, "friction_modelled", False))
+        metrics["friction_exceeded"] = bool(metrics["max_lat_accel_mps2"] > limit)
+        metrics["delay_compensation_s"] = delay_compensation_s
+    if localization is not None:
+        metrics["localization_perfect"] = localization.perfect
     siren = list(getattr(sensing, "observations", []))
     return ClosedLoopResult(
         scenario.name, controller, metrics, arrays, transitions, planner.replans, paths, actions, siren
     )
 
 
-def _follow_speed(ego: VehicleState, other: EVTruth, params: VehicleParams, time_gap_s: float = 1.5) -> float:
+def _follow_speed(
+    ego: VehicleState, other: EVTruth, body: tuple[float, float], time_gap_s: float = 1.5
+) -> float:
     """Speed that keeps a 1.5 s gap (+ 2 m) behind another vehicle when it is ahead in the ego's lane
-    (ACC)."""
+    (ACC); ``body`` is the ego's length and width (m)."""
     along, across = (
         float(v) for v in to_vehicle_frame(other.x_m - ego.x_m, other.y_m - ego.y_m, ego.yaw_rad)
     )
-    if along <= 0.0 or abs(across) > 0.5 * (other.width_m + params.width_m) + 0.3:
+    if along <= 0.0 or abs(across) > 0.5 * (other.width_m + body[1]) + 0.3:
         return math.inf
-    gap = along - 0.5 * (other.length_m + params.length_m)
+    gap = along - 0.5 * (other.length_m + body[0])
     desired = 2.0 + time_gap_s * ego.vx_mps
     return max(0.0, other.speed_mps + (gap - desired) / 2.0)
 
