@@ -36,7 +36,13 @@ def _main(
 @app.command()
 @friendly_errors
 def detect(
-    video: Annotated[Path, typer.Argument(help="Road video (any format OpenCV/FFmpeg reads).")],
+    video: Annotated[
+        Path,
+        typer.Argument(
+            help="Road video (any format OpenCV/FFmpeg reads), or a robotics log: an MCAP file or a "
+            "ROS 2 bag folder with a camera topic."
+        ),
+    ],
     out: Annotated[
         Path | None,
         typer.Option("--out", "-o", help="Output folder (default: makeway_out/<video name>)."),
@@ -99,6 +105,20 @@ def detect(
             "us (red, blue, white), uk_amber, all, or a comma list."
         ),
     ] = "eu",
+    topic: Annotated[
+        str | None,
+        typer.Option(
+            help="Camera topic to read when VIDEO is a log (sensor_msgs Image or CompressedImage, "
+            "Foxglove CompressedImage or RawImage). Default: the log's only camera topic."
+        ),
+    ] = None,
+    mcap: Annotated[
+        Path | None,
+        typer.Option(
+            help="Also write the run as an MCAP file that opens in Foxglove: the camera image, "
+            "the boxes with their EV state, the tracks."
+        ),
+    ] = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print the run summary as one JSON line.")] = False,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")] = False,
 ) -> None:
@@ -109,7 +129,8 @@ def detect(
     flashing emergency light is on or above its box and the classifier says EV (--rule). Writes
     OUT/annotated.mp4 (H.264, boxes, ids, EV state colours, light boxes, FPS), OUT/tracks.jsonl
     (one JSON object per frame, with its lights) and OUT/summary.json (timings per stage,
-    real-time factor, active EV track ids).
+    real-time factor, active EV track ids). VIDEO may be an MCAP file or a ROS 2 bag folder
+    (--topic picks the camera); --mcap writes the run for Foxglove.
     """
     from makeway.apps.detect import detect as run
     from makeway.perceive.vision.lights import DEFAULT_LIGHT_DETECTOR
@@ -130,6 +151,8 @@ def detect(
         rule=rule,
         light_detector=light_detector or DEFAULT_LIGHT_DETECTOR,
         colours=colours,
+        topic=topic,
+        mcap=mcap,
     )
     table = Table(title=f"makeway detect — {video.name}", show_header=False)
     table.add_row("frames", f"{summary.frames} ({summary.width}×{summary.height} @ {summary.fps:g} fps)")
@@ -468,6 +491,13 @@ def simulate(
             "alert → yield; siren only → prepare until close; lights only → yield), germany, uk."
         ),
     ] = "audible_and_visual",
+    mcap: Annotated[
+        Path | None,
+        typer.Option(
+            help="Also write the run to an MCAP file that opens in Foxglove: the cars, what the car "
+            "believes about the EV, the yield state, the planned and the driven path."
+        ),
+    ] = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print the metrics as one JSON line last.")] = False,
 ) -> None:
     """Drive a simulated scenario in closed loop.
@@ -489,6 +519,7 @@ def simulate(
         duty=duty,
         path=path,
         out=out,
+        mcap=mcap,
     )
     if as_json:
         print_json_line(result.metrics)

@@ -196,7 +196,7 @@ class Ros2LogWriter(_AtomicLog):
                 self._bag.close()
             else:
                 self._file.close()
-        except Exception:  # noqa: BLE001 — the partial log is deleted anyway
+        except Exception:  # the partial log is deleted anyway
             pass
         _discard(self._tmp)
 
@@ -353,9 +353,13 @@ def make_test_log(
         raise ValueError("give a video, a recording, or both")
     target = Path(out)
     check_writable(target, folder=fmt == "ros2-bag")
-    if fmt == "ros2-bag" and target.exists() and any(target.iterdir()):
-        if not (target / "metadata.yaml").is_file():
-            raise InputError(target, "is a non-empty folder that is not a ROS 2 bag; choose another")
+    if (
+        fmt == "ros2-bag"
+        and target.exists()
+        and any(target.iterdir())
+        and not (target / "metadata.yaml").is_file()
+    ):
+        raise InputError(target, "is a non-empty folder that is not a ROS 2 bag; choose another")
     rec = None
     if recording is not None:
         from makeway.sense.recording import read_recording
@@ -367,7 +371,9 @@ def make_test_log(
         probe_video(video)  # a bad video fails before anything is written
     counts: dict[str, int] = {}
     writer: Ros2LogWriter | FoxgloveMcapWriter
-    writer = FoxgloveMcapWriter(target) if fmt == "mcap-foxglove" else Ros2LogWriter(target, bag=fmt == "ros2-bag")
+    writer = (
+        FoxgloveMcapWriter(target) if fmt == "mcap-foxglove" else Ros2LogWriter(target, bag=fmt == "ros2-bag")
+    )
     with writer:
         if video is not None:
             counts[camera_topic] = _write_camera(
@@ -390,7 +396,9 @@ def _write_camera(
 ) -> int:
     n = 0
     if isinstance(writer, Ros2LogWriter):
-        writer.channel(topic, "sensor_msgs/msg/CompressedImage" if image == "compressed" else "sensor_msgs/msg/Image")
+        writer.channel(
+            topic, "sensor_msgs/msg/CompressedImage" if image == "compressed" else "sensor_msgs/msg/Image"
+        )
     for t_s, frame in _video_frames(video, max_frames, stride):
         stamp = start_ns + int(round(t_s * 1e9))
         if isinstance(writer, Ros2LogWriter):
@@ -416,8 +424,8 @@ def _write_camera(
             from foxglove_schemas_protobuf.RawImage_pb2 import RawImage
 
             if image == "compressed":
-                data = cv2.imencode(".jpg", frame, [cv2.IMWRITE_JPEG_QUALITY, quality])[1].tobytes()
-                pmsg: Any = CompressedImage(frame_id="camera", format="jpeg", data=data)
+                jpeg = cv2.imencode(".jpg", frame, [cv2.IMWRITE_JPEG_QUALITY, quality])[1].tobytes()
+                pmsg: Any = CompressedImage(frame_id="camera", format="jpeg", data=jpeg)
             else:
                 h, w = frame.shape[:2]
                 pmsg = RawImage(

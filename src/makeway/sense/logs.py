@@ -48,6 +48,7 @@ from typing import Any
 import cv2
 import numpy as np
 import yaml
+from mcap.decoder import DecoderFactory as McapDecoderFactory
 
 from makeway.errors import InputError
 from makeway.sense.recording import Recording, Trajectory
@@ -67,6 +68,7 @@ __all__ = [
     "is_log",
     "open_frame_source",
     "open_log",
+    "read_log_recording",
 ]
 
 MCAP_MAGIC = b"\x89MCAP0\r\n"
@@ -96,7 +98,7 @@ uint8[] data
 """
 
 _RAW_ENCODINGS = {"bgr8": 3, "rgb8": 3, "8uc3": 3, "mono8": 1, "8uc1": 1, "bgra8": 4, "rgba8": 4}
-_PCM = {"pcm-s16": np.dtype("<i2"), "pcm-f32": np.dtype("<f4")}
+_PCM: dict[str, np.dtype[Any]] = {"pcm-s16": np.dtype("<i2"), "pcm-f32": np.dtype("<f4")}
 
 
 def _ros_name(name: str) -> str:
@@ -181,8 +183,10 @@ def _stamp_ns(msg: Any, log_time_ns: int) -> int:
 
 def _bytes(data: Any) -> np.ndarray:
     """A message's byte payload (``bytes`` from mcap_ros2 and protobuf, a uint8 array from rosbags)."""
-    return np.frombuffer(data, dtype=np.uint8) if isinstance(data, bytes | bytearray | memoryview) else (
-        np.asarray(data, dtype=np.uint8).reshape(-1)
+    return (
+        np.frombuffer(data, dtype=np.uint8)
+        if isinstance(data, bytes | bytearray | memoryview)
+        else (np.asarray(data, dtype=np.uint8).reshape(-1))
     )
 
 
@@ -273,7 +277,9 @@ class LogReader:
         if schema in ("sensor_msgs/msg/CompressedImage", "foxglove.CompressedImage"):
             fmt = str(msg.format).lower()
             if not any(k in fmt for k in ("jpeg", "jpg", "png", "webp")):
-                raise InputError(self.path, f"{where}: unsupported image format {msg.format!r} (jpeg, png, webp)")
+                raise InputError(
+                    self.path, f"{where}: unsupported image format {msg.format!r} (jpeg, png, webp)"
+                )
             image = cv2.imdecode(_bytes(msg.data), cv2.IMREAD_COLOR)
             if image is None:
                 raise InputError(self.path, f"{where}: the {msg.format} image does not decode (damaged)")
@@ -324,7 +330,8 @@ class LogReader:
             dtype = _PCM.get(fmt)
             if dtype is None:
                 raise InputError(
-                    self.path, f"message {index} on {topic}: unsupported audio format {msg.format!r} (pcm-s16, pcm-f32)"
+                    self.path,
+                    f"message {index} on {topic}: unsupported audio format {msg.format!r} (pcm-s16, pcm-f32)",
                 )
             r, c = int(msg.sample_rate), int(msg.number_of_channels)
             if index == 0:
@@ -338,9 +345,13 @@ class LogReader:
                 )
             raw = _bytes(msg.data)
             if raw.size % (dtype.itemsize * channels):
-                raise InputError(self.path, f"message {index} on {topic}: {raw.size} bytes is not whole frames")
+                raise InputError(
+                    self.path, f"message {index} on {topic}: {raw.size} bytes is not whole frames"
+                )
             samples = raw.view(dtype).reshape(-1, channels)
-            blocks.append(samples.astype(np.float32) / 32768.0 if fmt == "pcm-s16" else samples.astype(np.float32))
+            blocks.append(
+                samples.astype(np.float32) / 32768.0 if fmt == "pcm-s16" else samples.astype(np.float32)
+            )
         if not blocks:
             raise InputError(self.path, f"audio topic {topic} holds no messages")
         audio = LogAudio(np.concatenate(blocks, axis=0), rate, start_ns)
@@ -366,11 +377,15 @@ class LogReader:
             raise InputError(self.path, f"{problem}: 'mics' is not a list of [x, y, z]")
         if len(mics) != audio.samples.shape[1]:
             raise InputError(
-                self.path, f"{problem} lists {len(mics)} microphone(s), the audio has {audio.samples.shape[1]} channel(s)"
+                self.path,
+                f"{problem} lists {len(mics)} microphone(s), the audio has "
+                f"{audio.samples.shape[1]} channel(s)",
             )
         rate = spec.get("sample_rate", audio.sample_rate)
         if int(rate) != audio.sample_rate:
-            raise InputError(self.path, f"{problem} says sample_rate {rate}, the audio is {audio.sample_rate} Hz")
+            raise InputError(
+                self.path, f"{problem} says sample_rate {rate}, the audio is {audio.sample_rate} Hz"
+            )
         audio.mics = mics
         full = spec.get("full_scale_db_spl")
         audio.full_scale_db_spl = None if full is None else float(full)
@@ -399,7 +414,9 @@ class LogReader:
             yaw.append(_yaw(pose.orientation))
         if not t:
             raise InputError(self.path, f"pose topic {topic} holds no messages")
-        return LogPoses(np.asarray(t, dtype=np.int64), np.asarray(x), np.asarray(y), np.asarray(yaw), frame_id)
+        return LogPoses(
+            np.asarray(t, dtype=np.int64), np.asarray(x), np.asarray(y), np.asarray(yaw), frame_id
+        )
 
     def recording(self, audio_topic: str, pose_topic: str | None = None) -> Recording:
         """The audio topic (with its array description) and the ego poses as a
@@ -433,7 +450,12 @@ class LogReader:
             ego,
             [],
             self.path,
-            {"log": str(self.path), "audio_topic": audio_topic, "pose_topic": pose_topic},
+            {
+                "log": str(self.path),
+                "audio_topic": audio_topic,
+                "pose_topic": pose_topic,
+                "start_ns": audio.start_ns,
+            },
             audio.full_scale_db_spl,
         )
 
@@ -451,7 +473,7 @@ class LogReader:
 # ------------------------------------------------------------------------------------------ MCAP
 
 
-class _ProtobufDecoders:
+class _ProtobufDecoders(McapDecoderFactory):
     """An ``mcap`` decoder factory for ``protobuf`` channels: message classes are built from the
     schema record's serialized ``FileDescriptorSet``."""
 
@@ -468,7 +490,7 @@ class _ProtobufDecoders:
         return cls.FromString
 
 
-class _JsonDecoders:
+class _JsonDecoders(McapDecoderFactory):
     def decoder_for(self, message_encoding: str, schema: Any) -> Any:
         return (lambda data: json.loads(bytes(data))) if message_encoding == "json" else None
 
@@ -484,7 +506,7 @@ class McapLog(LogReader):
         from mcap_ros2.decoder import DecoderFactory
 
         self._file = path.open("rb")
-        self._decoders = [DecoderFactory(), _ProtobufDecoders(), _JsonDecoders()]
+        self._decoders: list[McapDecoderFactory] = [DecoderFactory(), _ProtobufDecoders(), _JsonDecoders()]
         try:
             reader = make_reader(self._file, decoder_factories=self._decoders)
             summary = reader.get_summary()
@@ -510,16 +532,17 @@ class McapLog(LogReader):
             raise InputError(path, f"is not a readable MCAP file ({_first_line(exc)})") from None
         for cid, channel in channels.items():
             schema = schemas.get(channel.schema_id)
-            name = _ros_name(schema.name) if schema is not None and schema.encoding == "ros2msg" else (
-                schema.name if schema is not None else ""
+            name = (
+                _ros_name(schema.name)
+                if schema is not None and schema.encoding == "ros2msg"
+                else (schema.name if schema is not None else "")
             )
             self._topics[channel.topic] = TopicInfo(
                 channel.topic, name, channel.message_encoding, counts.get(cid, 0), _kind(name, channel.topic)
             )
 
     def _scan(self) -> Iterator[tuple[Any, Any, Any]]:
-        from mcap.stream_reader import StreamReader  # noqa: F401  (the non-seeking path checks every record)
-        from mcap.reader import NonSeekingReader
+        from mcap.reader import NonSeekingReader  # reads every record in order, so it checks them all
 
         self._file.seek(0)
         try:
@@ -564,7 +587,9 @@ class BagLog(LogReader):
         for name, info in self._reader.topics.items():
             schema = _ros_name(info.msgtype or "")
             encoding = info.connections[0].ext.serialization_format if info.connections else "cdr"  # type: ignore[union-attr]
-            self._topics[name] = TopicInfo(name, schema, str(encoding), int(info.msgcount), _kind(schema, name))
+            self._topics[name] = TopicInfo(
+                name, schema, str(encoding), int(info.msgcount), _kind(schema, name)
+            )
 
     def _messages(self, topics: Iterable[str]) -> Iterator[tuple[str, int, Any]]:
         wanted = set(topics)
@@ -615,7 +640,9 @@ def open_log(path: str | Path) -> LogReader:
         raise InputError(p, "no such file or folder")
     if p.is_dir():
         if not (p / "metadata.yaml").is_file():
-            raise InputError(p, "is a folder without metadata.yaml; expected an MCAP file or a ROS 2 bag folder")
+            raise InputError(
+                p, "is a folder without metadata.yaml; expected an MCAP file or a ROS 2 bag folder"
+            )
         return BagLog(p)
     with p.open("rb") as f:
         head = f.read(len(MCAP_MAGIC))
@@ -678,7 +705,9 @@ class LogFrameReader:
     def __iter__(self) -> Iterator[tuple[int, float, np.ndarray]]:
         self.frames_read = self.frames_yielded = 0
         self.reached_end = False
-        for index, stamp, image in self.log.frames(self.topic, stride=self.stride, max_frames=self.max_frames):
+        for index, stamp, image in self.log.frames(
+            self.topic, stride=self.stride, max_frames=self.max_frames
+        ):
             self.frames_read = index + 1
             self.frames_yielded += 1
             yield index, (stamp - self.start_ns) / 1e9, image
@@ -697,6 +726,24 @@ class LogFrameReader:
         self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
     ) -> None:
         self.close()
+
+
+def read_log_recording(
+    path: str | Path, audio_topic: str | None = None, pose_topic: str | None = None
+) -> Recording:
+    """The audio and ego path of the log ``path`` as a :class:`~makeway.sense.recording.Recording`
+    (:meth:`LogReader.recording`). ``audio_topic=None``: the log's only audio topic;
+    ``pose_topic=None``: its only pose topic when it has exactly one, else the ego stands still.
+
+    Raises:
+        InputError: as :func:`open_log` and :meth:`LogReader.recording`.
+    """
+    with open_log(path) as log:
+        audio = audio_topic if audio_topic is not None else log.only_topic("audio")
+        if pose_topic is None:
+            poses = [t for t, i in log.topics().items() if i.kind == "pose"]
+            pose_topic = poses[0] if len(poses) == 1 else None
+        return log.recording(audio, pose_topic)
 
 
 def open_frame_source(
