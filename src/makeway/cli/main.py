@@ -556,6 +556,7 @@ from makeway.cli.audio import audio_app  # noqa: E402  (sub-apps register after 
 from makeway.cli.classify import classify_app  # noqa: E402
 from makeway.cli.light_labels import light_labels_app  # noqa: E402
 from makeway.cli.lights_train import lights_train  # noqa: E402
+from makeway.cli.logs import logs_app  # noqa: E402
 from makeway.cli.rig import rig_app  # noqa: E402
 from makeway.cli.roadside import roadside_app  # noqa: E402
 from makeway.cli.rsu import rsu_app  # noqa: E402
@@ -564,6 +565,7 @@ from makeway.cli.v2x import v2x_app, vehicle_app  # noqa: E402
 app.add_typer(classify_app, name="classify")
 app.add_typer(audio_app, name="audio")
 app.add_typer(rig_app, name="rig")
+app.add_typer(logs_app, name="logs")
 app.add_typer(roadside_app, name="roadside")
 app.add_typer(rsu_app, name="rsu")
 app.add_typer(light_labels_app, name="light-labels")

@@ -509,7 +509,10 @@ class McapLog(LogReader):
         self._decoders: list[McapDecoderFactory] = [DecoderFactory(), _ProtobufDecoders(), _JsonDecoders()]
         try:
             reader = make_reader(self._file, decoder_factories=self._decoders)
-            summary = reader.get_summary()
+            try:
+                summary = reader.get_summary()
+            except Exception:  # a cut-off file ends in message data, not in a summary: scan it below
+                summary = None
             counts: dict[int, int] | None = None
             if summary is not None and summary.statistics is not None:
                 counts = dict(summary.statistics.channel_message_counts)
@@ -610,6 +613,8 @@ class BagLog(LogReader):
 
 
 def _first_line(exc: BaseException) -> str:
+    if type(exc).__name__ == "EndOfFile":
+        return "it ends in the middle of a record"
     text = str(exc).strip().splitlines()
     return (text[0] if text else type(exc).__name__)[:200]
 
