@@ -38,6 +38,7 @@ from makeway.errors import InputError
 from makeway.sense.logs import ARRAY_SUFFIX, ROS_RAW_AUDIO_MSGDEF
 
 __all__ = [
+    "CHUNK_COMPRESSIONS",
     "LOG_FORMATS",
     "FoxgloveMcapWriter",
     "Ros2LogWriter",
@@ -47,6 +48,20 @@ __all__ = [
 #: The kinds of log :func:`make_test_log` writes: a ROS 2 MCAP file, a Foxglove-schema MCAP file,
 #: a ROS 2 bag folder.
 LOG_FORMATS = ("mcap-ros2", "mcap-foxglove", "ros2-bag")
+
+#: MCAP chunk compressions (the ``mcap`` writer's default is zstd).
+CHUNK_COMPRESSIONS = ("zstd", "lz4", "none")
+
+
+def _mcap_writer(file: Any, compression: str) -> Any:
+    from mcap.writer import CompressionType
+    from mcap.writer import Writer as McapWriter
+
+    if compression not in CHUNK_COMPRESSIONS:
+        raise ValueError(
+            f"unknown chunk compression {compression!r}; choose from: {', '.join(CHUNK_COMPRESSIONS)}"
+        )
+    return McapWriter(file, compression=CompressionType[compression.upper()])
 
 
 def _temp_beside(target: Path, folder: bool) -> Path:
@@ -114,10 +129,10 @@ class Ros2LogWriter(_AtomicLog):
     Messages are built with :meth:`msg` (the type store's classes) and written with :meth:`write`;
     :meth:`channel` registers a topic first. Types beyond the standard ROS 2 (Humble) set are
     registered from their ``.msg`` text with :meth:`register` (``makeway_msgs/msg/RawAudio`` is
-    registered already).
+    registered already). ``compression`` is the MCAP chunk compression (:data:`CHUNK_COMPRESSIONS`).
     """
 
-    def __init__(self, path: str | Path, *, bag: bool = False) -> None:
+    def __init__(self, path: str | Path, *, bag: bool = False, compression: str = "zstd") -> None:
         from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
         self.path = Path(path)
@@ -133,10 +148,8 @@ class Ros2LogWriter(_AtomicLog):
             self._bag = Writer(self._tmp, version=8)
             self._bag.open()
         else:
-            from mcap.writer import Writer as McapWriter
-
             self._file = self._tmp.open("wb")
-            self._mcap = McapWriter(self._file)
+            self._mcap = _mcap_writer(self._file, compression)
             self._mcap.start(profile="ros2", library="makeway")
 
     def register(self, msgdef: str, typename: str) -> None:
@@ -227,16 +240,15 @@ class FoxgloveMcapWriter(_AtomicLog):
 
     :meth:`write` takes a protobuf message (its schema registered on first use) and
     :meth:`write_json` a JSON-ready dict (its schema given with :meth:`json_channel`). Timestamps in
-    the messages themselves are set by the caller; ``log_time_ns`` orders the file.
+    the messages themselves are set by the caller; ``log_time_ns`` orders the file. ``compression``
+    is the chunk compression (:data:`CHUNK_COMPRESSIONS`).
     """
 
-    def __init__(self, path: str | Path) -> None:
-        from mcap.writer import Writer as McapWriter
-
+    def __init__(self, path: str | Path, *, compression: str = "zstd") -> None:
         self.path = Path(path)
         self._tmp = _temp_beside(self.path, folder=False)
         self._file = self._tmp.open("wb")
-        self._mcap = McapWriter(self._file)
+        self._mcap = _mcap_writer(self._file, compression)
         self._mcap.start(profile="", library="makeway")
         self._schemas: dict[str, int] = {}
         self._channels: dict[str, int] = {}
@@ -328,6 +340,7 @@ def make_test_log(
     audio_topic: str = "/audio/raw",
     pose_topic: str = "/ego/odom",
     audio_block_s: float = 0.1,
+    compression: str = "zstd",
 ) -> dict[str, Any]:
     """Write a log ``out`` from the frames of ``video`` and/or the audio and ego path of the
     recording folder ``recording`` (:mod:`makeway.sense.recording`).
@@ -338,7 +351,9 @@ def make_test_log(
     goes out in ``audio_block_s`` blocks of interleaved ``pcm-s16`` (``makeway_msgs/msg/RawAudio`` or
     ``foxglove.RawAudio``) with the array description on ``<audio_topic>/array``; the ego path as
     ``nav_msgs/msg/Odometry`` or ``foxglove.PoseInFrame`` at its logged rate. Times are
-    ``start_ns`` + the source's time. Returns what was written (topics, message counts, path).
+    ``start_ns`` + the source's time; ``compression`` is the MCAP chunk compression
+    (:data:`CHUNK_COMPRESSIONS`; a bag folder is written uncompressed). Returns what was written
+    (topics, message counts, path).
 
     Raises:
         InputError: the video or recording cannot be read, or ``out`` cannot be written (nothing is
@@ -347,6 +362,10 @@ def make_test_log(
     """
     if fmt not in LOG_FORMATS:
         raise ValueError(f"unknown log format {fmt!r}; choose from: {', '.join(LOG_FORMATS)}")
+    if compression not in CHUNK_COMPRESSIONS:
+        raise ValueError(
+            f"unknown chunk compression {compression!r}; choose from: {', '.join(CHUNK_COMPRESSIONS)}"
+        )
     if image not in ("compressed", "raw"):
         raise ValueError(f"image must be 'compressed' or 'raw', got {image!r}")
     if video is None and recording is None:
