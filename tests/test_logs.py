@@ -387,3 +387,26 @@ def test_an_error_while_writing_leaves_no_log(tmp_path: Path, bag: bool) -> None
         w.write("/chatter", 1, w.msg("std_msgs/msg/String", data="hello"))
         raise RuntimeError("midway")
     assert list(tmp_path.iterdir()) == []
+
+
+def test_a_dropped_audio_block_becomes_silence(rec_dir: Path, tmp_path: Path) -> None:
+    rec = read_recording(rec_dir)
+    path = tmp_path / "dropout.mcap"
+    block = 4800  # 0.1 s at 48 kHz
+    pcm = np.round(rec.audio[: 10 * block] * 32767).astype("<i2")
+    with Ros2LogWriter(path) as w:
+        w.channel("/mic", "makeway_msgs/msg/RawAudio")
+        for k in (0, 1, 2, 4, 5, 6, 7, 8, 9):  # block 3 was lost
+            stamp = START_NS + k * 100_000_000
+            w.write(
+                "/mic",
+                stamp,
+                w.msg("makeway_msgs/msg/RawAudio", header=w.header(stamp), format="pcm-s16",
+                      sample_rate=rec.sample_rate, number_of_channels=8,
+                      data=pcm[k * block : (k + 1) * block].view(np.uint8).reshape(-1)),
+            )  # fmt: skip
+    with open_log(path) as log:
+        audio = log.audio("/mic")
+    assert audio.samples.shape == (10 * block, 8) and audio.start_ns == START_NS
+    assert not audio.samples[3 * block : 4 * block].any()
+    np.testing.assert_array_equal(audio.samples[4 * block :], pcm[4 * block :] / 32768.0)

@@ -390,9 +390,10 @@ def make_test_log(
         probe_video(video)  # a bad video fails before anything is written
     counts: dict[str, int] = {}
     writer: Ros2LogWriter | FoxgloveMcapWriter
-    writer = (
-        FoxgloveMcapWriter(target) if fmt == "mcap-foxglove" else Ros2LogWriter(target, bag=fmt == "ros2-bag")
-    )
+    if fmt == "mcap-foxglove":
+        writer = FoxgloveMcapWriter(target, compression=compression)
+    else:
+        writer = Ros2LogWriter(target, bag=fmt == "ros2-bag", compression=compression)
     with writer:
         if video is not None:
             counts[camera_topic] = _write_camera(

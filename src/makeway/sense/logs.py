@@ -19,7 +19,8 @@ What is read (ROS 2 types by their ``pkg/msg/Type`` names, Foxglove protobuf sch
 * audio: ``foxglove.RawAudio`` (protobuf) and, in ROS 2 logs, ``makeway_msgs/msg/RawAudio`` — the
   same fields with a ``std_msgs/Header`` (:data:`ROS_RAW_AUDIO_MSGDEF`). Blocks hold interleaved
   little-endian samples, ``pcm-s16`` (Foxglove's format) or ``pcm-f32``, one channel per
-  microphone, and follow each other without gaps.
+  microphone. Each block's stamp is the time of its first sample; a block that starts more than
+  half a block after the samples so far end follows a dropout, which is filled with silence.
 * the array description: the topic ``<audio topic>/array`` (:data:`ARRAY_SUFFIX`) holds one message
   whose text is the ``array.yaml`` of a recording folder (``sample_rate``, ``mics`` in metres in the
   vehicle frame, optional ``full_scale_db_spl``; :mod:`makeway.sense.recording`): a
@@ -272,6 +273,16 @@ class LogReader:
             if max_frames is not None and yielded >= max_frames:
                 return
 
+    def stamps(self, topic: str, limit: int | None = None) -> list[int]:
+        """The stamps (ns) of the first ``limit`` messages of ``topic`` (all: ``None``), without
+        decoding their images or samples."""
+        out: list[int] = []
+        for _, log_ns, msg in self._messages([topic]):
+            out.append(_stamp_ns(msg, log_ns))
+            if limit is not None and len(out) >= limit:
+                break
+        return out
+
     def _image(self, msg: Any, schema: str, topic: str, index: int) -> np.ndarray:
         where = f"message {index} on {topic}"
         if schema in ("sensor_msgs/msg/CompressedImage", "foxglove.CompressedImage"):
@@ -323,7 +334,7 @@ class LogReader:
         """
         self.topic(topic, "audio")
         blocks: list[np.ndarray] = []
-        rate = channels = 0
+        rate = channels = filled = 0
         start_ns = 0
         for index, (_, log_ns, msg) in enumerate(self._messages([topic])):
             fmt = str(msg.format).lower()
@@ -349,6 +360,12 @@ class LogReader:
                     self.path, f"message {index} on {topic}: {raw.size} bytes is not whole frames"
                 )
             samples = raw.view(dtype).reshape(-1, channels)
+            # a dropped block (this one starts more than half a block after the samples so far): silence
+            gap = int(round((_stamp_ns(msg, log_ns) - start_ns) * 1e-9 * rate)) - filled
+            if index > 0 and gap > max(1, len(samples) // 2):
+                blocks.append(np.zeros((gap, channels), np.float32))
+                filled += gap
+            filled += len(samples)
             blocks.append(
                 samples.astype(np.float32) / 32768.0 if fmt == "pcm-s16" else samples.astype(np.float32)
             )
@@ -680,13 +697,12 @@ class LogFrameReader:
         try:
             self.topic = topic if topic is not None else self.log.only_topic("camera")
             count = self.log.topic(self.topic, "camera").count
-            stamps: list[int] = []
             first: np.ndarray | None = None
-            for _, stamp, image in self.log.frames(self.topic, max_frames=min(max(count, 1), 50)):
-                stamps.append(stamp)
-                first = image if first is None else first
+            for _, _, image in self.log.frames(self.topic, max_frames=1):  # decodes: a bad image fails now
+                first = image
             if first is None:
                 raise InputError(self.path, f"camera topic {self.topic} holds no messages")
+            stamps = self.log.stamps(self.topic, 50)
         except BaseException:
             self.log.close()
             raise
