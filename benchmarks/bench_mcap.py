@@ -13,7 +13,8 @@ for the logs), ``--reps`` times in rotating order.
 
 Prints per source the median wall and CPU milliseconds per frame (CPU: all threads of the process;
 FFmpeg decodes H.264 on several threads), their ratio to the mp4's, beside the target (a log costs
-≤ 10 % more than the mp4: ratio ≤ 1.10), the load average, then one JSON line.
+≤ 10 % more than the mp4: CPU ratio ≤ 1.10; the CPU time is the cost, the wall time on a shared
+2-core machine mostly measures the other processes), the load average, then one JSON line.
 
     .venv/bin/python benchmarks/bench_mcap.py
     .venv/bin/python benchmarks/bench_mcap.py --clip traffic_no_ev.mp4 --frames 200 --reps 7
@@ -115,10 +116,10 @@ def main() -> int:
     for name in names:
         w, c = statistics.median(wall[name]), statistics.median(cpu[name])
         rw, rc = w / base_w, c / base_c
-        ok = "" if name.startswith("mp4") else ("ok" if rw <= TARGET_RATIO else "MISSED")
+        ok = "ok" if rc <= TARGET_RATIO else "MISSED"
         print(
             f"{name:46s} {sizes[name] / 1e6:7.1f} {w:9.2f} {rw:6.2f} {c:9.2f} {rc:6.2f}  "
-            f"{'' if name.startswith('mp4') else f'<= {TARGET_RATIO:.2f} (wall) {ok}'}"
+            f"{'' if name.startswith('mp4') else f'CPU ratio <= {TARGET_RATIO:.2f} {ok}'}"
         )
         rows.append(
             {

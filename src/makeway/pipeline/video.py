@@ -58,6 +58,7 @@ from makeway.track.lights import (
 from makeway.track.smoother import TrackSmoother
 from makeway.track.sort import Sort
 from makeway.viz.annotate import draw_frame
+from makeway.viz.foxglove import DetectRecorder
 from makeway.viz.video_writer import H264Writer
 
 STAGES = ("read", "detect", "track", "classify", "annotate", "encode")
@@ -396,7 +397,7 @@ def run_video(
     light_colours: str = DEFAULT_LIGHTS[1],
     light_tracker: LightTracker | None = None,
     topic: str | None = None,
-    mcap: str | Path | None = None,
+    mcap: str | Path | DetectRecorder | None = None,
 ) -> VideoRunSummary:
     """Run Framework B over ``video``; write the annotated video, JSONL and summary to ``out_dir``.
 
@@ -427,7 +428,9 @@ def run_video(
         light_tracker: override the default :class:`~makeway.track.lights.LightTracker`.
         topic: the camera topic when ``video`` is a log.
         mcap: also write the run as a Foxglove MCAP file here (:class:`makeway.viz.foxglove.DetectRecorder`:
-            the camera image, box annotations, the tracks); on a log, in the log's own clock.
+            the camera image, box annotations, the tracks); on a log, in the log's own clock. A
+            ready recorder may be given instead (a caller that adds channels of its own); the run
+            closes it, or aborts it on an error.
 
     Raises:
         InputError: the video or the model is missing or unreadable, or ``out_dir`` cannot be
@@ -437,7 +440,7 @@ def run_video(
     """
     if out_dir is not None:
         check_writable(out_dir, folder=True)
-    if mcap is not None:
+    if isinstance(mcap, str | Path):
         check_writable(mcap, folder=False)
     reader = open_frame_source(video, topic, stride=stride, max_frames=max_frames)
     start_ns = int(getattr(reader, "start_ns", 0))
@@ -488,11 +491,9 @@ def run_video(
             if out is not None and write_video:
                 writer = H264Writer(out / "annotated.mp4", info.fps / stride, info.width, info.height)
                 bg = _BackgroundWriter(writer)
-            recorder = None
-            if mcap is not None:
-                from makeway.viz.foxglove import DetectRecorder
-
-                recorder = DetectRecorder(mcap)
+            recorder = DetectRecorder(mcap) if isinstance(mcap, str | Path) else mcap
+            if recorder is not None:
+                recorder.start_ns = start_ns
             frames = _Prefetch(iter(reader))
             wall0 = time.perf_counter()
             try:

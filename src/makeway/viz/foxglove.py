@@ -131,6 +131,16 @@ class DetectRecorder:
         self.writer.json_channel("/perception/tracks", "makeway.PerceptionFrame", TRACKS_SCHEMA)
         self.quality = jpeg_quality
         self.path = Path(path)
+        #: The log time (ns) of frame time 0; :func:`makeway.pipeline.video.run_video` sets it.
+        self.start_ns = 0
+
+    def json(
+        self, topic: str, time_s: float, obj: Any, schema_name: str, json_schema: dict[str, Any]
+    ) -> None:
+        """Write a JSON message of the caller's own at frame time ``time_s`` (s)."""
+        if topic not in self.writer.counts:
+            self.writer.json_channel(topic, schema_name, json_schema)
+        self.writer.write_json(topic, self.start_ns + int(round(time_s * 1e9)), obj)
 
     def frame(
         self, t_ns: int, image_bgr: np.ndarray, frame: PerceptionFrame, lights: Sequence[Any] = ()
