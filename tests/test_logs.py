@@ -410,3 +410,47 @@ def test_a_dropped_audio_block_becomes_silence(rec_dir: Path, tmp_path: Path) ->
     assert audio.samples.shape == (10 * block, 8) and audio.start_ns == START_NS
     assert not audio.samples[3 * block : 4 * block].any()
     np.testing.assert_array_equal(audio.samples[4 * block :], pcm[4 * block :] / 32768.0)
+
+
+def test_rsu_runs_on_a_camera_log_and_writes_its_alerts_to_mcap(video_dir: Path, tmp_path: Path) -> None:
+    """The pole camera's clip while the ambulance, lights on, pulls up (as tests/test_rsu.py), as a
+    ROS 2 MCAP log: the roadside unit reads it by topic and writes its alerts beside the camera."""
+    from makeway.v2x.security import keygen
+
+    calib = (
+        Path(__file__).resolve().parents[1] / "src" / "makeway" / "data" / "intersection_cam_ambulance.yaml"
+    )
+    log = tmp_path / "pole.mcap"
+    cap = cv2.VideoCapture(str(video_dir / "intersection_cam_ambulance.mp4"))
+    cap.set(cv2.CAP_PROP_POS_FRAMES, 590)
+    with Ros2LogWriter(log) as w:
+        w.channel("/pole/image", "sensor_msgs/msg/CompressedImage")
+        for k in range(40):
+            ok, frame = cap.read()
+            assert ok
+            stamp = START_NS + k * 40_000_000
+            jpeg = cv2.imencode(".jpg", frame)[1].reshape(-1)
+            w.write("/pole/image", stamp, w.msg("sensor_msgs/msg/CompressedImage", header=w.header(stamp),
+                                                format="jpeg", data=jpeg))  # fmt: skip
+    cap.release()
+    keygen(tmp_path / "k", "rsu")
+    out, mcap = tmp_path / "out", tmp_path / "rsu.mcap"
+    r = runner.invoke(
+        app,
+        ["rsu", "run", str(log), "--topic", "/pole/image", "--calib", str(calib), "--key",
+         str(tmp_path / "k" / "rsu.key"), "--no-publish", "--out", str(out), "--mcap", str(mcap),
+         "--classifier", "fastest"],
+    )  # fmt: skip
+    assert r.exit_code == 0, (r.output, r.exception)
+    result = json.loads(r.stdout.strip().splitlines()[-1])
+    assert result["frames"] == 40 and result["outputs"]["mcap"] == str(mcap)
+    rows = [json.loads(line) for line in (out / "alerts.jsonl").read_text().splitlines()]
+    channels, messages = _read_mcap(mcap)
+    assert len(messages["/camera/image"]) == 40
+    _check_common(messages)
+    alerts = [json.loads(d) for _, d in messages.get("/v2x/alerts", [])]
+    assert len(alerts) == len(rows) == result["alerts"] > 0
+    for alert, row in zip(alerts, rows, strict=True):  # the MCAP's JSON keeps 6 significant digits
+        assert alert.keys() == row.keys()
+        assert alert == {k: pytest.approx(v, rel=1e-5) if isinstance(v, float) else v for k, v in row.items()}
+    assert channels["/v2x/alerts"] == ("makeway.V2XAlert", "jsonschema")
