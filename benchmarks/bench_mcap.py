@@ -73,7 +73,9 @@ def main() -> int:
         logs: dict[str, Path] = {}
         sizes: dict[str, int] = {"mp4 (H.264)": clip.stat().st_size}
         for fmt, image, compression, label in SOURCES:
-            out = Path(tmp) / (f"{fmt}_{image}_{compression}" + ("" if fmt == "ros2-bag" else ".mcap"))
+            out = Path(tmp) / (
+                f"{fmt}_{image}_{compression}" + ("" if fmt.startswith("ros2-bag") else ".mcap")
+            )
             make_test_log(
                 out, video=clip, fmt=fmt, image=image, max_frames=args.frames, compression=compression
             )

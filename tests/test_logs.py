@@ -57,7 +57,7 @@ def logs(clip: Path, rec_dir: Path, tmp_path_factory: pytest.TempPathFactory) ->
     made = {}
     for fmt in LOG_FORMATS:
         for image in ("compressed", "raw"):
-            out = root / (f"{fmt}_{image}" + ("" if fmt == "ros2-bag" else ".mcap"))
+            out = root / (f"{fmt}_{image}" + ("" if fmt.startswith("ros2-bag") else ".mcap"))
             make_test_log(
                 out,
                 video=clip,

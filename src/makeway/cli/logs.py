@@ -66,7 +66,7 @@ def make_test(
         typer.Option(
             "--format",
             help="mcap-ros2 (ROS 2 messages in MCAP), mcap-foxglove (Foxglove schemas in MCAP) or "
-            "ros2-bag (a ROS 2 bag folder).",
+            "ros2-bag (a ROS 2 bag folder, SQLite storage) or ros2-bag-mcap (MCAP storage).",
         ),
     ] = "mcap-ros2",
     image: Annotated[

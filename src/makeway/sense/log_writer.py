@@ -46,8 +46,8 @@ __all__ = [
 ]
 
 #: The kinds of log :func:`make_test_log` writes: a ROS 2 MCAP file, a Foxglove-schema MCAP file,
-#: a ROS 2 bag folder.
-LOG_FORMATS = ("mcap-ros2", "mcap-foxglove", "ros2-bag")
+#: a ROS 2 bag folder with SQLite storage (ROS 2 Humble's default), one with MCAP storage (Jazzy's).
+LOG_FORMATS = ("mcap-ros2", "mcap-foxglove", "ros2-bag", "ros2-bag-mcap")
 
 #: MCAP chunk compressions (the ``mcap`` writer's default is zstd).
 CHUNK_COMPRESSIONS = ("zstd", "lz4", "none")
@@ -124,7 +124,8 @@ class _AtomicLog:
 
 
 class Ros2LogWriter(_AtomicLog):
-    """ROS 2 messages into an MCAP file (``bag=False``) or a ROS 2 bag folder (``bag=True``).
+    """ROS 2 messages into an MCAP file (``bag=False``) or a ROS 2 bag folder (``bag=True``, with
+    ``storage`` ``sqlite3`` or ``mcap``).
 
     Messages are built with :meth:`msg` (the type store's classes) and written with :meth:`write`;
     :meth:`channel` registers a topic first. Types beyond the standard ROS 2 (Humble) set are
@@ -132,9 +133,13 @@ class Ros2LogWriter(_AtomicLog):
     registered already). ``compression`` is the MCAP chunk compression (:data:`CHUNK_COMPRESSIONS`).
     """
 
-    def __init__(self, path: str | Path, *, bag: bool = False, compression: str = "zstd") -> None:
+    def __init__(
+        self, path: str | Path, *, bag: bool = False, compression: str = "zstd", storage: str = "sqlite3"
+    ) -> None:
         from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
+        if storage not in ("sqlite3", "mcap"):
+            raise ValueError(f"unknown bag storage {storage!r}; choose from: sqlite3, mcap")
         self.path = Path(path)
         self.bag = bag
         self.store = get_typestore(Stores.ROS2_HUMBLE)
@@ -143,9 +148,10 @@ class Ros2LogWriter(_AtomicLog):
         self._channels: dict[str, tuple[Any, str]] = {}
         self._schemas: dict[str, int] = {}
         if bag:
-            from rosbags.rosbag2 import Writer
+            from rosbags.rosbag2 import StoragePlugin, Writer
 
-            self._bag = Writer(self._tmp, version=8)
+            plugin = {"sqlite3": StoragePlugin.SQLITE3, "mcap": StoragePlugin.MCAP}[storage]
+            self._bag = Writer(self._tmp, version=8, storage_plugin=plugin)
             self._bag.open()
         else:
             self._file = self._tmp.open("wb")
@@ -371,13 +377,9 @@ def make_test_log(
     if video is None and recording is None:
         raise ValueError("give a video, a recording, or both")
     target = Path(out)
-    check_writable(target, folder=fmt == "ros2-bag")
-    if (
-        fmt == "ros2-bag"
-        and target.exists()
-        and any(target.iterdir())
-        and not (target / "metadata.yaml").is_file()
-    ):
+    bag = fmt.startswith("ros2-bag")
+    check_writable(target, folder=bag)
+    if bag and target.exists() and any(target.iterdir()) and not (target / "metadata.yaml").is_file():
         raise InputError(target, "is a non-empty folder that is not a ROS 2 bag; choose another")
     rec = None
     if recording is not None:
@@ -393,7 +395,8 @@ def make_test_log(
     if fmt == "mcap-foxglove":
         writer = FoxgloveMcapWriter(target, compression=compression)
     else:
-        writer = Ros2LogWriter(target, bag=fmt == "ros2-bag", compression=compression)
+        storage = "mcap" if fmt == "ros2-bag-mcap" else "sqlite3"
+        writer = Ros2LogWriter(target, bag=bag, compression=compression, storage=storage)
     with writer:
         if video is not None:
             counts[camera_topic] = _write_camera(
