@@ -155,6 +155,8 @@ def detect(
         mcap=mcap,
     )
     table = Table(title=f"makeway detect — {video.name}", show_header=False)
+    if summary.topic is not None:
+        table.add_row("camera topic", summary.topic)
     table.add_row("frames", f"{summary.frames} ({summary.width}×{summary.height} @ {summary.fps:g} fps)")
     table.add_row("real-time factor", f"{summary.realtime_factor:.2f}× ({summary.wall_seconds:.1f} s wall)")
     table.add_row("ms / frame", ", ".join(f"{k} {v:.1f}" for k, v in summary.ms_per_frame.items()))

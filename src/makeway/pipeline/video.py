@@ -12,6 +12,10 @@
   ``lights``, the light detector's, under the lights rules), the active-EV rule and the tracks it
   turned active.
 
+The input may also be a robotics log (an MCAP file or a ROS 2 bag folder) with a camera topic
+(:func:`makeway.sense.logs.open_frame_source`); with ``mcap`` the run is also written as a
+Foxglove MCAP file (:class:`makeway.viz.foxglove.DetectRecorder`).
+
 The light detector runs beside the vehicle detector on the same worker threads; the light tracker
 (and its flash cue) with SORT on the main thread.
 
