@@ -454,3 +454,38 @@ def test_rsu_runs_on_a_camera_log_and_writes_its_alerts_to_mcap(video_dir: Path,
         assert alert.keys() == row.keys()
         assert alert == {k: pytest.approx(v, rel=1e-5) if isinstance(v, float) else v for k, v in row.items()}
     assert channels["/v2x/alerts"] == ("makeway.V2XAlert", "jsonschema")
+
+
+def test_logs_commands_make_and_list_a_log(clip: Path, rec_dir: Path, tmp_path: Path) -> None:
+    out = tmp_path / "made"
+    r = runner.invoke(
+        app,
+        ["logs", "make-test", str(out), "--video", str(clip), "--recording", str(rec_dir), "--format",
+         "ros2-bag-mcap", "--max-frames", "3", "--json"],
+    )  # fmt: skip
+    assert r.exit_code == 0, (r.output, r.exception)
+    made = json.loads(r.stdout)
+    assert made["topics"]["/camera/image"] == 3 and (out / "metadata.yaml").is_file()
+    r = runner.invoke(app, ["logs", "info", str(out), "--json"])
+    assert r.exit_code == 0, (r.output, r.exception)
+    info = json.loads(r.stdout)
+    assert info["kind"] == "ros2 bag"
+    assert {t["topic"]: (t["messages"], t["kind"]) for t in info["topics"]} == {
+        topic: (n, kind)
+        for (topic, n), kind in zip(made["topics"].items(), ("camera", "array", "audio", "pose"), strict=True)
+    }
+
+
+def test_two_camera_topics_need_a_name(clip: Path, tmp_path: Path) -> None:
+    path = tmp_path / "two.mcap"
+    with Ros2LogWriter(path) as w:
+        for topic in ("/front/image", "/rear/image"):
+            w.channel(topic, "sensor_msgs/msg/CompressedImage")
+            jpeg = cv2.imencode(".jpg", np.zeros((8, 8, 3), np.uint8))[1].reshape(-1)
+            w.write(
+                topic,
+                1,
+                w.msg("sensor_msgs/msg/CompressedImage", header=w.header(1), format="jpeg", data=jpeg),
+            )
+    line = _one_error_line(runner.invoke(app, ["detect", str(path)]), "2 camera topics")
+    assert "/front/image" in line and "/rear/image" in line

@@ -184,18 +184,17 @@ def _stamp_ns(msg: Any, log_time_ns: int) -> int:
 
 def _bytes(data: Any) -> np.ndarray:
     """A message's byte payload (``bytes`` from mcap_ros2 and protobuf, a uint8 array from rosbags)."""
-    return (
-        np.frombuffer(data, dtype=np.uint8)
-        if isinstance(data, bytes | bytearray | memoryview)
-        else (np.asarray(data, dtype=np.uint8).reshape(-1))
-    )
+    if isinstance(data, bytes | bytearray | memoryview):
+        return np.frombuffer(data, dtype=np.uint8)
+    return np.asarray(data, dtype=np.uint8).reshape(-1)
 
 
 class LogReader:
     """A robotics log opened for reading (use :func:`open_log`); a context manager.
 
-    Subclasses provide :meth:`_topic_infos` and :meth:`_messages`; the decoding of cameras, audio
-    and poses is shared.
+    Subclasses fill the topic table when they open and provide :meth:`_messages` and
+    :meth:`close`; the decoding of cameras, audio and poses is shared. ``kind`` says which kind of
+    log it is (``mcap`` or ``ros2 bag``).
     """
 
     kind = "log"
