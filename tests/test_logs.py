@@ -161,6 +161,7 @@ def test_detect_on_a_raw_camera_log_equals_detect_on_the_video(
     on_video = _detect([str(clip), "-o", str(tmp_path / "v"), "--max-frames", str(N_FRAMES)])
     on_log = _detect([str(logs[("mcap-ros2", "raw")]), "--topic", "/camera/image", "-o", str(tmp_path / "l")])
     assert len(on_log) == N_FRAMES and on_log == on_video
+    assert any(line["tracks"] for line in on_log)
     summary = json.loads((tmp_path / "l" / "summary.json").read_text())
     assert summary["topic"] == "/camera/image" and summary["frames"] == N_FRAMES and summary["fps"] == 25.0
 
@@ -489,3 +490,19 @@ def test_two_camera_topics_need_a_name(clip: Path, tmp_path: Path) -> None:
             )
     line = _one_error_line(runner.invoke(app, ["detect", str(path)]), "2 camera topics")
     assert "/front/image" in line and "/rear/image" in line
+
+
+def test_lights_on_a_raw_camera_log_equals_lights_on_the_video(
+    logs: dict[tuple[str, str], Path], clip: Path, tmp_path: Path
+) -> None:
+    def run(source: Path, out: Path, *extra: str) -> list[str]:
+        r = runner.invoke(
+            app, ["lights", str(source), "-o", str(out), "--detector", "colour", "--no-video", "-q", *extra]
+        )
+        assert r.exit_code == 0, (r.output, r.exception)
+        return (out / "lights.jsonl").read_text().splitlines()
+
+    on_video = run(clip, tmp_path / "v", "--max-frames", str(N_FRAMES))
+    on_log = run(logs[("ros2-bag", "raw")], tmp_path / "l", "--topic", "/camera/image")
+    assert len(on_log) == N_FRAMES and on_log == on_video
+    assert any(json.loads(line)["lights"] for line in on_log)  # the ambulance's blue lights are seen

@@ -177,7 +177,12 @@ def detect(
 @app.command()
 @friendly_errors
 def lights(
-    source: Annotated[Path, typer.Argument(help="Road video, or a folder of images (no tracking then).")],
+    source: Annotated[
+        Path,
+        typer.Argument(
+            help="Road video, a folder of images (no tracking then), or a log (MCAP file, ROS 2 bag folder)."
+        ),
+    ],
     out: Annotated[
         Path | None,
         typer.Option("--out", "-o", help="Output folder (default: makeway_out/<name>_lights)."),
@@ -205,6 +210,10 @@ def lights(
     ] = "eu",
     max_frames: Annotated[int | None, typer.Option(min=1, help="Stop after N frames / images.")] = None,
     no_video: Annotated[bool, typer.Option("--no-video", help="Skip the annotated video / images.")] = False,
+    topic: Annotated[
+        str | None,
+        typer.Option(help="Camera topic when SOURCE is a log. Default: the log's only camera topic."),
+    ] = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print the run summary as one JSON line.")] = False,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")] = False,
 ) -> None:
@@ -227,6 +236,7 @@ def lights(
         max_frames=max_frames,
         write_video=not no_video,
         progress=not quiet,
+        topic=topic,
     )
     if as_json:
         print_json_line(summary.to_json())
