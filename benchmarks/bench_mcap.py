@@ -14,7 +14,8 @@ for the logs), ``--reps`` times in rotating order.
 Prints per source the median wall and CPU milliseconds per frame (CPU: all threads of the process;
 FFmpeg decodes H.264 on several threads), their ratio to the mp4's, beside the target (a log costs
 ≤ 10 % more than the mp4: CPU ratio ≤ 1.10; the CPU time is the cost, the wall time on a shared
-2-core machine mostly measures the other processes), the load average, then one JSON line.
+2-core machine mostly measures the other processes), the load average, what writing the frames
+to a Foxglove MCAP (``makeway detect --mcap``) costs per frame, then one JSON line.
 
     .venv/bin/python benchmarks/bench_mcap.py
     .venv/bin/python benchmarks/bench_mcap.py --clip traffic_no_ev.mp4 --frames 200 --reps 7
@@ -33,10 +34,12 @@ from collections.abc import Callable
 from pathlib import Path
 
 from makeway.jsonable import to_jsonable
+from makeway.messages import PerceptionFrame
 from makeway.paths import data_dir
 from makeway.sense.log_writer import make_test_log
 from makeway.sense.logs import LogFrameReader
 from makeway.sense.video import VideoReader
+from makeway.viz.foxglove import DetectRecorder
 
 TARGET_RATIO = 1.10
 SOURCES = (
@@ -110,6 +113,18 @@ def main() -> int:
                 cpu[name].append(1000.0 * c / n)
             loads.append(os.getloadavg()[0])
 
+        # logs out: what ``--mcap`` adds per frame (JPEG, annotations, tracks JSON, zstd chunks)
+        with VideoReader(clip, max_frames=args.frames) as reader:
+            frames = [(t_s, image) for _, t_s, image in reader]
+        record_cpu = []
+        for rep in range(args.reps):
+            recorder = DetectRecorder(Path(tmp) / f"out{rep}.mcap")
+            c0 = time.process_time()
+            for k, (t_s, image) in enumerate(frames):
+                recorder.frame(int(round(t_s * 1e9)), image, PerceptionFrame(k, t_s, ()))
+            recorder.close()
+            record_cpu.append(1000.0 * (time.process_time() - c0) / len(frames))
+
     base_w = statistics.median(wall["mp4 (H.264)"])
     base_c = statistics.median(cpu["mp4 (H.264)"])
     print(f"{args.clip}: {args.frames} frames, {args.reps} reps; load average {os.getloadavg()} (2 cores)")
@@ -133,6 +148,11 @@ def main() -> int:
                 "cpu_ratio_to_mp4": rc,
             }
         )
+    rec_ms = statistics.median(record_cpu)
+    print(
+        f"logs out (detect --mcap: JPEG + annotations + tracks): {rec_ms:.2f} CPU ms/frame "
+        f"(reading the mp4: {base_c:.2f})"
+    )
     print(
         json.dumps(
             to_jsonable(
@@ -144,6 +164,7 @@ def main() -> int:
                     "target_ratio": TARGET_RATIO,
                     "load_average_1min_during": loads,
                     "sources": rows,
+                    "record_cpu_ms_per_frame": rec_ms,
                 }
             )
         )
