@@ -455,6 +455,15 @@ def test_rsu_runs_on_a_camera_log_and_writes_its_alerts_to_mcap(video_dir: Path,
         assert alert.keys() == row.keys()
         assert alert == {k: pytest.approx(v, rel=1e-5) if isinstance(v, float) else v for k, v in row.items()}
     assert channels["/v2x/alerts"] == ("makeway.V2XAlert", "jsonschema")
+    from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
+
+    assert channels["/roadside/evs"] == ("foxglove.SceneUpdate", "protobuf")
+    assert len(messages["/roadside/evs"]) == len(rows)
+    for (_, data), row in zip(messages["/roadside/evs"], rows, strict=True):
+        (entity,) = SceneUpdate.FromString(data).entities
+        assert entity.id == f"ev_{row['track_id']}" and entity.frame_id == "road"
+        pos = entity.cubes[0].pose.position
+        assert (pos.x, pos.y) == pytest.approx((row["x_m"], row["y_m"]))
 
 
 def test_logs_commands_make_and_list_a_log(clip: Path, rec_dir: Path, tmp_path: Path) -> None:

@@ -102,7 +102,8 @@ def run_rsu(
     first frame (s). ``siren``: the siren flag of the alerts (a camera cannot hear it).
     ``video`` may be a robotics log (an MCAP file or a ROS 2 bag folder) with the camera ``topic``
     (default: its only camera topic); with ``mcap`` the run is also written there for Foxglove (the
-    camera, the boxes, the tracks and, on ``/v2x/alerts``, every alert made)."""
+    camera, the boxes, the tracks, on ``/v2x/alerts`` every alert made and on ``/roadside/evs`` the
+    reported EVs as scene entities on the road)."""
     from makeway.apps.v2x import DEFAULT_ENDPOINT
     from makeway.roadside.node import RoadsideNode, sign_report
     from makeway.roadside.transform import read_transform_calibration
@@ -173,6 +174,7 @@ def run_rsu(
                 rows.append(json.dumps(row, allow_nan=False))
             if recorder is not None:
                 recorder.json("/v2x/alerts", report.time_s, row, "makeway.V2XAlert", ALERT_SCHEMA)
+                recorder.ev_report(report)
 
     from makeway.pipeline.video import run_video
 

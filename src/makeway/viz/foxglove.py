@@ -10,7 +10,9 @@ origin on the ground under the rear axle) and ``camera`` (the image).
 * :class:`DetectRecorder` (``makeway detect --mcap``): ``/camera/image`` (``foxglove.CompressedImage``,
   JPEG), ``/camera/annotations`` (``foxglove.ImageAnnotations``: one box per vehicle track in its EV
   state's colour, its id, class and EV state, and the lit lights), ``/perception/tracks`` (JSON:
-  the ``tracks.jsonl`` line of the frame).
+  the ``tracks.jsonl`` line of the frame). ``makeway rsu run --mcap`` adds ``/v2x/alerts`` (JSON:
+  every signed alert made) and ``/roadside/evs`` (``foxglove.SceneUpdate``: each reported EV as a box
+  on the road, frame ``road``: metres, x east, y north).
 * :func:`write_listen_mcap` (``makeway audio listen --mcap``): ``/siren/detection`` (JSON: the
   listener's message per hop), ``/siren/sources`` (``foxglove.SceneUpdate``: an arrow per heard
   siren along its bearing from the array centre, as long as its distance or 10 m when there is
@@ -141,6 +143,30 @@ class DetectRecorder:
         if topic not in self.writer.counts:
             self.writer.json_channel(topic, schema_name, json_schema)
         self.writer.write_json(topic, self.start_ns + int(round(time_s * 1e9)), obj)
+
+    def ev_report(self, report: Any) -> None:
+        """Draw a roadside EV report (:class:`makeway.roadside.node.EVReport`) on ``/roadside/evs``
+        as a ``foxglove.SceneUpdate`` entity in the ``road`` frame (metres, x east, y north): a red
+        6 × 2.3 m box along its heading, its id and speed, kept for 0.5 s."""
+        from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
+
+        t_ns = self.start_ns + int(round(report.time_s * 1e9))
+        scene = SceneUpdate()
+        ent = scene.entities.add()
+        ent.timestamp.FromNanoseconds(t_ns)
+        ent.frame_id, ent.id = "road", f"ev_{report.track_id}"
+        ent.lifetime.FromNanoseconds(500_000_000)
+        cube = ent.cubes.add()
+        cube.pose.position.x, cube.pose.position.y, cube.pose.position.z = report.x_m, report.y_m, 1.2
+        _yaw_quat(cube.pose.orientation, math.radians(90.0 - report.heading_deg))  # ENU yaw from heading
+        cube.size.x, cube.size.y, cube.size.z = 6.0, 2.3, 2.4
+        _colour(cube.color, (1.0, 0.1, 0.1, 0.85))
+        text = ent.texts.add()
+        text.pose.position.x, text.pose.position.y, text.pose.position.z = report.x_m, report.y_m, 3.5
+        text.billboard, text.font_size, text.scale_invariant = True, 14.0, True
+        text.text = f"EV #{report.track_id} {report.speed_mps:.1f} m/s"
+        _colour(text.color, (1.0, 1.0, 1.0, 1.0))
+        self.writer.write("/roadside/evs", t_ns, scene)
 
     def frame(
         self, t_ns: int, image_bgr: np.ndarray, frame: PerceptionFrame, lights: Sequence[Any] = ()
