@@ -389,6 +389,9 @@ def listen_recording(
     jsonl: str | Path | None = None,
     on_message: Callable[[dict[str, Any]], None] | None = None,
     progress: bool = False,
+    audio_topic: str | None = None,
+    pose_topic: str | None = None,
+    mcap: str | Path | None = None,
 ) -> ListenRun:
     """Slide the siren listener (:func:`makeway.perceive.audio.stream.listen`) over the recording
     folder ``path``: the siren networks (shipped unless named; one thread), or a classical
@@ -398,24 +401,37 @@ def listen_recording(
     ``hop_s`` seconds; ``smooth`` windows are averaged for each decision. ``approach`` names the
     approaching/receding method (:func:`approach_estimator`).
 
+    ``path`` may also be a robotics log (an MCAP file or a ROS 2 bag folder,
+    :mod:`makeway.sense.logs`): its ``audio_topic`` (default: its only audio topic) with the array
+    description, and its ``pose_topic`` as the ego path (default: its only pose topic, if any), are
+    listened to as a recording. With ``mcap`` the hops are also written there as a Foxglove MCAP file
+    (:func:`makeway.viz.foxglove.write_listen_mcap`).
+
     Raises:
         ValueError: contradictory options, or a recording shorter than one window (before listening).
-        InputError: the recording or a model cannot be read; ``plot`` or ``jsonl`` cannot be written
-            (checked first).
+        InputError: the recording, the log (a missing topic, no array description, damaged) or a
+            model cannot be read; ``plot``, ``jsonl`` or ``mcap`` cannot be written (checked first).
         UnknownNameError: an unknown ``approach`` method.
     """
     from makeway.perceive.audio.stream import listen as listen_stream
     from makeway.perceive.audio.stream import listen_windows
+    from makeway.sense.logs import is_log, read_log_recording
     from makeway.sense.recording import assume_calibration, read_recording
 
     check_baseline(baseline, model, localizer, ranger)
     if not Path(path).exists():
         raise InputError(path, "no such folder")
-    for target in (t for t in (plot, jsonl) if t is not None):
+    for target in (t for t in (plot, jsonl, mcap) if t is not None):
         check_writable(target, folder=False)
+    if is_log(path):
+        source = read_log_recording(path, audio_topic, pose_topic)
+    elif audio_topic is not None or pose_topic is not None:
+        raise InputError(path, "a topic was named, but this is not an MCAP file or a ROS 2 bag folder")
+    else:
+        source = read_recording(path)
     net = siren_networks(model, localizer, ranger, 1) if baseline is None else None
     estimator = approach_estimator(approach, net)
-    rec = assume_calibration(read_recording(path), full_scale_db_spl)
+    rec = assume_calibration(source, full_scale_db_spl)
     t0 = time.perf_counter()
     messages: list[dict[str, Any]] = []
     hops = len(listen_windows(rec, window_s, hop_s))  # raises when shorter than one window
@@ -441,6 +457,10 @@ def listen_recording(
         from makeway.viz.listen_plot import plot_listen
 
         plot_listen(messages, rec, plot, window_s=window_s)
+    if mcap is not None:
+        from makeway.viz.foxglove import write_listen_mcap
+
+        write_listen_mcap(mcap, messages, rec, start_ns=int(rec.meta.get("start_ns", 0)))
     run = ListenRun(messages, wall, uncalibrated=rec.full_scale_db_spl is None)
     if jsonl is not None:
         run.summary = {
@@ -450,5 +470,6 @@ def listen_recording(
             "ms_per_hop": round(1000.0 * wall / max(len(messages), 1), 2),
             "jsonl": str(jsonl),
             "plot": None if plot is None else str(plot),
+            "mcap": None if mcap is None else str(mcap),
         }
     return run

@@ -31,6 +31,8 @@ def detect(
     rule: str = DEFAULT_RULE,
     light_detector: str = DEFAULT_LIGHTS[0],
     colours: str = DEFAULT_LIGHTS[1],
+    topic: str | None = None,
+    mcap: str | Path | None = None,
 ) -> VideoRunSummary:
     """Detect, track and judge the vehicles of ``video``; write the annotated video, ``tracks.jsonl``
     and ``summary.json`` to ``out`` (default ``makeway_out/<video stem>``).
@@ -47,6 +49,9 @@ def detect(
     ``imagenet``), a model file (``.npz`` head or ``.onnx`` CNN) or ``none``; it judges each track on
     every ``classify_every``-th frame, and ``single_view`` skips the mirror image for heads. The
     classifier and its feature extractors are built before the first frame, so bad weights fail early.
+    ``video`` may also be a robotics log (an MCAP file or a ROS 2 bag folder): its camera ``topic``
+    is read (``None``: the log's only camera topic). With ``mcap`` the run is also written there as a
+    Foxglove MCAP file (images, box annotations, tracks; :mod:`makeway.viz.foxglove`).
     Returns the run's summary (frames, timings in ms per frame, real-time factor, files written).
 
     Raises:
@@ -80,4 +85,6 @@ def detect(
         rule=rule,
         light_detector=light_detector,
         light_colours=colours,
+        topic=topic,
+        mcap=mcap,
     )

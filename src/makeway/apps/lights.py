@@ -40,8 +40,8 @@ from makeway.messages import LightDetection
 from makeway.perceive.vision.lights import REVIEW_LIGHT_DETECTOR, colour_set
 from makeway.progress import progress_bar
 from makeway.sense.crops import IMAGE_SUFFIXES
+from makeway.sense.logs import is_log, open_frame_source
 from makeway.sense.rig import Rig, load_rig
-from makeway.sense.video import VideoReader
 from makeway.track.lights import LightTrack, LightTracker, build_light_detector
 from makeway.viz.video_writer import H264Writer
 
@@ -181,11 +181,13 @@ def lights(
     write_video: bool = True,
     tracker: LightTracker | None = None,
     progress: bool = True,
+    topic: str | None = None,
 ) -> LightsSummary:
     """Find, track and describe the lit emergency lights of a video or image folder (module docstring).
 
     Args:
-        source: a video file, or a folder of images.
+        source: a video file, a folder of images, or a robotics log (an MCAP file or a ROS 2 bag
+            folder) whose camera ``topic`` is read like a video (``None``: its only camera topic).
         out: output folder (default ``makeway_out/<source name>_lights``).
         rig: rig file (YAML) or ``"default"``; with ``camera``, each light gets its azimuth. A
             ``camera`` without ``rig`` uses the shipped default rig.
@@ -196,11 +198,13 @@ def lights(
         write_video: also write ``annotated.mp4`` / ``annotated/`` images.
         tracker: override the default :class:`~makeway.track.lights.LightTracker`.
         progress: show a rich progress bar.
+        topic: the camera topic when ``source`` is a log.
 
     Raises:
-        InputError: missing or unreadable source, an empty image folder, a bad rig file, an unknown
-            camera, frames of another size than the camera's, an unwritable output folder, a video
-            that ends early (all before or without leaving anything half-written).
+        InputError: missing or unreadable source (a log: damaged, or no such camera topic), an
+            empty image folder, a bad rig file, an unknown camera, frames of another size than the
+            camera's, an unwritable output folder, a video that ends early (all before or without
+            leaving anything half-written).
         UnknownNameError: an unknown detector.
         ValueError: an unknown colour set.
     """
@@ -219,8 +223,12 @@ def lights(
         rig_obj.camera(camera)
     out_dir = Path(out) if out is not None else Path("makeway_out") / f"{src.stem}_lights"
     check_writable(out_dir, folder=True)
-    job = _Job(src, out_dir, det, detector, colour_names, rig_obj, camera, max_frames, progress)
-    if src.is_dir():
+    job = _Job(src, out_dir, det, detector, colour_names, rig_obj, camera, max_frames, progress, topic)
+    if src.is_dir() and not is_log(src):
+        if topic is not None:
+            raise InputError(
+                src, "a camera topic was named, but this is not an MCAP file or a ROS 2 bag folder"
+            )
         return _run_images(job, write_video)
     return _run_video(job, write_video, tracker)
 
@@ -238,6 +246,7 @@ class _Job:
     camera: str | None
     max_frames: int | None
     progress: bool
+    topic: str | None = None
 
     def finish(
         self,
@@ -281,7 +290,7 @@ class _Job:
 
 def _run_video(job: _Job, write_video: bool, tracker: LightTracker | None) -> LightsSummary:
     src, out_dir, rig, camera = job.src, job.out_dir, job.rig, job.camera
-    reader = VideoReader(src, max_frames=job.max_frames)
+    reader = open_frame_source(src, job.topic, max_frames=job.max_frames)
     info = reader.info
     try:
         _check_size(rig, camera, src, info.width, info.height)

@@ -65,6 +65,15 @@ def calibrate_camera(
     }
 
 
+#: The JSON Schema of the alerts in ``makeway rsu run --mcap``'s ``/v2x/alerts`` channel.
+ALERT_SCHEMA: dict[str, Any] = {
+    "title": "makeway.V2XAlert",
+    "description": "A signed EV alert the roadside unit made: header (station, sequence, time), signer, "
+    "the EV track's position (m, road frame; WGS-84), heading, speed and their uncertainties.",
+    "type": "object",
+}
+
+
 def run_rsu(
     video: Path,
     calib: Path,
@@ -83,16 +92,22 @@ def run_rsu(
     classifier: str = "default",
     siren: bool = False,
     progress: bool = True,
+    topic: str | None = None,
+    mcap: Path | None = None,
 ) -> dict[str, Any]:
     """Run the roadside unit over ``video`` (module docstring); the run's summary: frames, EV
     tracks reported, alerts made and published, alerts per second of wall time, and where the
     logs went. ``connect``/``listen``: zenoh loopback endpoints (default: connect to a car
     listening on ``tcp/127.0.0.1:7447``); ``wait_s``: how long to wait for a subscriber before the
-    first frame (s). ``siren``: the siren flag of the alerts (a camera cannot hear it)."""
+    first frame (s). ``siren``: the siren flag of the alerts (a camera cannot hear it).
+    ``video`` may be a robotics log (an MCAP file or a ROS 2 bag folder) with the camera ``topic``
+    (default: its only camera topic); with ``mcap`` the run is also written there for Foxglove (the
+    camera, the boxes, the tracks, on ``/v2x/alerts`` every alert made and on ``/roadside/evs`` the
+    reported EVs as scene entities on the road)."""
     from makeway.apps.v2x import DEFAULT_ENDPOINT
     from makeway.roadside.node import RoadsideNode, sign_report
     from makeway.roadside.transform import read_transform_calibration
-    from makeway.sense.video import VideoReader
+    from makeway.sense.logs import open_frame_source
     from makeway.v2x.security import load_identity
     from makeway.v2x.transport import segment_key
 
@@ -102,13 +117,14 @@ def run_rsu(
         raise ValueError(f"--rate-hz must be a positive number, not {rate_hz}")
     segment_key(segment)
     video = Path(video)
-    if not video.is_file():
+    if not video.exists():
         raise InputError(video, "video not found")
     camera = read_transform_calibration(calib)
     if camera.origin is None:
         raise InputError(calib, "has no origin (lat_deg, lon_deg): alerts need WGS-84 positions")
-    with VideoReader(video, max_frames=1) as probe:
-        info = probe.info
+    probe = open_frame_source(video, topic, max_frames=1)
+    info = probe.info
+    probe.close()
     if (info.width, info.height) != (camera.camera.width, camera.camera.height):
         raise InputError(
             calib,
@@ -118,6 +134,8 @@ def run_rsu(
     identity = load_identity(key)
     if out is not None:
         check_writable(out, folder=True)
+    if mcap is not None:
+        check_writable(mcap, folder=False)
     track_classifier = _classifier(classifier)
 
     node = RoadsideNode(camera, rate_hz=rate_hz)
@@ -147,15 +165,24 @@ def run_rsu(
             reported.add(report.track_id)
             if pub is not None:
                 pub.publish(signed)
-            if out is not None:
-                blobs.append(signed)
+            if out is not None or recorder is not None:
                 fields = {k: v for k, v in report.to_json().items() if k != "time_s"}
                 head = {**alert.to_json(), "signer": identity.signer.hex()}
                 row = head | {"video_time_s": round(report.time_s, 6)} | fields
+            if out is not None:
+                blobs.append(signed)
                 rows.append(json.dumps(row, allow_nan=False))
+            if recorder is not None:
+                recorder.json("/v2x/alerts", report.time_s, row, "makeway.V2XAlert", ALERT_SCHEMA)
+                recorder.ev_report(report)
 
     from makeway.pipeline.video import run_video
 
+    recorder = None
+    if mcap is not None:
+        from makeway.viz.foxglove import DetectRecorder
+
+        recorder = DetectRecorder(mcap)
     try:
         summary = run_video(
             video,
@@ -167,7 +194,13 @@ def run_rsu(
             classifier=track_classifier,
             on_frame=on_frame,
             progress=progress,
+            topic=topic,
+            mcap=recorder,
         )
+    except BaseException:
+        if recorder is not None:
+            recorder.abort()  # nothing half-written, also when the run failed before its first frame
+        raise
     finally:
         if pub is not None and session is not None:
             time.sleep(0.2)  # let the last samples leave before the session closes
@@ -189,7 +222,7 @@ def run_rsu(
         "alerts_per_wall_second": round(made / wall, 3) if wall > 0 else 0.0,
         "published": made if publish else 0,
         "subscriber_found": matched,
-        "outputs": {},
+        "outputs": {} if mcap is None else {"mcap": str(mcap)},
     }
     if out is not None:
         out = Path(out)
@@ -197,7 +230,7 @@ def run_rsu(
         with atomic_path(out / "alerts.bin") as tmp:
             tmp.write_bytes(b"".join(blobs))
         write_text_atomic(out / "alerts.jsonl", "".join(r + "\n" for r in rows))
-        result["outputs"] = {
+        result["outputs"] |= {
             "alerts": str(out / "alerts.bin"),
             "log": str(out / "alerts.jsonl"),
             "summary": str(out / "summary.json"),

@@ -38,6 +38,7 @@ def simulate(
     steer_delay_s: float = 0.0,
     delay_compensation: bool = True,
     localization: str = "perfect",
+    mcap: str | Path | None = None,
 ) -> tuple[ClosedLoopResult, Scenario, dict[str, str]]:
     """Run the built-in scenario ``name`` (or seed 003's situation on the recorded x,y ``path``, a
     CSV in metres) in closed loop and, with ``out``, write its plots and metrics there.
@@ -49,11 +50,14 @@ def simulate(
     ``steer_delay_s`` pick the simulated car (:class:`~makeway.sim.plants.PlantSpec`; the default
     is today's linear model); with a steering delay and ``delay_compensation`` the controllers
     predict over :data:`DESIGN_STEER_DELAY_S` on their design model. ``localization`` names a
-    :data:`~makeway.sim.localization.LOCALIZATIONS` preset of the car's own-state estimate. Returns
+    :data:`~makeway.sim.localization.LOCALIZATIONS` preset of the car's own-state estimate. With
+    ``mcap`` the run is also written there as a Foxglove MCAP file (the cars, the belief, the yield
+    state, the planned and driven paths; :func:`makeway.viz.foxglove.write_simulate_mcap`). Returns
     the run, the scenario and the files written (name → path).
 
     Raises:
-        InputError: the recorded path cannot be read, or ``out`` cannot be written (checked first).
+        InputError: the recorded path cannot be read, or ``out`` or ``mcap`` cannot be written
+            (checked first).
         UnknownNameError: an unknown scenario, controller, perception, duty preset, plant, vehicle,
             road or localization (lists the known ones).
         ValueError: a plant option that does not apply to the plant (e.g. a vehicle on ``linear``).
@@ -65,6 +69,8 @@ def simulate(
     loc = LOCALIZATIONS[localization]()
     if out is not None:
         check_writable(out, folder=True)
+    if mcap is not None:
+        check_writable(mcap, folder=False)
     sensing = PERCEPTIONS[perception](seed=seed, siren=siren, noise=noise)
     law = DUTY_PRESETS[duty]
     if path is not None:
@@ -86,4 +92,9 @@ def simulate(
         delay_compensation_s=DESIGN_STEER_DELAY_S if (delay_compensation and steer_delay_s > 0.0) else 0.0,
     )
     files = write_closed_loop_report(result, scenario, out) if out is not None else {}
+    if mcap is not None:
+        from makeway.viz.foxglove import write_simulate_mcap
+
+        write_simulate_mcap(mcap, result, scenario)
+        files["mcap"] = str(mcap)
     return result, scenario, files

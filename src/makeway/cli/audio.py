@@ -529,13 +529,37 @@ def train_approach(
 @audio_app.command()
 @friendly_errors
 def listen(
-    path: Annotated[Path, typer.Argument(help="A recording folder.")],
+    path: Annotated[
+        Path,
+        typer.Argument(help="A recording folder, or a robotics log (MCAP file or ROS 2 bag folder)."),
+    ],
     model: ModelOption = None,
     localizer: LocalizerOption = None,
     ranger: RangerOption = None,
     baseline: Annotated[
         str | None,
         typer.Option(help="Classical bearing + band-energy detector instead: gccphat, srp or normmusic."),
+    ] = None,
+    audio_topic: Annotated[
+        str | None,
+        typer.Option(
+            help="Audio topic when PATH is a log: interleaved PCM blocks (Foxglove RawAudio or "
+            "makeway_msgs/RawAudio) with the array on <topic>/array. Default: the only one."
+        ),
+    ] = None,
+    pose_topic: Annotated[
+        str | None,
+        typer.Option(
+            help="Ego pose topic when PATH is a log (Odometry, PoseStamped, Foxglove PoseInFrame). "
+            "Default: the log's only pose topic, if it has one."
+        ),
+    ] = None,
+    mcap: Annotated[
+        Path | None,
+        typer.Option(
+            help="Also write the hops to an MCAP file that opens in Foxglove: the detections, an "
+            "arrow per heard siren, the microphones and the vehicle pose."
+        ),
     ] = None,
     plot: Annotated[
         Path | None, typer.Option("--plot", help="Write a spectrogram + polar bearing plot (PNG).")
@@ -572,7 +596,10 @@ def listen(
 
     is_siren is decided on the mean logit of the last --smooth windows (default 8, 1.36 s of audio:
     more recall at fewer false alarms than one window alone; --average probability averages the
-    probabilities instead)."""
+    probabilities instead).
+
+    PATH may be an MCAP file or a ROS 2 bag folder (--audio-topic, --pose-topic); --mcap writes
+    the run for Foxglove."""
     from makeway.apps.audio import listen_recording
 
     run = listen_recording(
@@ -589,6 +616,9 @@ def listen(
         approach=approach,
         plot=plot,
         jsonl=jsonl,
+        audio_topic=audio_topic,
+        pose_topic=pose_topic,
+        mcap=mcap,
         # with --jsonl the messages go to a file: a progress bar on stderr instead (stdout stays JSON)
         on_message=print_json_line if jsonl is None else None,
         progress=jsonl is not None,

@@ -36,7 +36,13 @@ def _main(
 @app.command()
 @friendly_errors
 def detect(
-    video: Annotated[Path, typer.Argument(help="Road video (any format OpenCV/FFmpeg reads).")],
+    video: Annotated[
+        Path,
+        typer.Argument(
+            help="Road video (any format OpenCV/FFmpeg reads), or a robotics log: an MCAP file or a "
+            "ROS 2 bag folder with a camera topic."
+        ),
+    ],
     out: Annotated[
         Path | None,
         typer.Option("--out", "-o", help="Output folder (default: makeway_out/<video name>)."),
@@ -99,6 +105,20 @@ def detect(
             "us (red, blue, white), uk_amber, all, or a comma list."
         ),
     ] = "eu",
+    topic: Annotated[
+        str | None,
+        typer.Option(
+            help="Camera topic to read when VIDEO is a log (sensor_msgs Image or CompressedImage, "
+            "Foxglove CompressedImage or RawImage). Default: the log's only camera topic."
+        ),
+    ] = None,
+    mcap: Annotated[
+        Path | None,
+        typer.Option(
+            help="Also write the run as an MCAP file that opens in Foxglove: the camera image, "
+            "the boxes with their EV state, the tracks."
+        ),
+    ] = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print the run summary as one JSON line.")] = False,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")] = False,
 ) -> None:
@@ -109,7 +129,8 @@ def detect(
     flashing emergency light is on or above its box and the classifier says EV (--rule). Writes
     OUT/annotated.mp4 (H.264, boxes, ids, EV state colours, light boxes, FPS), OUT/tracks.jsonl
     (one JSON object per frame, with its lights) and OUT/summary.json (timings per stage,
-    real-time factor, active EV track ids).
+    real-time factor, active EV track ids). VIDEO may be an MCAP file or a ROS 2 bag folder
+    (--topic picks the camera); --mcap writes the run for Foxglove.
     """
     from makeway.apps.detect import detect as run
     from makeway.perceive.vision.lights import DEFAULT_LIGHT_DETECTOR
@@ -130,8 +151,12 @@ def detect(
         rule=rule,
         light_detector=light_detector or DEFAULT_LIGHT_DETECTOR,
         colours=colours,
+        topic=topic,
+        mcap=mcap,
     )
     table = Table(title=f"makeway detect — {video.name}", show_header=False)
+    if summary.topic is not None:
+        table.add_row("camera topic", summary.topic)
     table.add_row("frames", f"{summary.frames} ({summary.width}×{summary.height} @ {summary.fps:g} fps)")
     table.add_row("real-time factor", f"{summary.realtime_factor:.2f}× ({summary.wall_seconds:.1f} s wall)")
     table.add_row("ms / frame", ", ".join(f"{k} {v:.1f}" for k, v in summary.ms_per_frame.items()))
@@ -152,7 +177,12 @@ def detect(
 @app.command()
 @friendly_errors
 def lights(
-    source: Annotated[Path, typer.Argument(help="Road video, or a folder of images (no tracking then).")],
+    source: Annotated[
+        Path,
+        typer.Argument(
+            help="Road video, a folder of images (no tracking then), or a log (MCAP file, ROS 2 bag folder)."
+        ),
+    ],
     out: Annotated[
         Path | None,
         typer.Option("--out", "-o", help="Output folder (default: makeway_out/<name>_lights)."),
@@ -180,6 +210,10 @@ def lights(
     ] = "eu",
     max_frames: Annotated[int | None, typer.Option(min=1, help="Stop after N frames / images.")] = None,
     no_video: Annotated[bool, typer.Option("--no-video", help="Skip the annotated video / images.")] = False,
+    topic: Annotated[
+        str | None,
+        typer.Option(help="Camera topic when SOURCE is a log. Default: the log's only camera topic."),
+    ] = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print the run summary as one JSON line.")] = False,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")] = False,
 ) -> None:
@@ -202,6 +236,7 @@ def lights(
         max_frames=max_frames,
         write_video=not no_video,
         progress=not quiet,
+        topic=topic,
     )
     if as_json:
         print_json_line(summary.to_json())
@@ -507,6 +542,13 @@ def simulate(
             "cm of noise and slowly wandering bias)."
         ),
     ] = "perfect",
+    mcap: Annotated[
+        Path | None,
+        typer.Option(
+            help="Also write the run to an MCAP file that opens in Foxglove: the cars, what the car "
+            "believes about the EV, the yield state, the planned and the driven path."
+        ),
+    ] = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print the metrics as one JSON line last.")] = False,
 ) -> None:
     """Drive a simulated scenario in closed loop.
@@ -535,6 +577,7 @@ def simulate(
         steer_delay_s=steer_delay,
         delay_compensation=delay_compensation,
         localization=localization,
+        mcap=mcap,
     )
     if as_json:
         print_json_line(result.metrics)
@@ -573,6 +616,7 @@ from makeway.cli.audio import audio_app  # noqa: E402  (sub-apps register after 
 from makeway.cli.classify import classify_app  # noqa: E402
 from makeway.cli.light_labels import light_labels_app  # noqa: E402
 from makeway.cli.lights_train import lights_train  # noqa: E402
+from makeway.cli.logs import logs_app  # noqa: E402
 from makeway.cli.rig import rig_app  # noqa: E402
 from makeway.cli.roadside import roadside_app  # noqa: E402
 from makeway.cli.rsu import rsu_app  # noqa: E402
@@ -581,6 +625,7 @@ from makeway.cli.v2x import v2x_app, vehicle_app  # noqa: E402
 app.add_typer(classify_app, name="classify")
 app.add_typer(audio_app, name="audio")
 app.add_typer(rig_app, name="rig")
+app.add_typer(logs_app, name="logs")
 app.add_typer(roadside_app, name="roadside")
 app.add_typer(rsu_app, name="rsu")
 app.add_typer(light_labels_app, name="light-labels")

@@ -29,7 +29,9 @@ _ENDPOINT_HELP = "zenoh endpoint (loopback only), e.g. tcp/127.0.0.1:7447; repea
 @rsu_app.command("run")
 @friendly_errors
 def run(
-    video: Annotated[Path, typer.Argument(help="The pole camera's video.")],
+    video: Annotated[
+        Path, typer.Argument(help="The pole camera's video, or a log (MCAP file, ROS 2 bag folder).")
+    ],
     calib: Annotated[Path, typer.Option("--calib", help="Camera calibration (YAML) with a WGS-84 origin.")],
     key: Annotated[Path, typer.Option("--key", help="Unit key (NAME.key from makeway v2x keygen).")],
     publish: Annotated[
@@ -52,6 +54,17 @@ def run(
         str, typer.Option(help="EV crop classifier: default, fast, fastest, imagenet or a model file.")
     ] = "default",
     siren: Annotated[bool, typer.Option("--siren/--no-siren", help="Siren flag of the alerts.")] = False,
+    topic: Annotated[
+        str | None,
+        typer.Option(help="Camera topic when VIDEO is a log (MCAP file or ROS 2 bag folder)."),
+    ] = None,
+    mcap: Annotated[
+        Path | None,
+        typer.Option(
+            help="Also write the run to an MCAP file that opens in Foxglove: the camera, the boxes, "
+            "the tracks and every alert made."
+        ),
+    ] = None,
 ) -> None:
     """Run the roadside unit on a video.
 
@@ -77,6 +90,8 @@ def run(
             stride=stride,
             classifier=classifier,
             siren=siren,
+            topic=topic,
+            mcap=mcap,
         )
     )
 

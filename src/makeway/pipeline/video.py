@@ -12,6 +12,10 @@
   ``lights``, the light detector's, under the lights rules), the active-EV rule and the tracks it
   turned active.
 
+The input may also be a robotics log (an MCAP file or a ROS 2 bag folder) with a camera topic
+(:func:`makeway.sense.logs.open_frame_source`); with ``mcap`` the run is also written as a
+Foxglove MCAP file (:class:`makeway.viz.foxglove.DetectRecorder`).
+
 The light detector runs beside the vehicle detector on the same worker threads; the light tracker
 (and its flash cue) with SORT on the main thread.
 
@@ -45,7 +49,7 @@ from makeway.perceive.vision.detectors import DETECTORS, Detector
 from makeway.perceive.vision.ev_classifier import TrackClassifier
 from makeway.perceive.vision.lights import DEFAULT_LIGHT_DETECTOR, LightDetector
 from makeway.progress import progress_bar
-from makeway.sense.video import VideoReader
+from makeway.sense.logs import open_frame_source
 from makeway.track.lights import (
     ACTIVE_RULES,
     SATURATED,
@@ -58,6 +62,7 @@ from makeway.track.lights import (
 from makeway.track.smoother import TrackSmoother
 from makeway.track.sort import Sort
 from makeway.viz.annotate import draw_frame
+from makeway.viz.foxglove import DetectRecorder
 from makeway.viz.video_writer import H264Writer
 
 STAGES = ("read", "detect", "track", "classify", "annotate", "encode")
@@ -191,6 +196,8 @@ class VideoRunSummary:
     unique_tracks: int
     active_ev_tracks: list[int] = field(default_factory=list)
     outputs: dict[str, str] = field(default_factory=dict)
+    topic: str | None = None
+    """The camera topic read, when the input was a robotics log."""
 
     def to_json(self) -> dict[str, Any]:
         return asdict(self)
@@ -393,11 +400,15 @@ def run_video(
     light_detector: str = DEFAULT_LIGHTS[0],
     light_colours: str = DEFAULT_LIGHTS[1],
     light_tracker: LightTracker | None = None,
+    topic: str | None = None,
+    mcap: str | Path | DetectRecorder | None = None,
 ) -> VideoRunSummary:
     """Run Framework B over ``video``; write the annotated video, JSONL and summary to ``out_dir``.
 
     Args:
-        video: any file OpenCV/FFmpeg reads.
+        video: any file OpenCV/FFmpeg reads, or a robotics log (an MCAP file or a ROS 2 bag folder,
+            :mod:`makeway.sense.logs`) whose camera ``topic`` is read instead (``None``: the log's
+            only camera topic); frame times then come from the messages' stamps.
         out_dir: output folder (created); ``None`` runs without writing anything (benchmarks).
         detector: registered detector name or a ready :class:`Detector`. A named detector is built
             with class-agnostic NMS: Framework B needs one box per vehicle, and class-aware NMS
@@ -419,6 +430,11 @@ def run_video(
             instance per detector worker) and its colour set
             (:data:`~makeway.perceive.vision.lights.COLOUR_SETS` name or colour list).
         light_tracker: override the default :class:`~makeway.track.lights.LightTracker`.
+        topic: the camera topic when ``video`` is a log.
+        mcap: also write the run as a Foxglove MCAP file here (:class:`makeway.viz.foxglove.DetectRecorder`:
+            the camera image, box annotations, the tracks); on a log, in the log's own clock. A
+            ready recorder may be given instead (a caller that adds channels of its own); the run
+            closes it, or aborts it on an error.
 
     Raises:
         InputError: the video or the model is missing or unreadable, or ``out_dir`` cannot be
@@ -428,7 +444,10 @@ def run_video(
     """
     if out_dir is not None:
         check_writable(out_dir, folder=True)
-    reader = VideoReader(video, stride=stride, max_frames=max_frames)
+    if isinstance(mcap, str | Path):
+        check_writable(mcap, folder=False)
+    reader = open_frame_source(video, topic, stride=stride, max_frames=max_frames)
+    start_ns = int(getattr(reader, "start_ns", 0))
     info = reader.info
     if isinstance(detector, Detector):
         detectors = [detector]
@@ -476,6 +495,9 @@ def run_video(
             if out is not None and write_video:
                 writer = H264Writer(out / "annotated.mp4", info.fps / stride, info.width, info.height)
                 bg = _BackgroundWriter(writer)
+            recorder = DetectRecorder(mcap) if isinstance(mcap, str | Path) else mcap
+            if recorder is not None:
+                recorder.start_ns = start_ns
             frames = _Prefetch(iter(reader))
             wall0 = time.perf_counter()
             try:
@@ -495,6 +517,8 @@ def run_video(
                         jsonl.write(json.dumps(line, separators=(",", ":")) + "\n")
                     if on_frame is not None:
                         on_frame(frame)
+                    if recorder is not None:  # before the image is drawn on
+                        recorder.frame(start_ns + int(round(t_s * 1e9)), image, frame, seen_lights)
                     now = time.perf_counter()
                     recent.append(now)
                     span = recent[-1] - recent[0]
@@ -518,8 +542,13 @@ def run_video(
                 if writer is not None:
                     writer.close()
                     outputs["video"] = str(writer.path)
+                if recorder is not None:
+                    recorder.close()
+                    outputs["mcap"] = str(recorder.path)
             except BaseException:
                 frames.close()
+                if recorder is not None:
+                    recorder.abort()
                 if bg is not None:
                     bg.abandon()
                 if writer is not None:
@@ -560,6 +589,7 @@ def run_video(
         unique_tracks=len(seen_ids),
         active_ev_tracks=sorted(active_ids),
         outputs=outputs,
+        topic=getattr(reader, "topic", None),
     )
     if out is not None:
         summary.outputs["summary"] = str(out / "summary.json")

@@ -1,0 +1,785 @@
+"""Robotics logs in: MCAP files and ROS 2 bag folders as camera, audio and pose sources (issue 28).
+
+:func:`open_log` opens either kind and returns a :class:`LogReader`:
+
+* ``.topics()`` — every topic with its message type, encoding, message count and kind
+  (``camera``, ``audio``, ``pose``, ``array`` or ``other``);
+* ``.frames(topic)`` — ``(stamp_ns, image_bgr)`` per camera message;
+* ``.audio(topic)`` — the whole multichannel audio track of an audio topic (:class:`LogAudio`);
+* ``.poses(topic)`` — the ego pose track of a pose/odometry topic (:class:`LogPoses`);
+* ``.recording(audio_topic, pose_topic)`` — both as a :class:`~makeway.sense.recording.Recording`
+  that the siren stack listens to like a recording folder.
+
+What is read (ROS 2 types by their ``pkg/msg/Type`` names, Foxglove protobuf schemas by theirs):
+
+* camera: ``sensor_msgs/msg/Image`` (encodings ``bgr8``, ``rgb8``, ``mono8``, ``bgra8``,
+  ``rgba8``, ``8UC1``, ``8UC3``), ``sensor_msgs/msg/CompressedImage`` (JPEG, PNG, WebP),
+  ``foxglove.CompressedImage`` and ``foxglove.RawImage``. The timestamp is the message header's
+  stamp, or the log time when the stamp is zero.
+* audio: ``foxglove.RawAudio`` (protobuf) and, in ROS 2 logs, ``makeway_msgs/msg/RawAudio`` — the
+  same fields with a ``std_msgs/Header`` (:data:`ROS_RAW_AUDIO_MSGDEF`). Blocks hold interleaved
+  little-endian samples, ``pcm-s16`` (Foxglove's format) or ``pcm-f32``, one channel per
+  microphone. Each block's stamp is the time of its first sample; a block that starts more than
+  half a block after the samples so far end follows a dropout, which is filled with silence.
+* the array description: the topic ``<audio topic>/array`` (:data:`ARRAY_SUFFIX`) holds one message
+  whose text is the ``array.yaml`` of a recording folder (``sample_rate``, ``mics`` in metres in the
+  vehicle frame, optional ``full_scale_db_spl``; :mod:`makeway.sense.recording`): a
+  ``std_msgs/msg/String`` in ROS 2 logs, a JSON message (schema ``makeway.ArrayDescription``) in
+  Foxglove-profile MCAP files.
+* pose: ``nav_msgs/msg/Odometry``, ``geometry_msgs/msg/PoseStamped``, ``foxglove.PoseInFrame``;
+  the planar ``x, y`` (m) and yaw (rad, counter-clockwise about z) in the message's frame.
+
+MCAP messages are decoded with ``mcap_ros2`` (CDR), with protobuf message classes built from the
+schema's own ``FileDescriptorSet`` (as Foxglove writes it) and with ``json``; bag folders (SQLite or
+MCAP storage) with ``rosbags``. A file that is not a log, a truncated or damaged log, a missing
+topic (the message lists the topics there are), a topic of the wrong kind and an unsupported
+encoding are each one :class:`~makeway.errors.InputError` naming the log.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Iterable, Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from types import TracebackType
+from typing import Any
+
+import cv2
+import numpy as np
+import yaml
+from mcap.decoder import DecoderFactory as McapDecoderFactory
+
+from makeway.errors import InputError
+from makeway.sense.recording import Recording, Trajectory
+from makeway.sense.video import VideoInfo
+
+__all__ = [
+    "ARRAY_SUFFIX",
+    "AUDIO_SCHEMAS",
+    "CAMERA_SCHEMAS",
+    "POSE_SCHEMAS",
+    "ROS_RAW_AUDIO_MSGDEF",
+    "LogAudio",
+    "LogFrameReader",
+    "LogPoses",
+    "LogReader",
+    "TopicInfo",
+    "is_log",
+    "open_frame_source",
+    "open_log",
+    "read_log_recording",
+]
+
+MCAP_MAGIC = b"\x89MCAP0\r\n"
+
+CAMERA_SCHEMAS = frozenset(
+    {
+        "sensor_msgs/msg/Image",
+        "sensor_msgs/msg/CompressedImage",
+        "foxglove.CompressedImage",
+        "foxglove.RawImage",
+    }
+)
+AUDIO_SCHEMAS = frozenset({"foxglove.RawAudio", "makeway_msgs/msg/RawAudio"})
+POSE_SCHEMAS = frozenset({"nav_msgs/msg/Odometry", "geometry_msgs/msg/PoseStamped", "foxglove.PoseInFrame"})
+ARRAY_SCHEMAS = frozenset({"std_msgs/msg/String", "makeway.ArrayDescription"})
+
+#: The array description of audio topic ``T`` is on topic ``T + ARRAY_SUFFIX``.
+ARRAY_SUFFIX = "/array"
+
+#: The ROS 2 message definition of ``makeway_msgs/msg/RawAudio``: Foxglove's ``RawAudio`` fields
+#: with a ROS header (the stamp is the time of the block's first sample).
+ROS_RAW_AUDIO_MSGDEF = """std_msgs/Header header
+string format
+uint32 sample_rate
+uint32 number_of_channels
+uint8[] data
+"""
+
+_RAW_ENCODINGS = {"bgr8": 3, "rgb8": 3, "8uc3": 3, "mono8": 1, "8uc1": 1, "bgra8": 4, "rgba8": 4}
+_PCM: dict[str, np.dtype[Any]] = {"pcm-s16": np.dtype("<i2"), "pcm-f32": np.dtype("<f4")}
+
+
+def _ros_name(name: str) -> str:
+    """``pkg/Type`` → ``pkg/msg/Type`` (ROS 1 style names as some tools write them)."""
+    parts = name.split("/")
+    return f"{parts[0]}/msg/{parts[1]}" if len(parts) == 2 else name
+
+
+def _kind(schema: str, topic: str) -> str:
+    if schema in CAMERA_SCHEMAS:
+        return "camera"
+    if schema in AUDIO_SCHEMAS:
+        return "audio"
+    if schema in POSE_SCHEMAS:
+        return "pose"
+    if schema in ARRAY_SCHEMAS and topic.endswith(ARRAY_SUFFIX):
+        return "array"
+    return "other"
+
+
+@dataclass(frozen=True)
+class TopicInfo:
+    """One topic of a log: its name, message type (schema name), message encoding (``cdr``,
+    ``protobuf``, ``json``), number of messages and kind (``camera``, ``audio``, ``pose``,
+    ``array`` or ``other``)."""
+
+    name: str
+    schema: str
+    encoding: str
+    count: int
+    kind: str
+
+
+@dataclass
+class LogAudio:
+    """An audio topic read whole: ``samples (n, channels)`` float32 in full-scale units (int16 ÷
+    32768), ``sample_rate`` Hz, ``start_ns`` the stamp of the first sample (ns), ``mics
+    (channels, 3)`` the capsule positions from the array description (m, vehicle frame) or
+    ``None`` when the log has none, ``full_scale_db_spl`` the array's calibration (``None``: not
+    stated)."""
+
+    samples: np.ndarray
+    sample_rate: int
+    start_ns: int
+    mics: np.ndarray | None = None
+    full_scale_db_spl: float | None = None
+
+    @property
+    def duration_s(self) -> float:
+        return self.samples.shape[0] / float(self.sample_rate)
+
+
+@dataclass
+class LogPoses:
+    """A pose topic read whole: ``t_ns`` stamps (ns), planar ``x``, ``y`` (m) and ``yaw`` (rad) in
+    the messages' frame (``frame_id``)."""
+
+    t_ns: np.ndarray
+    x: np.ndarray
+    y: np.ndarray
+    yaw: np.ndarray
+    frame_id: str = ""
+
+
+def _yaw(q: Any) -> float:
+    """Yaw (rad) of a quaternion with fields ``x, y, z, w``."""
+    x, y, z, w = float(q.x), float(q.y), float(q.z), float(q.w)
+    return math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+
+
+def _stamp_ns(msg: Any, log_time_ns: int) -> int:
+    """The message's own stamp (ROS ``header.stamp`` or Foxglove ``timestamp``), else the log time."""
+    header = getattr(msg, "header", None)
+    if header is not None:
+        stamp = header.stamp
+        ns = int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
+    else:
+        ts = getattr(msg, "timestamp", None)
+        ns = int(ts.seconds) * 1_000_000_000 + int(ts.nanos) if ts is not None else 0
+    return ns if ns > 0 else log_time_ns
+
+
+def _bytes(data: Any) -> np.ndarray:
+    """A message's byte payload (``bytes`` from mcap_ros2 and protobuf, a uint8 array from rosbags)."""
+    if isinstance(data, bytes | bytearray | memoryview):
+        return np.frombuffer(data, dtype=np.uint8)
+    return np.asarray(data, dtype=np.uint8).reshape(-1)
+
+
+class LogReader:
+    """A robotics log opened for reading (use :func:`open_log`); a context manager.
+
+    Subclasses fill the topic table when they open and provide :meth:`_messages` and
+    :meth:`close`; the decoding of cameras, audio and poses is shared. ``kind`` says which kind of
+    log it is (``mcap`` or ``ros2 bag``).
+    """
+
+    kind = "log"
+
+    def __init__(self, path: Path) -> None:
+        self.path = path
+        self._topics: dict[str, TopicInfo] = {}
+
+    # -------------------------------------------------------------------------------- subclasses
+
+    def _messages(self, topics: Iterable[str]) -> Iterator[tuple[str, int, Any]]:
+        """``(topic, log_time_ns, decoded message)`` for ``topics``, in log-time order."""
+        raise NotImplementedError
+
+    def close(self) -> None:
+        """Release the log; safe to call more than once."""
+
+    # ----------------------------------------------------------------------------------- topics
+
+    def topics(self) -> dict[str, TopicInfo]:
+        """Every topic of the log by name."""
+        return dict(self._topics)
+
+    def topic(self, name: str, kind: str | None = None) -> TopicInfo:
+        """The topic ``name``, checked to be of ``kind``.
+
+        Raises:
+            InputError: no such topic (lists the topics there are, of that kind first), or the
+                topic is of another kind.
+        """
+        info = self._topics.get(name)
+        if info is None:
+            same = [t for t, i in self._topics.items() if kind is None or i.kind == kind]
+            listed = ", ".join(f"{t} ({self._topics[t].schema})" for t in same) or "none"
+            what = f"{kind} topics" if kind is not None else "topics"
+            raise InputError(self.path, f"has no topic {name!r}; its {what}: {listed}")
+        if kind is not None and info.kind != kind:
+            raise InputError(
+                self.path, f"topic {name!r} holds {info.schema}, not a {kind} message type this reader knows"
+            )
+        return info
+
+    def only_topic(self, kind: str) -> str:
+        """The one topic of ``kind`` (for commands run without a topic name).
+
+        Raises:
+            InputError: the log has none, or more than one (they are listed).
+        """
+        names = [t for t, i in self._topics.items() if i.kind == kind]
+        if len(names) == 1:
+            return names[0]
+        if not names:
+            listed = ", ".join(f"{t} ({i.schema})" for t, i in self._topics.items()) or "none"
+            raise InputError(self.path, f"has no {kind} topic; its topics: {listed}")
+        raise InputError(self.path, f"has {len(names)} {kind} topics, name one: {', '.join(names)}")
+
+    # ---------------------------------------------------------------------------------- cameras
+
+    def frames(
+        self, topic: str, *, stride: int = 1, max_frames: int | None = None
+    ) -> Iterator[tuple[int, int, np.ndarray]]:
+        """``(message_index, stamp_ns, image_bgr)`` for every ``stride``-th message of the camera
+        ``topic`` (message indices count from 0), at most ``max_frames`` of them.
+
+        Raises:
+            InputError: not a camera topic, an unsupported encoding, or an image that does not decode.
+        """
+        info = self.topic(topic, "camera")
+        yielded = 0
+        for index, (_, log_ns, msg) in enumerate(self._messages([topic])):
+            if index % stride:
+                continue
+            yield index, _stamp_ns(msg, log_ns), self._image(msg, info.schema, topic, index)
+            yielded += 1
+            if max_frames is not None and yielded >= max_frames:
+                return
+
+    def stamps(self, topic: str, limit: int | None = None) -> list[int]:
+        """The stamps (ns) of the first ``limit`` messages of ``topic`` (all: ``None``), without
+        decoding their images or samples."""
+        out: list[int] = []
+        for _, log_ns, msg in self._messages([topic]):
+            out.append(_stamp_ns(msg, log_ns))
+            if limit is not None and len(out) >= limit:
+                break
+        return out
+
+    def _image(self, msg: Any, schema: str, topic: str, index: int) -> np.ndarray:
+        where = f"message {index} on {topic}"
+        if schema in ("sensor_msgs/msg/CompressedImage", "foxglove.CompressedImage"):
+            fmt = str(msg.format).lower()
+            if not any(k in fmt for k in ("jpeg", "jpg", "png", "webp")):
+                raise InputError(
+                    self.path, f"{where}: unsupported image format {msg.format!r} (jpeg, png, webp)"
+                )
+            image = cv2.imdecode(_bytes(msg.data), cv2.IMREAD_COLOR)
+            if image is None:
+                raise InputError(self.path, f"{where}: the {msg.format} image does not decode (damaged)")
+            return image
+        encoding = str(msg.encoding).lower()
+        channels = _RAW_ENCODINGS.get(encoding)
+        if channels is None:
+            raise InputError(
+                self.path,
+                f"{where}: unsupported raw image encoding {msg.encoding!r} "
+                f"(supported: {', '.join(sorted(_RAW_ENCODINGS))})",
+            )
+        height, width, step = int(msg.height), int(msg.width), int(msg.step)
+        data = _bytes(msg.data)
+        if height < 1 or width < 1 or step < width * channels or data.size < step * height:
+            raise InputError(
+                self.path,
+                f"{where}: {width}x{height} {encoding} image with step {step} needs {step * height} bytes, "
+                f"has {data.size}",
+            )
+        rows = data[: step * height].reshape(height, step)[:, : width * channels]
+        image = rows.reshape(height, width, channels)
+        if encoding in ("mono8", "8uc1"):
+            return cv2.cvtColor(image, cv2.COLOR_GRAY2BGR)
+        if encoding == "rgb8":
+            return cv2.cvtColor(image, cv2.COLOR_RGB2BGR)
+        if encoding == "bgra8":
+            return cv2.cvtColor(image, cv2.COLOR_BGRA2BGR)
+        if encoding == "rgba8":
+            return cv2.cvtColor(image, cv2.COLOR_RGBA2BGR)
+        return np.ascontiguousarray(image)
+
+    # ------------------------------------------------------------------------------------ audio
+
+    def audio(self, topic: str) -> LogAudio:
+        """Every block of the audio ``topic``, joined, with the array description when there is one.
+
+        Raises:
+            InputError: not an audio topic, no messages, an unsupported sample format, blocks
+                that change rate or channel count, or an array description that does not fit.
+        """
+        self.topic(topic, "audio")
+        blocks: list[np.ndarray] = []
+        rate = channels = filled = 0
+        start_ns = 0
+        for index, (_, log_ns, msg) in enumerate(self._messages([topic])):
+            fmt = str(msg.format).lower()
+            dtype = _PCM.get(fmt)
+            if dtype is None:
+                raise InputError(
+                    self.path,
+                    f"message {index} on {topic}: unsupported audio format {msg.format!r} (pcm-s16, pcm-f32)",
+                )
+            r, c = int(msg.sample_rate), int(msg.number_of_channels)
+            if index == 0:
+                rate, channels, start_ns = r, c, _stamp_ns(msg, log_ns)
+                if rate < 1 or channels < 1:
+                    raise InputError(self.path, f"{topic}: sample rate {rate} Hz and {channels} channel(s)")
+            elif (r, c) != (rate, channels):
+                raise InputError(
+                    self.path,
+                    f"message {index} on {topic}: {c} channel(s) at {r} Hz after {channels} at {rate} Hz",
+                )
+            raw = _bytes(msg.data)
+            if raw.size % (dtype.itemsize * channels):
+                raise InputError(
+                    self.path, f"message {index} on {topic}: {raw.size} bytes is not whole frames"
+                )
+            samples = raw.view(dtype).reshape(-1, channels)
+            # a dropped block (this one starts more than half a block after the samples so far): silence
+            gap = int(round((_stamp_ns(msg, log_ns) - start_ns) * 1e-9 * rate)) - filled
+            if index > 0 and gap > max(1, len(samples) // 2):
+                blocks.append(np.zeros((gap, channels), np.float32))
+                filled += gap
+            filled += len(samples)
+            blocks.append(
+                samples.astype(np.float32) / 32768.0 if fmt == "pcm-s16" else samples.astype(np.float32)
+            )
+        if not blocks:
+            raise InputError(self.path, f"audio topic {topic} holds no messages")
+        audio = LogAudio(np.concatenate(blocks, axis=0), rate, start_ns)
+        array_topic = topic + ARRAY_SUFFIX
+        if array_topic in self._topics:
+            self._read_array(array_topic, audio)
+        return audio
+
+    def _read_array(self, topic: str, audio: LogAudio) -> None:
+        for _, _, msg in self._messages([topic]):
+            spec = msg if isinstance(msg, dict) else yaml.safe_load(str(msg.data))
+            break
+        else:
+            return
+        problem = f"array description on {topic}"
+        if not isinstance(spec, dict) or "mics" not in spec:
+            raise InputError(self.path, f"{problem} has no 'mics' list")
+        try:
+            mics = np.asarray(spec["mics"], dtype=np.float64)
+        except (TypeError, ValueError):
+            raise InputError(self.path, f"{problem}: 'mics' is not a list of [x, y, z]") from None
+        if mics.ndim != 2 or mics.shape[1] != 3 or not np.all(np.isfinite(mics)):
+            raise InputError(self.path, f"{problem}: 'mics' is not a list of [x, y, z]")
+        if len(mics) != audio.samples.shape[1]:
+            raise InputError(
+                self.path,
+                f"{problem} lists {len(mics)} microphone(s), the audio has "
+                f"{audio.samples.shape[1]} channel(s)",
+            )
+        rate = spec.get("sample_rate", audio.sample_rate)
+        if int(rate) != audio.sample_rate:
+            raise InputError(
+                self.path, f"{problem} says sample_rate {rate}, the audio is {audio.sample_rate} Hz"
+            )
+        audio.mics = mics
+        full = spec.get("full_scale_db_spl")
+        audio.full_scale_db_spl = None if full is None else float(full)
+
+    # ------------------------------------------------------------------------------------ poses
+
+    def poses(self, topic: str) -> LogPoses:
+        """Every pose of the pose/odometry ``topic`` (planar part).
+
+        Raises:
+            InputError: not a pose topic, or no messages.
+        """
+        info = self.topic(topic, "pose")
+        t, x, y, yaw = [], [], [], []
+        frame_id = ""
+        for _, log_ns, msg in self._messages([topic]):
+            if info.schema == "nav_msgs/msg/Odometry":
+                pose = msg.pose.pose
+                frame_id = str(msg.header.frame_id)
+            else:
+                pose = msg.pose
+                frame_id = str(msg.header.frame_id) if hasattr(msg, "header") else str(msg.frame_id)
+            t.append(_stamp_ns(msg, log_ns))
+            x.append(float(pose.position.x))
+            y.append(float(pose.position.y))
+            yaw.append(_yaw(pose.orientation))
+        if not t:
+            raise InputError(self.path, f"pose topic {topic} holds no messages")
+        return LogPoses(
+            np.asarray(t, dtype=np.int64), np.asarray(x), np.asarray(y), np.asarray(yaw), frame_id
+        )
+
+    def recording(self, audio_topic: str, pose_topic: str | None = None) -> Recording:
+        """The audio topic (with its array description) and the ego poses as a
+        :class:`~makeway.sense.recording.Recording` (time 0 = the first audio sample; no siren
+        sources: a log does not know them). Without ``pose_topic`` the ego stands at the origin.
+
+        Raises:
+            InputError: as :meth:`audio` and :meth:`poses`; the log has no array description.
+        """
+        audio = self.audio(audio_topic)
+        if audio.mics is None:
+            raise InputError(
+                self.path,
+                f"audio topic {audio_topic} has no array description (topic {audio_topic}{ARRAY_SUFFIX}); "
+                "the siren stack needs the microphone positions",
+            )
+        duration = audio.duration_s
+        if pose_topic is not None:
+            poses = self.poses(pose_topic)
+            t = (poses.t_ns - audio.start_ns) / 1e9
+            order = np.argsort(t, kind="stable")
+            t, keep = np.unique(t[order], return_index=True)
+            idx = order[keep]
+            ego = Trajectory(t, poses.x[idx], poses.y[idx], poses.yaw[idx])
+        else:
+            ego = Trajectory(np.array([0.0, duration]), np.zeros(2), np.zeros(2), np.zeros(2))
+        return Recording(
+            audio.samples,
+            audio.sample_rate,
+            audio.mics,
+            ego,
+            [],
+            self.path,
+            {
+                "log": str(self.path),
+                "audio_topic": audio_topic,
+                "pose_topic": pose_topic,
+                "start_ns": audio.start_ns,
+            },
+            audio.full_scale_db_spl,
+        )
+
+    # ------------------------------------------------------------------------------- life cycle
+
+    def __enter__(self) -> LogReader:
+        return self
+
+    def __exit__(
+        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
+    ) -> None:
+        self.close()
+
+
+# ------------------------------------------------------------------------------------------ MCAP
+
+
+class _ProtobufDecoders(McapDecoderFactory):
+    """An ``mcap`` decoder factory for ``protobuf`` channels: message classes are built from the
+    schema record's serialized ``FileDescriptorSet``."""
+
+    def decoder_for(self, message_encoding: str, schema: Any) -> Any:
+        if message_encoding != "protobuf" or schema is None or schema.encoding != "protobuf":
+            return None
+        from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
+
+        fds = descriptor_pb2.FileDescriptorSet.FromString(schema.data)
+        pool = descriptor_pool.DescriptorPool()
+        for fd in fds.file:
+            pool.Add(fd)
+        cls = message_factory.GetMessageClass(pool.FindMessageTypeByName(schema.name))
+        return cls.FromString
+
+
+class _JsonDecoders(McapDecoderFactory):
+    def decoder_for(self, message_encoding: str, schema: Any) -> Any:
+        return (lambda data: json.loads(bytes(data))) if message_encoding == "json" else None
+
+
+class McapLog(LogReader):
+    """An MCAP file (any profile: ROS 2 ``cdr`` and Foxglove ``protobuf``/``json`` channels)."""
+
+    kind = "mcap"
+
+    def __init__(self, path: Path) -> None:
+        super().__init__(path)
+        from mcap.reader import make_reader
+        from mcap_ros2.decoder import DecoderFactory
+
+        self._file = path.open("rb")
+        self._decoders: list[McapDecoderFactory] = [DecoderFactory(), _ProtobufDecoders(), _JsonDecoders()]
+        try:
+            reader = make_reader(self._file, decoder_factories=self._decoders)
+            try:
+                summary = reader.get_summary()
+            except Exception:  # a cut-off file ends in message data, not in a summary: scan it below
+                summary = None
+            counts: dict[int, int] | None = None
+            if summary is not None and summary.statistics is not None:
+                counts = dict(summary.statistics.channel_message_counts)
+            if summary is None or counts is None:
+                # no summary (a truncated file has none): scan the whole file, which also checks it
+                counts = {}
+                channels, schemas = {}, {}
+                for schema, channel, _ in self._scan():
+                    counts[channel.id] = counts.get(channel.id, 0) + 1
+                    channels[channel.id] = channel
+                    if schema is not None:
+                        schemas[schema.id] = schema
+            else:
+                channels, schemas = summary.channels, summary.schemas
+        except InputError:
+            self._file.close()
+            raise
+        except Exception as exc:
+            self._file.close()
+            raise InputError(path, f"is not a readable MCAP file ({_first_line(exc)})") from None
+        for cid, channel in channels.items():
+            schema = schemas.get(channel.schema_id)
+            name = (
+                _ros_name(schema.name)
+                if schema is not None and schema.encoding == "ros2msg"
+                else (schema.name if schema is not None else "")
+            )
+            self._topics[channel.topic] = TopicInfo(
+                channel.topic, name, channel.message_encoding, counts.get(cid, 0), _kind(name, channel.topic)
+            )
+
+    def _scan(self) -> Iterator[tuple[Any, Any, Any]]:
+        from mcap.reader import NonSeekingReader  # reads every record in order, so it checks them all
+
+        self._file.seek(0)
+        try:
+            yield from NonSeekingReader(self._file).iter_messages()
+        except Exception as exc:
+            raise InputError(self.path, f"is truncated or damaged ({_first_line(exc)})") from None
+
+    def _messages(self, topics: Iterable[str]) -> Iterator[tuple[str, int, Any]]:
+        from mcap.reader import make_reader
+
+        self._file.seek(0)
+        reader = make_reader(self._file, decoder_factories=self._decoders)
+        try:
+            for _, channel, message, decoded in reader.iter_decoded_messages(topics=list(topics)):
+                yield channel.topic, int(message.log_time), decoded
+        except InputError:
+            raise
+        except Exception as exc:
+            raise InputError(self.path, f"is truncated or damaged ({_first_line(exc)})") from None
+
+    def close(self) -> None:
+        self._file.close()
+
+
+# --------------------------------------------------------------------------------- ROS 2 bag folder
+
+
+class BagLog(LogReader):
+    """A ROS 2 bag folder (``metadata.yaml`` + SQLite or MCAP storage), read with ``rosbags``."""
+
+    kind = "ros2 bag"
+
+    def __init__(self, path: Path) -> None:
+        super().__init__(path)
+        from rosbags.highlevel import AnyReader
+
+        try:
+            self._reader = AnyReader([path])
+            self._reader.open()
+        except Exception as exc:
+            raise InputError(path, f"is not a readable ROS 2 bag ({_first_line(exc)})") from None
+        for name, info in self._reader.topics.items():
+            schema = _ros_name(info.msgtype or "")
+            encoding = info.connections[0].ext.serialization_format if info.connections else "cdr"  # type: ignore[union-attr]
+            self._topics[name] = TopicInfo(
+                name, schema, str(encoding), int(info.msgcount), _kind(schema, name)
+            )
+
+    def _messages(self, topics: Iterable[str]) -> Iterator[tuple[str, int, Any]]:
+        wanted = set(topics)
+        conns = [c for c in self._reader.connections if c.topic in wanted]
+        try:
+            for conn, stamp, raw in self._reader.messages(connections=conns):
+                yield conn.topic, int(stamp), self._reader.deserialize(raw, conn.msgtype)
+        except InputError:
+            raise
+        except Exception as exc:
+            raise InputError(self.path, f"is truncated or damaged ({_first_line(exc)})") from None
+
+    def close(self) -> None:
+        self._reader.close()
+
+
+# ------------------------------------------------------------------------------------------ open
+
+
+def _first_line(exc: BaseException) -> str:
+    if type(exc).__name__ == "EndOfFile":
+        return "it ends in the middle of a record"
+    text = str(exc).strip().splitlines()
+    return (text[0] if text else type(exc).__name__)[:200]
+
+
+def is_log(path: str | Path) -> bool:
+    """Whether ``path`` looks like a robotics log: a file starting with the MCAP magic bytes (or
+    named ``*.mcap``), or a folder holding a ROS 2 bag's ``metadata.yaml``."""
+    p = Path(path)
+    if p.is_dir():
+        return (p / "metadata.yaml").is_file()
+    if p.suffix.lower() == ".mcap":
+        return True
+    try:
+        with p.open("rb") as f:
+            return f.read(len(MCAP_MAGIC)) == MCAP_MAGIC
+    except OSError:
+        return False
+
+
+def open_log(path: str | Path) -> LogReader:
+    """Open an MCAP file or a ROS 2 bag folder.
+
+    Raises:
+        InputError: the path is missing, is neither kind, or is truncated or damaged.
+    """
+    p = Path(path)
+    if not p.exists():
+        raise InputError(p, "no such file or folder")
+    if p.is_dir():
+        if not (p / "metadata.yaml").is_file():
+            raise InputError(
+                p, "is a folder without metadata.yaml; expected an MCAP file or a ROS 2 bag folder"
+            )
+        return BagLog(p)
+    with p.open("rb") as f:
+        head = f.read(len(MCAP_MAGIC))
+    if head != MCAP_MAGIC:
+        raise InputError(p, "is not an MCAP file (no MCAP magic bytes at the start)")
+    return McapLog(p)
+
+
+class LogFrameReader:
+    """A camera topic behind the interface of :class:`~makeway.sense.video.VideoReader`: frames come
+    out as ``(message_index, time_s, image_bgr)`` with ``time_s`` from the message stamps, relative
+    to the first frame; ``info`` is a :class:`~makeway.sense.video.VideoInfo` whose ``fps`` is the
+    median message rate and whose ``frame_count`` is the topic's message count. ``start_ns`` is
+    the first frame's stamp (ns), so outputs can keep the log's clock.
+
+    Raises:
+        InputError: as :func:`open_log`; the topic is missing or not a camera topic (``topic=None``:
+            the log must have exactly one), or its first image does not decode.
+    """
+
+    def __init__(
+        self, path: str | Path, topic: str | None = None, *, stride: int = 1, max_frames: int | None = None
+    ) -> None:
+        if isinstance(stride, bool) or not isinstance(stride, int) or stride < 1:
+            raise ValueError(f"stride must be an integer >= 1, got {stride!r}")
+        self.path = Path(path)
+        self.stride = stride
+        self.max_frames = max_frames
+        self.log = open_log(path)
+        try:
+            self.topic = topic if topic is not None else self.log.only_topic("camera")
+            count = self.log.topic(self.topic, "camera").count
+            first: np.ndarray | None = None
+            for _, _, image in self.log.frames(self.topic, max_frames=1):  # decodes: a bad image fails now
+                first = image
+            if first is None:
+                raise InputError(self.path, f"camera topic {self.topic} holds no messages")
+            stamps = self.log.stamps(self.topic, 50)
+        except BaseException:
+            self.log.close()
+            raise
+        steps = np.diff(np.asarray(stamps, dtype=np.float64)) / 1e9
+        steps = steps[steps > 0]
+        fps = float(1.0 / np.median(steps)) if steps.size else 25.0
+        self.start_ns = stamps[0]
+        self.info = VideoInfo(
+            path=self.path,
+            width=int(first.shape[1]),
+            height=int(first.shape[0]),
+            fps=fps,
+            frame_count=count,
+            duration_s=count / fps,
+            fps_assumed=not steps.size,
+        )
+        self.frames_read = 0
+        self.frames_yielded = 0
+        self.reached_end = False
+
+    def __iter__(self) -> Iterator[tuple[int, float, np.ndarray]]:
+        self.frames_read = self.frames_yielded = 0
+        self.reached_end = False
+        for index, stamp, image in self.log.frames(
+            self.topic, stride=self.stride, max_frames=self.max_frames
+        ):
+            self.frames_read = index + 1
+            self.frames_yielded += 1
+            yield index, (stamp - self.start_ns) / 1e9, image
+        self.reached_end = self.max_frames is None or self.frames_yielded < self.max_frames
+
+    def check_complete(self) -> None:
+        """Nothing to check beyond decoding: a damaged log raises while it is read."""
+
+    def close(self) -> None:
+        self.log.close()
+
+    def __enter__(self) -> LogFrameReader:
+        return self
+
+    def __exit__(
+        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
+    ) -> None:
+        self.close()
+
+
+def read_log_recording(
+    path: str | Path, audio_topic: str | None = None, pose_topic: str | None = None
+) -> Recording:
+    """The audio and ego path of the log ``path`` as a :class:`~makeway.sense.recording.Recording`
+    (:meth:`LogReader.recording`). ``audio_topic=None``: the log's only audio topic;
+    ``pose_topic=None``: its only pose topic when it has exactly one, else the ego stands still.
+
+    Raises:
+        InputError: as :func:`open_log` and :meth:`LogReader.recording`.
+    """
+    with open_log(path) as log:
+        audio = audio_topic if audio_topic is not None else log.only_topic("audio")
+        if pose_topic is None:
+            poses = [t for t, i in log.topics().items() if i.kind == "pose"]
+            pose_topic = poses[0] if len(poses) == 1 else None
+        return log.recording(audio, pose_topic)
+
+
+def open_frame_source(
+    path: str | Path, topic: str | None = None, *, stride: int = 1, max_frames: int | None = None
+) -> Any:
+    """A video file's :class:`~makeway.sense.video.VideoReader`, or a log's camera ``topic`` as a
+    :class:`LogFrameReader` (both iterate ``(index, time_s, image_bgr)`` and have ``info``,
+    ``check_complete()``, ``close()``).
+
+    Raises:
+        InputError: as the readers; a ``topic`` given for a file that is not a log.
+    """
+    from makeway.sense.video import VideoReader
+
+    if is_log(path):
+        return LogFrameReader(path, topic, stride=stride, max_frames=max_frames)
+    if topic is not None:
+        raise InputError(path, "a camera topic was named, but this is not an MCAP file or a ROS 2 bag folder")
+    return VideoReader(path, stride=stride, max_frames=max_frames)

@@ -1,0 +1,517 @@
+"""Issue 28, items 1, 2 and 5: robotics logs in (MCAP, ROS 2 bags) and Foxglove-ready MCAP out.
+
+The logs are made here, in tmp_path, from a shared clip and a recording simulated from the shared
+siren and street recordings, with the same libraries a fleet uses (mcap, rosbags, the Foxglove
+protobuf schemas); they are read back with independent decoders (mcap_ros2 for CDR in MCAP).
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from makeway.cli.main import app
+from makeway.errors import InputError
+from makeway.perceive.audio.stream import listen
+from makeway.sense.log_writer import LOG_FORMATS, Ros2LogWriter, make_test_log
+from makeway.sense.logs import open_log, read_log_recording
+from makeway.sense.recording import Recording, read_recording, write_recording
+from makeway.sense.video import VideoReader
+from makeway.sim.audio_scenarios import simulate_recording
+
+runner = CliRunner()
+N_FRAMES = 6
+START_NS = 1_700_000_000_000_000_000
+CLIP = "night_ambulance_lights.mp4"
+
+
+@pytest.fixture(scope="module")
+def rec_dir(data_root: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A 3 s roof-array recording: a real recorded siren closing from behind in real street noise."""
+    rec = simulate_recording("from_behind", 3.0, seed=3, siren="real", noise="real", data_root=data_root)
+    return write_recording(tmp_path_factory.mktemp("rec") / "rec", rec)
+
+
+@pytest.fixture(scope="module")
+def clip(video_dir: Path) -> Path:
+    return video_dir / CLIP
+
+
+@pytest.fixture(scope="module")
+def video_frames(clip: Path) -> list[np.ndarray]:
+    with VideoReader(clip, max_frames=N_FRAMES) as reader:
+        return [f for _, _, f in reader]
+
+
+@pytest.fixture(scope="module")
+def logs(clip: Path, rec_dir: Path, tmp_path_factory: pytest.TempPathFactory) -> dict[tuple[str, str], Path]:
+    """Every log format × image kind, from the clip and the recording."""
+    root = tmp_path_factory.mktemp("logs")
+    made = {}
+    for fmt in LOG_FORMATS:
+        for image in ("compressed", "raw"):
+            out = root / (f"{fmt}_{image}" + ("" if fmt.startswith("ros2-bag") else ".mcap"))
+            make_test_log(
+                out,
+                video=clip,
+                recording=rec_dir,
+                fmt=fmt,
+                image=image,
+                max_frames=N_FRAMES,
+                start_ns=START_NS,
+            )
+            made[(fmt, image)] = out
+    return made
+
+
+# ----------------------------------------------------------------------------------------- logs in
+
+
+@pytest.mark.parametrize("fmt", LOG_FORMATS)
+def test_topics_and_kinds(logs: dict[tuple[str, str], Path], fmt: str) -> None:
+    with open_log(logs[(fmt, "compressed")]) as log:
+        topics = log.topics()
+    assert {t: i.kind for t, i in topics.items()} == {
+        "/camera/image": "camera",
+        "/audio/raw": "audio",
+        "/audio/raw/array": "array",
+        "/ego/odom": "pose",
+    }
+    assert topics["/camera/image"].count == N_FRAMES
+    assert topics["/audio/raw"].count == 30  # 3 s in 0.1 s blocks
+    expected = "foxglove.CompressedImage" if fmt == "mcap-foxglove" else "sensor_msgs/msg/CompressedImage"
+    assert topics["/camera/image"].schema == expected
+
+
+@pytest.mark.parametrize("fmt", LOG_FORMATS)
+@pytest.mark.parametrize("image", ["compressed", "raw"])
+def test_camera_frames_are_the_video_frames(
+    logs: dict[tuple[str, str], Path], video_frames: list[np.ndarray], fmt: str, image: str
+) -> None:
+    with open_log(logs[(fmt, image)]) as log:
+        frames = list(log.frames("/camera/image"))
+    assert [i for i, _, _ in frames] == list(range(N_FRAMES))
+    # stamps: the video's frame times (25 fps) from the start
+    np.testing.assert_array_equal(
+        [s for _, s, _ in frames], [START_NS + k * 40_000_000 for k in range(N_FRAMES)]
+    )
+    for (_, _, got), want in zip(frames, video_frames, strict=True):
+        assert got.shape == want.shape and got.dtype == np.uint8
+        if image == "raw":
+            np.testing.assert_array_equal(got, want)
+        else:  # exactly the JPEG the writer made of the frame, and close to the frame
+            jpeg = cv2.imdecode(
+                cv2.imencode(".jpg", want, [cv2.IMWRITE_JPEG_QUALITY, 90])[1], cv2.IMREAD_COLOR
+            )
+            np.testing.assert_array_equal(got, jpeg)
+            assert cv2.PSNR(got, want) > 30.0
+
+
+def test_stride_and_max_frames(logs: dict[tuple[str, str], Path]) -> None:
+    with open_log(logs[("ros2-bag", "compressed")]) as log:
+        assert [i for i, _, _ in log.frames("/camera/image", stride=2, max_frames=2)] == [0, 2]
+
+
+@pytest.mark.parametrize("fmt", LOG_FORMATS)
+def test_audio_array_and_ego_path_round_trip(
+    logs: dict[tuple[str, str], Path], rec_dir: Path, fmt: str
+) -> None:
+    rec = read_recording(rec_dir)
+    got = read_log_recording(logs[(fmt, "compressed")])  # the only audio and pose topics
+    assert got.sample_rate == rec.sample_rate and got.audio.shape == rec.audio.shape
+    assert np.abs(got.audio - rec.audio).max() <= 1.0 / 32768  # pcm-s16 quantization
+    np.testing.assert_allclose(got.mics, rec.mics)
+    assert got.full_scale_db_spl == rec.full_scale_db_spl
+    np.testing.assert_allclose(got.ego.t, rec.ego.t, atol=1e-9)
+    np.testing.assert_allclose(got.ego.x, rec.ego.x, atol=1e-9)
+    np.testing.assert_allclose(got.ego.y, rec.ego.y, atol=1e-9)
+    np.testing.assert_allclose(np.unwrap(got.ego.yaw), np.unwrap(rec.ego.yaw), atol=1e-9)
+
+
+def test_listening_to_a_log_hears_what_the_recording_holds(
+    logs: dict[tuple[str, str], Path], rec_dir: Path
+) -> None:
+    want = list(listen(read_recording(rec_dir)))
+    got = list(listen(read_log_recording(logs[("ros2-bag", "compressed")])))
+    assert len(got) == len(want) > 0 and any(m["is_siren"] for m in want)
+    assert [m["is_siren"] for m in got] == [m["is_siren"] for m in want]
+    np.testing.assert_allclose([m["probability"] for m in got], [m["probability"] for m in want], atol=2e-3)
+    for g, w in zip(got, want, strict=True):
+        for gs, ws in zip(g["sources"], w["sources"], strict=True):
+            assert abs(np.angle(np.exp(1j * (gs["bearing_rad"] - ws["bearing_rad"])))) < np.radians(2.0)
+
+
+def _detect(args: list[str]) -> list[dict[str, Any]]:
+    r = runner.invoke(app, ["detect", *args, "--rule", "crop", "--classifier", "fastest", "--no-video", "-q"])
+    assert r.exit_code == 0, (r.output, r.exception)
+    out = Path(args[args.index("-o") + 1])
+    return [json.loads(line) for line in (out / "tracks.jsonl").read_text().splitlines()]
+
+
+def test_detect_on_a_raw_camera_log_equals_detect_on_the_video(
+    logs: dict[tuple[str, str], Path], clip: Path, tmp_path: Path
+) -> None:
+    on_video = _detect([str(clip), "-o", str(tmp_path / "v"), "--max-frames", str(N_FRAMES)])
+    on_log = _detect([str(logs[("mcap-ros2", "raw")]), "--topic", "/camera/image", "-o", str(tmp_path / "l")])
+    assert len(on_log) == N_FRAMES and on_log == on_video
+    assert any(line["tracks"] for line in on_log)
+    summary = json.loads((tmp_path / "l" / "summary.json").read_text())
+    assert summary["topic"] == "/camera/image" and summary["frames"] == N_FRAMES and summary["fps"] == 25.0
+
+
+# ---------------------------------------------------------------------------------------- logs out
+
+
+def _read_mcap(path: Path) -> tuple[dict[str, tuple[str, str]], dict[str, list[tuple[int, bytes]]]]:
+    """Topic → (schema name, schema encoding) and topic → [(log time, data)], read with mcap alone."""
+    from mcap.reader import make_reader
+
+    channels: dict[str, tuple[str, str]] = {}
+    messages: dict[str, list[tuple[int, bytes]]] = {}
+    with path.open("rb") as f:
+        for schema, channel, message in make_reader(f).iter_messages(log_time_order=False):
+            channels[channel.topic] = (schema.name, schema.encoding)
+            messages.setdefault(channel.topic, []).append((message.log_time, message.data))
+    return channels, messages
+
+
+def _check_common(messages: dict[str, list[tuple[int, bytes]]]) -> None:
+    for topic, msgs in messages.items():
+        times = [t for t, _ in msgs]
+        assert times == sorted(times), f"{topic}: timestamps not monotonic"
+
+
+def test_detect_writes_a_foxglove_mcap(logs: dict[tuple[str, str], Path], tmp_path: Path) -> None:
+    from foxglove_schemas_protobuf.CompressedImage_pb2 import CompressedImage
+    from foxglove_schemas_protobuf.ImageAnnotations_pb2 import ImageAnnotations
+
+    out = tmp_path / "run.mcap"
+    lines = _detect(
+        [str(logs[("mcap-foxglove", "compressed")]), "-o", str(tmp_path / "d"), "--mcap", str(out)]
+    )
+    channels, messages = _read_mcap(out)
+    assert channels == {
+        "/camera/image": ("foxglove.CompressedImage", "protobuf"),
+        "/camera/annotations": ("foxglove.ImageAnnotations", "protobuf"),
+        "/perception/tracks": ("makeway.PerceptionFrame", "jsonschema"),
+    }
+    assert {t: len(m) for t, m in messages.items()} == dict.fromkeys(channels, N_FRAMES)
+    _check_common(messages)
+    # the log's own clock is kept
+    assert [t for t, _ in messages["/camera/image"]] == [START_NS + k * 40_000_000 for k in range(N_FRAMES)]
+    for k, line in enumerate(lines):
+        img = CompressedImage.FromString(messages["/camera/image"][k][1])
+        assert img.format == "jpeg" and cv2.imdecode(
+            np.frombuffer(img.data, np.uint8), cv2.IMREAD_COLOR
+        ).shape == (
+            720,
+            1280,
+            3,
+        )
+        ann = ImageAnnotations.FromString(messages["/camera/annotations"][k][1])
+        assert len(ann.points) == len(line["tracks"]) == len(ann.texts)
+        for pa, track in zip(ann.points, line["tracks"], strict=True):
+            assert len(pa.points) == 4 and pa.points[0].x == pytest.approx(track["box"]["x1"], abs=1e-3)
+        assert json.loads(messages["/perception/tracks"][k][1]) == line
+
+
+def test_listen_on_a_log_writes_a_foxglove_mcap(logs: dict[tuple[str, str], Path], tmp_path: Path) -> None:
+    from foxglove_schemas_protobuf.FrameTransform_pb2 import FrameTransform
+    from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
+
+    out, jsonl = tmp_path / "listen.mcap", tmp_path / "listen.jsonl"
+    r = runner.invoke(
+        app,
+        ["audio", "listen", str(logs[("mcap-ros2", "compressed")]), "--audio-topic", "/audio/raw",
+         "--pose-topic", "/ego/odom", "--jsonl", str(jsonl), "--mcap", str(out)],
+    )  # fmt: skip
+    assert r.exit_code == 0, (r.output, r.exception)
+    hops = [json.loads(line) for line in jsonl.read_text().splitlines()]
+    channels, messages = _read_mcap(out)
+    assert channels == {
+        "/array/mics": ("foxglove.SceneUpdate", "protobuf"),
+        "/tf": ("foxglove.FrameTransform", "protobuf"),
+        "/siren/detection": ("makeway.SirenMessage", "jsonschema"),
+        "/siren/sources": ("foxglove.SceneUpdate", "protobuf"),
+    }
+    _check_common(messages)
+    assert len(messages["/siren/detection"]) == len(hops) == len(messages["/siren/sources"])
+    assert len(SceneUpdate.FromString(messages["/array/mics"][0][1]).entities[0].spheres) == 8
+    rec = read_log_recording(logs[("mcap-ros2", "compressed")])
+    for (t_ns, data), (_, scene), hop in zip(
+        messages["/siren/detection"], messages["/siren/sources"], hops, strict=True
+    ):
+        assert json.loads(data) == hop and t_ns == START_NS + round(hop["t_end"] * 1e9)
+        arrows = SceneUpdate.FromString(scene).entities[0].arrows
+        assert len(arrows) == len(hop["sources"])
+        for arrow, src in zip(arrows, hop["sources"], strict=True):
+            q = arrow.pose.orientation
+            assert 2 * np.arctan2(q.z, q.w) == pytest.approx(src["bearing_rad"], abs=1e-6)
+    tf = FrameTransform.FromString(messages["/tf"][-1][1])
+    x, y = rec.ego.position(hops[-1]["t_end"])
+    assert (tf.parent_frame_id, tf.child_frame_id) == ("world", "base_link")
+    assert tf.translation.x == pytest.approx(float(x)) and tf.translation.y == pytest.approx(float(y))
+
+
+def test_simulate_writes_a_foxglove_mcap(tmp_path: Path) -> None:
+    from foxglove_schemas_protobuf.PosesInFrame_pb2 import PosesInFrame
+    from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
+
+    from makeway.apps.simulate import simulate
+
+    out = tmp_path / "sim.mcap"
+    result, scenario, files = simulate("seed003", mcap=out)
+    assert files["mcap"] == str(out)
+    channels, messages = _read_mcap(out)
+    assert channels == {
+        "/ego/trajectory": ("foxglove.PosesInFrame", "protobuf"),
+        "/plan/path": ("foxglove.PosesInFrame", "protobuf"),
+        "/tf": ("foxglove.FrameTransform", "protobuf"),
+        "/scene": ("foxglove.SceneUpdate", "protobuf"),
+        "/perception/belief": ("makeway.EVBelief", "jsonschema"),
+        "/decide/yield": ("makeway.YieldState", "jsonschema"),
+    }
+    _check_common(messages)
+    n = len(messages["/tf"])
+    assert n == pytest.approx(scenario.duration_s * 20, abs=1)
+    assert len(messages["/plan/path"]) == len(result.paths)
+    states = [json.loads(d)["state"] for _, d in messages["/decide/yield"]]
+    assert states[0] == "no_ev" and "moving_over" in states  # seed 003: the car pulls over
+    beliefs = [json.loads(d) for _, d in messages["/perception/belief"]]
+    assert any(b["detected"] for b in beliefs) and len(beliefs) == n
+    scene = SceneUpdate.FromString(messages["/scene"][-1][1])
+    assert {e.id for e in scene.entities} >= {"ego", "ev"}
+    path = PosesInFrame.FromString(messages["/plan/path"][-1][1])
+    np.testing.assert_allclose([p.position.x for p in path.poses], result.paths[-1][1])
+
+
+# --------------------------------------------------------------------------------------- bad input
+
+
+def _one_error_line(r: Any, *needles: str) -> str:
+    assert r.exit_code == 2, (r.exit_code, r.output, r.exception)
+    lines = [line for line in r.stderr.splitlines() if line.strip()]
+    assert len(lines) == 1, r.stderr
+    for needle in needles:
+        assert needle in lines[0], lines[0]
+    return lines[0]
+
+
+def test_truncated_mcap_is_one_line_and_leaves_nothing(
+    logs: dict[tuple[str, str], Path], tmp_path: Path
+) -> None:
+    src = logs[("mcap-ros2", "compressed")]
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(src.read_bytes()[: src.stat().st_size // 2])
+    with pytest.raises(InputError, match="truncated or damaged"):
+        open_log(cut)
+    r = runner.invoke(
+        app, ["detect", str(cut), "-o", str(tmp_path / "out"), "--mcap", str(tmp_path / "o.mcap")]
+    )
+    _one_error_line(r, str(cut), "truncated or damaged")
+    assert not (tmp_path / "out").exists() and not (tmp_path / "o.mcap").exists()
+    r = runner.invoke(app, ["audio", "listen", str(cut)])
+    _one_error_line(r, "truncated or damaged")
+
+
+def test_damaged_bag_and_not_a_log(logs: dict[tuple[str, str], Path], tmp_path: Path) -> None:
+    bag = tmp_path / "bag"
+    shutil.copytree(logs[("ros2-bag", "compressed")], bag)
+    (db,) = bag.glob("*.db3")
+    db.write_bytes(db.read_bytes()[:4096])
+    r = runner.invoke(app, ["logs", "info", str(bag)])
+    _one_error_line(r, str(bag), "ROS 2 bag")
+    junk = tmp_path / "junk.mcap"
+    junk.write_bytes(b"not a log at all")
+    _one_error_line(runner.invoke(app, ["logs", "info", str(junk)]), "not an MCAP file")
+
+
+def test_missing_topic_lists_the_topics(logs: dict[tuple[str, str], Path], clip: Path) -> None:
+    log = logs[("ros2-bag", "raw")]
+    line = _one_error_line(runner.invoke(app, ["detect", str(log), "--topic", "/front"]), "/front")
+    assert "/camera/image (sensor_msgs/msg/Image)" in line
+    _one_error_line(runner.invoke(app, ["detect", str(log), "--topic", "/audio/raw"]), "not a camera")
+    _one_error_line(runner.invoke(app, ["audio", "listen", str(log), "--audio-topic", "/mic"]), "/audio/raw")
+    _one_error_line(runner.invoke(app, ["detect", str(clip), "--topic", "/camera/image"]), "not an MCAP file")
+
+
+def test_unsupported_encoding_and_missing_array(rec_dir: Path, tmp_path: Path) -> None:
+    path = tmp_path / "depth.mcap"
+    with Ros2LogWriter(path) as w:
+        w.channel("/depth", "sensor_msgs/msg/Image")
+        data = np.zeros(4 * 4 * 2, np.uint8)
+        w.write(
+            "/depth",
+            1,
+            w.msg("sensor_msgs/msg/Image", header=w.header(1), height=4, width=4, encoding="16UC1",
+                  is_bigendian=0, step=8, data=data),
+        )  # fmt: skip
+    _one_error_line(runner.invoke(app, ["detect", str(path), "-o", str(tmp_path / "o")]), "16UC1")
+    assert not (tmp_path / "o").exists()
+    # an audio topic without its array description: the siren stack cannot localize
+    rec: Recording = read_recording(rec_dir)
+    noarr = tmp_path / "noarr.mcap"
+    with Ros2LogWriter(noarr) as w:
+        w.channel("/mic", "makeway_msgs/msg/RawAudio")
+        pcm = np.round(rec.audio[:4800] * 32767).astype("<i2")
+        w.write(
+            "/mic",
+            1,
+            w.msg("makeway_msgs/msg/RawAudio", header=w.header(1), format="pcm-s16",
+                  sample_rate=rec.sample_rate, number_of_channels=8, data=pcm.view(np.uint8).reshape(-1)),
+        )  # fmt: skip
+    _one_error_line(runner.invoke(app, ["audio", "listen", str(noarr)]), "no array description")
+
+
+def test_failed_log_writing_leaves_nothing(rec_dir: Path, tmp_path: Path) -> None:
+    bad = tmp_path / "bad.mp4"
+    bad.write_bytes(b"\x00" * 100)
+    for fmt in LOG_FORMATS:
+        out = tmp_path / f"x_{fmt}"
+        with pytest.raises(InputError):
+            make_test_log(out, video=bad, recording=rec_dir, fmt=fmt)
+        assert list(tmp_path.glob("x_*")) == [] and list(tmp_path.glob(".x_*")) == []
+
+
+@pytest.mark.parametrize("bag", [False, True])
+def test_an_error_while_writing_leaves_no_log(tmp_path: Path, bag: bool) -> None:
+    out = tmp_path / ("bag" if bag else "log.mcap")
+    with pytest.raises(RuntimeError, match="midway"), Ros2LogWriter(out, bag=bag) as w:
+        w.channel("/chatter", "std_msgs/msg/String")
+        w.write("/chatter", 1, w.msg("std_msgs/msg/String", data="hello"))
+        raise RuntimeError("midway")
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_a_dropped_audio_block_becomes_silence(rec_dir: Path, tmp_path: Path) -> None:
+    rec = read_recording(rec_dir)
+    path = tmp_path / "dropout.mcap"
+    block = 4800  # 0.1 s at 48 kHz
+    pcm = np.round(rec.audio[: 10 * block] * 32767).astype("<i2")
+    with Ros2LogWriter(path) as w:
+        w.channel("/mic", "makeway_msgs/msg/RawAudio")
+        for k in (0, 1, 2, 4, 5, 6, 7, 8, 9):  # block 3 was lost
+            stamp = START_NS + k * 100_000_000
+            w.write(
+                "/mic",
+                stamp,
+                w.msg("makeway_msgs/msg/RawAudio", header=w.header(stamp), format="pcm-s16",
+                      sample_rate=rec.sample_rate, number_of_channels=8,
+                      data=pcm[k * block : (k + 1) * block].view(np.uint8).reshape(-1)),
+            )  # fmt: skip
+    with open_log(path) as log:
+        audio = log.audio("/mic")
+    assert audio.samples.shape == (10 * block, 8) and audio.start_ns == START_NS
+    assert not audio.samples[3 * block : 4 * block].any()
+    np.testing.assert_array_equal(audio.samples[4 * block :], pcm[4 * block :] / 32768.0)
+
+
+def test_rsu_runs_on_a_camera_log_and_writes_its_alerts_to_mcap(video_dir: Path, tmp_path: Path) -> None:
+    """The pole camera's clip while the ambulance, lights on, pulls up (as tests/test_rsu.py), as a
+    ROS 2 MCAP log: the roadside unit reads it by topic and writes its alerts beside the camera."""
+    from makeway.v2x.security import keygen
+
+    calib = (
+        Path(__file__).resolve().parents[1] / "src" / "makeway" / "data" / "intersection_cam_ambulance.yaml"
+    )
+    log = tmp_path / "pole.mcap"
+    cap = cv2.VideoCapture(str(video_dir / "intersection_cam_ambulance.mp4"))
+    cap.set(cv2.CAP_PROP_POS_FRAMES, 590)
+    with Ros2LogWriter(log) as w:
+        w.channel("/pole/image", "sensor_msgs/msg/CompressedImage")
+        for k in range(40):
+            ok, frame = cap.read()
+            assert ok
+            stamp = START_NS + k * 40_000_000
+            jpeg = cv2.imencode(".jpg", frame)[1].reshape(-1)
+            w.write("/pole/image", stamp, w.msg("sensor_msgs/msg/CompressedImage", header=w.header(stamp),
+                                                format="jpeg", data=jpeg))  # fmt: skip
+    cap.release()
+    keygen(tmp_path / "k", "rsu")
+    out, mcap = tmp_path / "out", tmp_path / "rsu.mcap"
+    r = runner.invoke(
+        app,
+        ["rsu", "run", str(log), "--topic", "/pole/image", "--calib", str(calib), "--key",
+         str(tmp_path / "k" / "rsu.key"), "--no-publish", "--out", str(out), "--mcap", str(mcap),
+         "--classifier", "fastest"],
+    )  # fmt: skip
+    assert r.exit_code == 0, (r.output, r.exception)
+    result = json.loads(r.stdout.strip().splitlines()[-1])
+    assert result["frames"] == 40 and result["outputs"]["mcap"] == str(mcap)
+    rows = [json.loads(line) for line in (out / "alerts.jsonl").read_text().splitlines()]
+    channels, messages = _read_mcap(mcap)
+    assert len(messages["/camera/image"]) == 40
+    _check_common(messages)
+    alerts = [json.loads(d) for _, d in messages.get("/v2x/alerts", [])]
+    assert len(alerts) == len(rows) == result["alerts"] > 0
+    for alert, row in zip(alerts, rows, strict=True):  # the MCAP's JSON keeps 6 significant digits
+        assert alert.keys() == row.keys()
+        assert alert == {k: pytest.approx(v, rel=1e-5) if isinstance(v, float) else v for k, v in row.items()}
+    assert channels["/v2x/alerts"] == ("makeway.V2XAlert", "jsonschema")
+    from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
+
+    assert channels["/roadside/evs"] == ("foxglove.SceneUpdate", "protobuf")
+    assert len(messages["/roadside/evs"]) == len(rows)
+    for (_, data), row in zip(messages["/roadside/evs"], rows, strict=True):
+        (entity,) = SceneUpdate.FromString(data).entities
+        assert entity.id == f"ev_{row['track_id']}" and entity.frame_id == "road"
+        pos = entity.cubes[0].pose.position
+        assert (pos.x, pos.y) == pytest.approx((row["x_m"], row["y_m"]))
+
+
+def test_logs_commands_make_and_list_a_log(clip: Path, rec_dir: Path, tmp_path: Path) -> None:
+    out = tmp_path / "made"
+    r = runner.invoke(
+        app,
+        ["logs", "make-test", str(out), "--video", str(clip), "--recording", str(rec_dir), "--format",
+         "ros2-bag-mcap", "--max-frames", "3", "--json"],
+    )  # fmt: skip
+    assert r.exit_code == 0, (r.output, r.exception)
+    made = json.loads(r.stdout)
+    assert made["topics"]["/camera/image"] == 3 and (out / "metadata.yaml").is_file()
+    r = runner.invoke(app, ["logs", "info", str(out), "--json"])
+    assert r.exit_code == 0, (r.output, r.exception)
+    info = json.loads(r.stdout)
+    assert info["kind"] == "ros2 bag"
+    assert {t["topic"]: (t["messages"], t["kind"]) for t in info["topics"]} == {
+        topic: (n, kind)
+        for (topic, n), kind in zip(made["topics"].items(), ("camera", "array", "audio", "pose"), strict=True)
+    }
+
+
+def test_two_camera_topics_need_a_name(clip: Path, tmp_path: Path) -> None:
+    path = tmp_path / "two.mcap"
+    with Ros2LogWriter(path) as w:
+        for topic in ("/front/image", "/rear/image"):
+            w.channel(topic, "sensor_msgs/msg/CompressedImage")
+            jpeg = cv2.imencode(".jpg", np.zeros((8, 8, 3), np.uint8))[1].reshape(-1)
+            w.write(
+                topic,
+                1,
+                w.msg("sensor_msgs/msg/CompressedImage", header=w.header(1), format="jpeg", data=jpeg),
+            )
+    line = _one_error_line(runner.invoke(app, ["detect", str(path)]), "2 camera topics")
+    assert "/front/image" in line and "/rear/image" in line
+
+
+def test_lights_on_a_raw_camera_log_equals_lights_on_the_video(
+    logs: dict[tuple[str, str], Path], clip: Path, tmp_path: Path
+) -> None:
+    def run(source: Path, out: Path, *extra: str) -> list[str]:
+        r = runner.invoke(
+            app, ["lights", str(source), "-o", str(out), "--detector", "colour", "--no-video", "-q", *extra]
+        )
+        assert r.exit_code == 0, (r.output, r.exception)
+        return (out / "lights.jsonl").read_text().splitlines()
+
+    on_video = run(clip, tmp_path / "v", "--max-frames", str(N_FRAMES))
+    on_log = run(logs[("ros2-bag", "raw")], tmp_path / "l", "--topic", "/camera/image")
+    assert len(on_log) == N_FRAMES and on_log == on_video
+    assert any(json.loads(line)["lights"] for line in on_log)  # the ambulance's blue lights are seen
