@@ -32,7 +32,6 @@ from __future__ import annotations
 import csv
 import io
 import json
-import math
 import os
 import time
 from collections.abc import Sequence
@@ -41,7 +40,7 @@ from pathlib import Path
 from typing import Any
 
 from makeway.atomic import atomic_path, check_writable, write_text_atomic
-from makeway.engine.inputs import EngineInput, expand_inputs
+from makeway.engine.inputs import expand_inputs
 from makeway.engine.mine import SAMPLE_COLUMNS, MineConfig, read_samples, run_input
 from makeway.errors import InputError
 from makeway.jsonable import to_jsonable
@@ -132,15 +131,19 @@ def _ranked(rows: list[dict[str, str]]) -> list[dict[str, str]]:
 def write_engine_review(out: Path, *, top: int = 64) -> dict[str, Any]:
     """Gather every finished input's samples under ``out/inputs`` and write the ranked review files
     (module docstring); returns the counts and the files written."""
-    from makeway.train.mining import MiningResult, contact_sheet, write_review
-
     import cv2
     import numpy as np
+
+    from makeway.train.mining import MiningResult, contact_sheet, write_review
 
     inputs_dir = out / "inputs"
     vision: list[dict[str, str]] = []
     audio: list[dict[str, str]] = []
-    folders = sorted(p for p in inputs_dir.iterdir() if p.is_dir() and not p.name.startswith(".")) if inputs_dir.is_dir() else []
+    folders = (
+        sorted(p for p in inputs_dir.iterdir() if p.is_dir() and not p.name.startswith("."))
+        if inputs_dir.is_dir()
+        else []
+    )
     for folder in folders:
         for row in read_samples(folder):
             row["media"] = f"{folder.name}/{row['media']}"
@@ -163,7 +166,9 @@ def write_engine_review(out: Path, *, top: int = 64) -> dict[str, Any]:
         files.update({k: str(v) for k, v in write_review(result, out, top=top).items()})
         for page, first in enumerate(range(top, len(vision), top), start=2):
             part = vision[first : first + top]
-            sheet = contact_sheet([inputs_dir / r["media"] for r in part], [float(r["probability"]) for r in part])
+            sheet = contact_sheet(
+                [inputs_dir / r["media"] for r in part], [float(r["probability"]) for r in part]
+            )
             path = out / f"contact_sheet_{page}.png"
             with atomic_path(path) as tmp:
                 cv2.imwrite(str(tmp), sheet)
@@ -173,7 +178,10 @@ def write_engine_review(out: Path, *, top: int = 64) -> dict[str, Any]:
             out / "audio_candidates.csv",
             _csv_text(
                 ["rank", "snippet", "probability", "reason", "time_s", "siren"],
-                [[k + 1, r["media"], r["probability"], r["reason"], r["time_s"], ""] for k, r in enumerate(audio)],
+                [
+                    [k + 1, r["media"], r["probability"], r["reason"], r["time_s"], ""]
+                    for k, r in enumerate(audio)
+                ],
             ),
         )
         files["audio_candidates"] = str(out / "audio_candidates.csv")
@@ -223,16 +231,29 @@ def mine_inputs(
     client, cluster = connect(scheduler, workers, connect_timeout_s=connect_timeout_s)
     records: list[dict[str, Any]] = []
     try:
-        n_workers = len(client.scheduler_info(n_workers=-1).get("workers", {})) if scheduler else int(workers or os.cpu_count() or 1)
+        n_workers = (
+            len(client.scheduler_info(n_workers=-1).get("workers", {}))
+            if scheduler
+            else int(workers or os.cpu_count() or 1)
+        )
         inputs_dir = target / "inputs"
         inputs_dir.mkdir(parents=True, exist_ok=True)
-        futures = [client.submit(run_input, inp, cfg, inputs_dir, pure=False, key=f"mine-{inp.input_id}") for inp in inputs]
+        futures = [
+            client.submit(run_input, inp, cfg, inputs_dir, pure=False, key=f"mine-{inp.input_id}")
+            for inp in inputs
+        ]
         with progress_bar("mining", len(futures), enabled=progress, unit="inputs") as advance:
             for fut in as_completed(futures, loop=client.loop):
                 try:
                     rec = fut.result()
                 except Exception as exc:  # a worker died or a task raised past run_input's guard
-                    rec = {"input": "?", "status": "failed", "samples": 0, "seconds": 0.0, "error": f"{type(exc).__name__}: {exc}"}
+                    rec = {
+                        "input": "?",
+                        "status": "failed",
+                        "samples": 0,
+                        "seconds": 0.0,
+                        "error": f"{type(exc).__name__}: {exc}",
+                    }
                 records.append(rec)
                 advance(1)
     finally:
@@ -241,9 +262,13 @@ def mine_inputs(
             cluster.close()
     by_name = {r["input"]: r for r in records}
     records = [by_name.get(i.name, {"input": i.name, "status": "failed", "error": "lost"}) for i in inputs]
-    failures += [{"input": r["input"], "error": r.get("error", "")} for r in records if r["status"] == "failed"]
+    failures += [
+        {"input": r["input"], "error": r.get("error", "")} for r in records if r["status"] == "failed"
+    ]
     review = write_engine_review(target, top=top)
-    write_text_atomic(target / "failures.csv", _csv_text(["input", "error"], [[f["input"], f["error"]] for f in failures]))
+    write_text_atomic(
+        target / "failures.csv", _csv_text(["input", "error"], [[f["input"], f["error"]] for f in failures])
+    )
     run = EngineRun(
         out=str(target),
         scheduler=scheduler or "local",
@@ -259,7 +284,11 @@ def mine_inputs(
         task_s=round(sum(float(r.get("seconds", 0.0)) for r in records), 3),
         failures=failures,
         tasks=records,
-        outputs={**review["files"], "failures": str(target / "failures.csv"), "summary": str(target / MARKER)},
+        outputs={
+            **review["files"],
+            "failures": str(target / "failures.csv"),
+            "summary": str(target / MARKER),
+        },
         config=asdict(cfg),
     )
     write_text_atomic(target / MARKER, json.dumps(run.to_json(), indent=1) + "\n")

@@ -44,7 +44,15 @@ from makeway.atomic import atomic_dir, atomic_path, write_text_atomic
 from makeway.engine.inputs import INPUT_KINDS, EngineInput
 from makeway.errors import InputError
 
-__all__ = ["DONE_FILE", "SAMPLE_COLUMNS", "MineConfig", "mine_images", "mine_recording", "mine_video", "run_input"]
+__all__ = [
+    "DONE_FILE",
+    "SAMPLE_COLUMNS",
+    "MineConfig",
+    "mine_images",
+    "mine_recording",
+    "mine_video",
+    "run_input",
+]
 
 DONE_FILE = "done.json"
 SAMPLES_FILE = "samples.csv"
@@ -115,7 +123,9 @@ def _single_thread() -> None:
 
 
 @functools.lru_cache(maxsize=4)
-def _vision_models(classifier: str, detector: str, model: str | None, score_threshold: float) -> tuple[Any, Any]:
+def _vision_models(
+    classifier: str, detector: str, model: str | None, score_threshold: float
+) -> tuple[Any, Any]:
     from makeway.perceive.vision.detectors import DETECTORS
     from makeway.perceive.vision.ev_classifier import load_crop_classifier
 
@@ -361,7 +371,11 @@ def read_done(folder: Path, key: str) -> dict[str, Any] | None:
 
 
 def run_input(
-    inp: EngineInput, config: MineConfig, inputs_dir: str | Path, *, clock: Callable[[], float] = time.perf_counter
+    inp: EngineInput,
+    config: MineConfig,
+    inputs_dir: str | Path,
+    *,
+    clock: Callable[[], float] = time.perf_counter,
 ) -> dict[str, Any]:
     """Mine one input into ``inputs_dir/<input id>/`` (module docstring); returns its record:
     ``input``, ``id``, ``kind``, ``status`` (``done``, ``skipped`` — finished earlier — or
@@ -379,7 +393,13 @@ def run_input(
             samples = INPUT_KINDS[inp.kind].mine(inp, config, stage)
             write_text_atomic(stage / SAMPLES_FILE, _csv_text(samples))
             seconds = clock() - t0
-            done = {"input": inp.name, "kind": inp.kind, "config": key, "samples": len(samples), "seconds": seconds}
+            done = {
+                "input": inp.name,
+                "kind": inp.kind,
+                "config": key,
+                "samples": len(samples),
+                "seconds": seconds,
+            }
             with atomic_path(stage / DONE_FILE) as tmp:
                 tmp.write_text(json.dumps(done, indent=1) + "\n", encoding="utf-8")
     except InputError as exc:
