@@ -17,8 +17,9 @@ from makeway.cli.common import console, err_console, friendly_errors, new_app, p
 
 engine_app = new_app(
     "engine",
-    "The data engine: mine many road videos, image folders and siren recordings for the samples "
-    "worth labelling, on this machine or a Dask cluster, and retrain with the labels.",
+    "Data engine: mine many inputs for samples to label.\n\n"
+    "Mine road videos, image folders and siren recordings for the samples worth labelling, on this "
+    "machine or a Dask cluster, and retrain with the labels.",
 )
 
 
