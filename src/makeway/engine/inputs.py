@@ -22,6 +22,7 @@ list of problems (one line each), not raised, so a batch with one bad name still
 from __future__ import annotations
 
 import hashlib
+import json
 import re
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -58,12 +59,18 @@ class EngineInput:
 
     @property
     def input_id(self) -> str:
-        """A folder-safe id, stable across runs: ``<stem>[_<start>-<end>]_<8 hex of the name>``."""
+        """A folder-safe id, stable across runs and machines: ``<name>[_<start>-<end>]_<8 hex>``, the
+        hex digest covering the file's (or, for a folder, its files') names and sizes and the frame
+        range — not the folder it lies in, so mined samples keep their names when the data moves."""
         stem = re.sub(r"[^A-Za-z0-9_.-]+", "_", self.path.name)[:40] or "input"
         if self.start or self.end is not None:
             stem += f"_{self.start}-{'end' if self.end is None else self.end}"
-        digest = hashlib.sha256(self.name.encode("utf-8")).hexdigest()[:8]
-        return f"{stem}_{digest}"
+        if self.path.is_dir():
+            entries = sorted((p.name, p.stat().st_size) for p in self.path.iterdir() if p.is_file())
+        else:
+            entries = [(self.path.name, self.path.stat().st_size if self.path.exists() else -1)]
+        key = json.dumps([entries, self.start, self.end])
+        return f"{stem}_{hashlib.sha256(key.encode('utf-8')).hexdigest()[:8]}"
 
 
 @dataclass(frozen=True)
