@@ -93,6 +93,8 @@ def test_two_worker_cluster_mines_resumes_and_lists_the_bad_input(
         assert run.workers == 2 and run.inputs == 5
         assert (run.done, run.skipped, run.failed) == (4, 0, 1)
         assert len({t["worker_pid"] for t in run.tasks if t["status"] == "done"}) == 2  # both workers ran
+        assert all(t["cpu_s"] > 0 and t["seconds"] > 0 for t in run.tasks if t["status"] == "done")
+        assert run.timing["tasks_s"] > 0 and run.task_cpu_s > 0
         failures = _rows(out / "failures.csv")
         assert [f["input"] for f in failures] == [str(inputs["damaged"])]
         assert "damaged" in failures[0]["error"] and len(failures[0]["error"].splitlines()) == 1

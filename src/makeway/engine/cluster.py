@@ -53,7 +53,10 @@ CONNECT_TIMEOUT_S = 5.0
 
 @dataclass
 class EngineRun:
-    """What :func:`mine_inputs` did (also ``OUT/engine.json``)."""
+    """What :func:`mine_inputs` did (also ``OUT/engine.json``): counts, ``wall_s`` (from connecting to
+    the review written), ``task_s`` / ``task_cpu_s`` (the tasks' wall and CPU seconds summed) and
+    ``timing``: ``connect_s``, ``submit_s``, ``tasks_s`` (submission to the last result), ``close_s``,
+    ``review_s``."""
 
     out: str
     scheduler: str
@@ -67,6 +70,8 @@ class EngineRun:
     audio_samples: int
     wall_s: float
     task_s: float
+    task_cpu_s: float
+    timing: dict[str, float] = field(default_factory=dict)
     failures: list[dict[str, str]] = field(default_factory=list)
     tasks: list[dict[str, Any]] = field(default_factory=list)
     outputs: dict[str, str] = field(default_factory=dict)
@@ -229,6 +234,7 @@ def mine_inputs(
     failures = [{"input": n, "error": e} for n, e in problems]
     t0 = time.perf_counter()
     client, cluster = connect(scheduler, workers, connect_timeout_s=connect_timeout_s)
+    t_connected = time.perf_counter()
     records: list[dict[str, Any]] = []
     try:
         n_workers = (
@@ -242,6 +248,7 @@ def mine_inputs(
             client.submit(run_input, inp, cfg, inputs_dir, pure=False, key=f"mine-{inp.input_id}")
             for inp in inputs
         ]
+        t_submitted = time.perf_counter()
         with progress_bar("mining", len(futures), enabled=progress, unit="inputs") as advance:
             for fut in as_completed(futures, loop=client.loop):
                 try:
@@ -256,6 +263,7 @@ def mine_inputs(
                     }
                 records.append(rec)
                 advance(1)
+        t_results = time.perf_counter()
     finally:
         client.close()
         if cluster is not None:
@@ -265,6 +273,7 @@ def mine_inputs(
     failures += [
         {"input": r["input"], "error": r.get("error", "")} for r in records if r["status"] == "failed"
     ]
+    t_review = time.perf_counter()
     review = write_engine_review(target, top=top)
     write_text_atomic(
         target / "failures.csv", _csv_text(["input", "error"], [[f["input"], f["error"]] for f in failures])
@@ -282,6 +291,14 @@ def mine_inputs(
         audio_samples=review["audio"],
         wall_s=round(time.perf_counter() - t0, 3),
         task_s=round(sum(float(r.get("seconds", 0.0)) for r in records), 3),
+        task_cpu_s=round(sum(float(r.get("cpu_s", 0.0)) for r in records), 3),
+        timing={
+            "connect_s": round(t_connected - t0, 3),
+            "submit_s": round(t_submitted - t_connected, 3),
+            "tasks_s": round(t_results - t_submitted, 3),
+            "close_s": round(t_review - t_results, 3),
+            "review_s": round(time.perf_counter() - t_review, 3),
+        },
         failures=failures,
         tasks=records,
         outputs={

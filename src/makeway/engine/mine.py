@@ -33,7 +33,6 @@ import io
 import json
 import os
 import time
-from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
@@ -370,29 +369,35 @@ def read_done(folder: Path, key: str) -> dict[str, Any] | None:
     return done if isinstance(done, dict) and done.get("config") == key else None
 
 
-def run_input(
-    inp: EngineInput,
-    config: MineConfig,
-    inputs_dir: str | Path,
-    *,
-    clock: Callable[[], float] = time.perf_counter,
-) -> dict[str, Any]:
+def run_input(inp: EngineInput, config: MineConfig, inputs_dir: str | Path) -> dict[str, Any]:
     """Mine one input into ``inputs_dir/<input id>/`` (module docstring); returns its record:
     ``input``, ``id``, ``kind``, ``status`` (``done``, ``skipped`` — finished earlier — or
-    ``failed``), ``samples``, ``seconds`` (the task's own time), ``worker_pid`` and, for a failure,
-    ``error`` (one line)."""
+    ``failed``), ``samples``, ``seconds`` (the task's wall time), ``cpu_s`` (the CPU time of the
+    worker process meanwhile: below ``seconds`` when the machine is shared), ``worker_pid`` and, for a
+    failure, ``error`` (one line)."""
     folder = Path(inputs_dir) / inp.input_id
     key = config.key()
     base = {"input": inp.name, "id": inp.input_id, "kind": inp.kind, "worker_pid": os.getpid()}
     earlier = read_done(folder, key)
     if earlier is not None:
-        return {**base, "status": "skipped", "samples": earlier.get("samples", 0), "seconds": 0.0}
-    t0 = clock()
+        return {
+            **base,
+            "status": "skipped",
+            "samples": earlier.get("samples", 0),
+            "seconds": 0.0,
+            "cpu_s": 0.0,
+        }
+    t0, c0 = time.perf_counter(), time.process_time()
+
+    def clock() -> dict[str, float]:
+        return {"seconds": time.perf_counter() - t0, "cpu_s": time.process_time() - c0}
+
     try:
         with atomic_dir(folder) as stage:
             samples = INPUT_KINDS[inp.kind].mine(inp, config, stage)
             write_text_atomic(stage / SAMPLES_FILE, _csv_text(samples))
-            seconds = clock() - t0
+            spent = clock()
+            seconds = spent["seconds"]
             done = {
                 "input": inp.name,
                 "kind": inp.kind,
@@ -403,11 +408,11 @@ def run_input(
             with atomic_path(stage / DONE_FILE) as tmp:
                 tmp.write_text(json.dumps(done, indent=1) + "\n", encoding="utf-8")
     except InputError as exc:
-        return {**base, "status": "failed", "samples": 0, "seconds": clock() - t0, "error": str(exc)}
+        return {**base, "status": "failed", "samples": 0, **clock(), "error": str(exc)}
     except (OSError, ValueError, RuntimeError) as exc:  # a decoder or a library giving up on the file
         msg = f"{inp.path}: {type(exc).__name__}: {exc}".splitlines()[0]
-        return {**base, "status": "failed", "samples": 0, "seconds": clock() - t0, "error": msg}
-    return {**base, "status": "done", "samples": len(samples), "seconds": seconds}
+        return {**base, "status": "failed", "samples": 0, **clock(), "error": msg}
+    return {**base, "status": "done", "samples": len(samples), **spent}
 
 
 def read_samples(folder: Path) -> list[dict[str, str]]:
