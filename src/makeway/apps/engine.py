@@ -194,7 +194,10 @@ def engine_feedback(
         "# Mined samples fed back (cross-source protocol, head recipe)",
         "",
         f"Mined crops labelled: {counts['labelled']} ({counts['positive']} emergency, "
-        f"{counts['negative']} not; {counts['unreviewed']} left unreviewed).",
+        f"{counts['negative']} not; {counts['unreviewed']} left unreviewed). Each row: the recipe "
+        "trained on the other sources, without (before) and with (after) the mined crops, scored on the "
+        "held-out source. A held-out source cut from the same footage as the mined inputs is not "
+        "independent of them.",
         "",
         "| held-out source | n | accuracy before | after | F1 before | after | recall before | after "
         "| specificity before | after |",
