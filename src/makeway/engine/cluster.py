@@ -30,6 +30,7 @@ leaves only finished inputs behind; running it again finishes the rest.
 from __future__ import annotations
 
 import csv
+import hashlib
 import io
 import json
 import os
@@ -244,23 +245,23 @@ def mine_inputs(
         )
         inputs_dir = target / "inputs"
         inputs_dir.mkdir(parents=True, exist_ok=True)
+        # the key names the job (output folder and settings): two jobs on one shared scheduler that
+        # mine the same input into different folders must not be merged into one task
+        job = hashlib.sha256(f"{target}|{cfg.key()}".encode()).hexdigest()[:8]
         futures = [
-            client.submit(run_input, inp, cfg, inputs_dir, pure=False, key=f"mine-{inp.input_id}")
+            client.submit(run_input, inp, cfg, inputs_dir, pure=False, key=f"mine-{inp.input_id}-{job}")
             for inp in inputs
         ]
+        by_key = {f.key: inp.name for f, inp in zip(futures, inputs, strict=True)}
         t_submitted = time.perf_counter()
         with progress_bar("mining", len(futures), enabled=progress, unit="inputs") as advance:
             for fut in as_completed(futures, loop=client.loop):
                 try:
                     rec = fut.result()
-                except Exception as exc:  # a worker died or a task raised past run_input's guard
-                    rec = {
-                        "input": "?",
-                        "status": "failed",
-                        "samples": 0,
-                        "seconds": 0.0,
-                        "error": f"{type(exc).__name__}: {exc}",
-                    }
+                except Exception as exc:  # a worker died (a decoder crashed) or run_input's guard missed
+                    name = by_key[fut.key]
+                    error = f"{name}: the task failed ({type(exc).__name__}: {exc})".splitlines()[0]
+                    rec = {"input": name, "status": "failed", "samples": 0, "seconds": 0.0, "error": error}
                 records.append(rec)
                 advance(1)
         t_results = time.perf_counter()
