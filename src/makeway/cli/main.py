@@ -614,6 +614,7 @@ def info() -> None:
 
 from makeway.cli.audio import audio_app  # noqa: E402  (sub-apps register after the main commands)
 from makeway.cli.classify import classify_app  # noqa: E402
+from makeway.cli.engine import engine_app  # noqa: E402
 from makeway.cli.light_labels import light_labels_app  # noqa: E402
 from makeway.cli.lights_train import lights_train  # noqa: E402
 from makeway.cli.logs import logs_app  # noqa: E402
@@ -624,6 +625,7 @@ from makeway.cli.v2x import v2x_app, vehicle_app  # noqa: E402
 
 app.add_typer(classify_app, name="classify")
 app.add_typer(audio_app, name="audio")
+app.add_typer(engine_app, name="engine")
 app.add_typer(rig_app, name="rig")
 app.add_typer(logs_app, name="logs")
 app.add_typer(roadside_app, name="roadside")
