@@ -204,16 +204,20 @@ class EVTrackState:
 
 @dataclass(frozen=True, slots=True)
 class PerceptionFrame:
-    """Everything the vision stages concluded about one video frame; one line of ``tracks.jsonl``."""
+    """Everything the vision stages concluded about one video frame; one line of ``tracks.jsonl``.
+
+    ``health`` is the camera's in this frame (``None``: not checked); while it is distrusted the
+    tracks are those of the last trusted frame, carried on (the tracker coasts)."""
 
     frame_index: int
     time_s: float
     tracks: tuple[Track, ...]
     ev_states: tuple[EVTrackState, ...] = field(default=())
+    health: SensorHealth | None = None
 
     def to_json(self) -> dict[str, Any]:
         """A JSON-ready dict: ``index`` (source frame index), ``time_s``, and per track its box, id,
-        score, class and EV state."""
+        score, class and EV state; ``health`` when the camera was distrusted in this frame."""
         ev = {s.track_id: s for s in self.ev_states}
         tracks = []
         for t in self.tracks:
@@ -231,7 +235,10 @@ class PerceptionFrame:
                     "ev_n_valid": s.n_valid if s is not None else 0,
                 }
             )
-        return {"index": self.frame_index, "time_s": round(self.time_s, 4), "tracks": tracks}
+        out: dict[str, Any] = {"index": self.frame_index, "time_s": round(self.time_s, 4), "tracks": tracks}
+        if self.health is not None and not self.health.ok:
+            out["health"] = self.health.to_json()
+        return out
 
 
 # -------------------------------------------------------------------------------------------- health
@@ -267,16 +274,17 @@ class SensorHealth:
 
     def faults(self) -> tuple[str, ...]:
         """One short text per distrusted channel: ``"audio:3 dead"``, ``"camera:0 frozen"``."""
-        return tuple(
-            f"{self.sensor}:{k} {why}" for k, (ok, why) in enumerate(zip(self.trusted, self.reasons)) if not ok
-        )
+        pairs = enumerate(zip(self.trusted, self.reasons, strict=True))
+        return tuple(f"{self.sensor}:{k} {why}" for k, (ok, why) in pairs if not ok)
 
     def to_json(self) -> dict[str, Any]:
         """A JSON-ready dict: ``trust`` and, per distrusted channel, its index and reason."""
         return {
             "sensor": self.sensor,
             "trust": round(self.trust, 4),
-            "distrusted": {str(k): r for k, (ok, r) in enumerate(zip(self.trusted, self.reasons)) if not ok},
+            "distrusted": {
+                str(k): r for k, (ok, r) in enumerate(zip(self.trusted, self.reasons, strict=True)) if not ok
+            },
             "repaired": list(self.repaired),
         }
 

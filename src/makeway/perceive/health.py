@@ -120,14 +120,17 @@ def audio_health(window: np.ndarray, mics: np.ndarray, sample_rate: int, time_s:
         for i in range(n_ch):
             for j in neighbours[i]:
                 if j > i:
-                    lag = math.ceil(float(np.linalg.norm(pos[i, :2] - pos[j, :2])) / SPEED_OF_SOUND * sample_rate) + 1
+                    spacing = float(np.linalg.norm(pos[i, :2] - pos[j, :2]))
+                    lag = math.ceil(spacing / SPEED_OF_SOUND * sample_rate) + 1
                     corr[(i, j)] = corr[(j, i)] = _peak_correlation(hp[i], hp[j], lag)
         for k in range(n_ch):
             if reasons[k] != "ok" or not neighbours[k]:
                 continue
             own = float(np.median([corr[(k, j)] for j in neighbours[k]]))
             others = [
-                c for (i, j), c in corr.items() if i < j and k not in (i, j) and reasons[i] == reasons[j] == "ok"
+                c
+                for (i, j), c in corr.items()
+                if i < j and k not in (i, j) and reasons[i] == reasons[j] == "ok"
             ]
             if others and own < float(np.median(others)) - CORRELATION_DROP:
                 reasons[k] = "uncorrelated"
@@ -135,7 +138,9 @@ def audio_health(window: np.ndarray, mics: np.ndarray, sample_rate: int, time_s:
     return SensorHealth(float(time_s), "audio", trusted, tuple(reasons))
 
 
-def repair_window(window: np.ndarray, mics: np.ndarray, health: SensorHealth) -> tuple[np.ndarray, tuple[int, ...]]:
+def repair_window(
+    window: np.ndarray, mics: np.ndarray, health: SensorHealth
+) -> tuple[np.ndarray, tuple[int, ...]]:
     """``window (channels, samples)`` with every distrusted channel rebuilt from two trusted ones
     (module docstring), and the channels rebuilt. A channel with no trusted pair left is kept."""
     if health.ok:

@@ -41,6 +41,7 @@ import numpy as np
 
 from makeway.atomic import atomic_path, check_writable, removed_on_error, write_text_atomic
 from makeway.messages import EVObservation, EVTrackState, LightDetection, PerceptionFrame
+from makeway.perceive.health import CameraHealth
 from makeway.perceive.vision.detectors import DETECTORS, Detector
 from makeway.perceive.vision.ev_classifier import TrackClassifier
 from makeway.perceive.vision.lights import DEFAULT_LIGHT_DETECTOR, LightDetector
@@ -83,6 +84,13 @@ class VisionPipeline:
             the smoother. Without a classifier, ``crop`` gives tracks no EV state.
         light_tracker: the light tracker of the lights rules (default ``LightTracker()``); its
             detections come with each frame (:meth:`process_detections`).
+        camera_health: check the camera's health (:class:`~makeway.perceive.health.CameraHealth`;
+            ``False`` checks nothing). While the camera
+            is frozen or black, frames are not tracked: each reports the last trusted frame's tracks
+            and states with the health, and the tracks resume when the camera does.
+        frame_step: the index step between consecutive frames (the reader's stride). A larger
+            step means frames were lost on the way; the tracker then coasts over them
+            (:meth:`~makeway.track.sort.Sort.coast`) so that a gap does not end its tracks.
     """
 
     def __init__(
@@ -94,7 +102,15 @@ class VisionPipeline:
         *,
         rule: str = "crop",
         light_tracker: LightTracker | None = None,
+        camera_health: bool = True,
+        frame_step: int = 1,
     ) -> None:
+        if frame_step < 1:
+            raise ValueError(f"frame_step must be >= 1, got {frame_step}")
+        self.camera_health = CameraHealth() if camera_health else None
+        self.frame_step = int(frame_step)
+        self._last_index: int | None = None
+        self._last_frame: PerceptionFrame | None = None
         if rule not in ACTIVE_RULES:
             raise ValueError(f"unknown active rule {rule!r}; choose from: {', '.join(ACTIVE_RULES)}")
         self.detector = detector
@@ -131,6 +147,22 @@ class VisionPipeline:
         arrive in order, once each.
         """
         t1 = time.perf_counter()
+        health = None
+        if self.camera_health is not None:
+            health = self.camera_health.update(image_bgr, time_s)
+            if not health.ok:  # nothing to learn from this image: hold the tracks, say why
+                last = self._last_frame
+                self.seconds["track"] += time.perf_counter() - t1
+                return PerceptionFrame(
+                    frame_index,
+                    time_s,
+                    last.tracks if last is not None else (),
+                    last.ev_states if last is not None else (),
+                    health,
+                )
+        if self._last_index is not None and frame_index - self._last_index > self.frame_step:
+            self.tracker.coast((frame_index - self._last_index) // self.frame_step - 1)
+        self._last_index = frame_index
         boxes, scores, class_ids = arrays
         detections = Detector.to_detections((boxes, scores, class_ids))
         tracks = self.tracker.update(detections)
@@ -166,7 +198,8 @@ class VisionPipeline:
         t3 = time.perf_counter()
         self.seconds["track"] += t2 - t1
         self.seconds["classify"] += t3 - t2
-        return PerceptionFrame(frame_index, time_s, tuple(tracks), states)
+        self._last_frame = PerceptionFrame(frame_index, time_s, tuple(tracks), states, health)
+        return self._last_frame
 
 
 @dataclass
@@ -393,6 +426,8 @@ def run_video(
     light_detector: str = DEFAULT_LIGHTS[0],
     light_colours: str = DEFAULT_LIGHTS[1],
     light_tracker: LightTracker | None = None,
+    frame_filter: Callable[[Iterator[tuple[int, float, np.ndarray]]], Iterator[tuple[int, float, np.ndarray]]]
+    | None = None,
 ) -> VideoRunSummary:
     """Run Framework B over ``video``; write the annotated video, JSONL and summary to ``out_dir``.
 
@@ -419,6 +454,9 @@ def run_video(
             instance per detector worker) and its colour set
             (:data:`~makeway.perceive.vision.lights.COLOUR_SETS` name or colour list).
         light_tracker: override the default :class:`~makeway.track.lights.LightTracker`.
+        frame_filter: what the camera's frames pass through before detection, e.g. a sensor fault
+            of :data:`makeway.sense.faults.VIDEO_FAULTS` (it gets and yields ``(frame_index,
+            time_s, image_bgr)``).
 
     Raises:
         InputError: the video or the model is missing or unreadable, or ``out_dir`` cannot be
@@ -448,7 +486,13 @@ def run_video(
         [build_light_detector(light_detector, light_colours) for _ in detectors] if rule != "crop" else None
     )
     pipe = VisionPipeline(
-        det, tracker=tracker, classifier=classifier, smoother=smoother, rule=rule, light_tracker=light_tracker
+        det,
+        tracker=tracker,
+        classifier=classifier,
+        smoother=smoother,
+        rule=rule,
+        light_tracker=light_tracker,
+        frame_step=stride,
     )
     detect_seconds = [0.0, 0.0]
     total = info.frame_count if info.frame_count > 0 else None
@@ -476,7 +520,10 @@ def run_video(
             if out is not None and write_video:
                 writer = H264Writer(out / "annotated.mp4", info.fps / stride, info.width, info.height)
                 bg = _BackgroundWriter(writer)
-            frames = _Prefetch(iter(reader))
+            source: Iterator[tuple[int, float, np.ndarray]] = iter(reader)
+            if frame_filter is not None:
+                source = iter(frame_filter(source))
+            frames = _Prefetch(source)
             wall0 = time.perf_counter()
             try:
                 for index, t_s, image, (arrays, lights) in _detect_in_order(

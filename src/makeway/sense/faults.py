@@ -116,7 +116,9 @@ def swapped_channels(rec: Recording, rng: np.random.Generator, channel: int = 0,
 
 
 @AUDIO_FAULTS.register("noisy_channel")
-def noisy_channel(rec: Recording, rng: np.random.Generator, channel: int = 0, snr_db: float = 0.0) -> Recording:
+def noisy_channel(
+    rec: Recording, rng: np.random.Generator, channel: int = 0, snr_db: float = 0.0
+) -> Recording:
     """White noise added to ``channel`` at ``snr_db`` below the channel's RMS."""
     k = _channel(rec, channel)
     audio = np.array(rec.audio, dtype=np.float64)
