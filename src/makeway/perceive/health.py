@@ -9,6 +9,8 @@ channel is compared with the others of its window:
   the same array, centimetres from its neighbours, never hears that much less;
 * ``clipped`` — more than :data:`~makeway.sense.recording.CLIP_FRACTION` of the samples at full
   scale (:data:`~makeway.sense.recording.CLIP_LEVEL`), the recording format's own rule;
+* ``loud`` — RMS more than :data:`LOUD_ABOVE_DB` (20 dB) above the median channel's: a gain set
+  wrong, whose windows are distorted even where they do not reach full scale;
 * ``uncorrelated`` — the capsule no longer hears what its neighbours (capsules within
   :data:`NEIGHBOUR_M`) hear: its peak normalised cross-correlation with them (high-passed at
   :data:`CORRELATION_HIGHPASS_HZ`, lags up to the pair's spacing over the speed of sound) lies
@@ -46,6 +48,7 @@ __all__ = [
     "CORRELATION_DROP",
     "DEAD_BELOW_DB",
     "FROZEN_FRAMES",
+    "LOUD_ABOVE_DB",
     "NEIGHBOUR_M",
     "CameraHealth",
     "audio_health",
@@ -54,6 +57,8 @@ __all__ = [
 
 DEAD_BELOW_DB = 20.0
 """A channel this many dB below the median channel's RMS is dead."""
+LOUD_ABOVE_DB = 20.0
+"""A channel this many dB above the median channel's RMS is too loud (its gain is wrong)."""
 NEIGHBOUR_M = 0.1
 """Capsules closer than this (m) are neighbours whose signals must correlate."""
 CORRELATION_HIGHPASS_HZ = 200.0
@@ -106,12 +111,15 @@ def audio_health(window: np.ndarray, mics: np.ndarray, sample_rate: int, time_s:
     reasons = ["ok"] * n_ch
     rms = np.sqrt(np.mean(x**2, axis=1))
     floor = float(np.median(rms)) * 10.0 ** (-DEAD_BELOW_DB / 20.0)
+    ceiling = float(np.median(rms)) * 10.0 ** (LOUD_ABOVE_DB / 20.0)
     clipped = np.mean(np.abs(x) >= CLIP_LEVEL, axis=1) > CLIP_FRACTION
     for k in range(n_ch):
         if rms[k] <= floor or rms[k] == 0.0:
             reasons[k] = "dead"
         elif clipped[k]:
             reasons[k] = "clipped"
+        elif rms[k] > ceiling:
+            reasons[k] = "loud"
     neighbours = _neighbours(mics)
     if any(neighbours):
         hp = sosfiltfilt(_highpass_sos(int(sample_rate)), x, axis=1)
