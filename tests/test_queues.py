@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import threading
 import time
+from pathlib import Path
 
 import pytest
 
@@ -111,3 +112,25 @@ def test_v2x_subscriber_drops_the_oldest_when_flooded() -> None:
         car.close()
     assert sub.dropped == 45
     assert got == [b"payload %d" % k for k in range(45, 50)]
+
+
+def test_video_pipeline_as_a_live_camera(video_dir: Path) -> None:
+    """``run_video(realtime=True)``: frames come on the video's clock; whatever the pipeline could not
+    take in time is dropped oldest first, the newest frame is always processed, in order."""
+    from makeway.pipeline.video import run_video
+
+    seen: list[int] = []
+    summary = run_video(
+        video_dir / "fire_trucks_red_lights.mp4",
+        None,
+        max_frames=45,
+        write_video=False,
+        detector_workers=1,
+        progress=False,
+        realtime=True,
+        on_frame=lambda f: seen.append(f.frame_index),
+    )
+    assert summary.frames + summary.dropped_frames == 45
+    assert seen == sorted(seen) and seen[-1] == 44
+    assert summary.video_seconds == pytest.approx(45 / summary.fps, rel=1e-3)
+    assert summary.realtime_factor <= 1.1  # paced: never faster than the camera

@@ -7,8 +7,9 @@ answers are about the past and whose memory climbs until the process dies. :clas
 holds at most ``maxsize`` items and, when full, drops the **oldest** to make room, so the newest
 input is always kept and ``put`` never blocks the sensor. It counts what it dropped.
 
-:func:`live` runs a stage over a live source this way: a thread reads the source as fast as it
-delivers into a :class:`LatestQueue`, and the stage takes the newest item whenever it is free.
+:class:`LiveSource` reads a live source this way: a thread takes what the sensor delivers into a
+:class:`LatestQueue`, and the consumer takes the next item whenever it is free; :func:`live` runs a
+stage over one. :func:`paced` plays a file back on the clock of a live sensor.
 Memory stays bounded by ``maxsize`` items and the delay from input to answer by about one
 processing time plus the wait of the item (``benchmarks/bench_overload.py`` measures it).
 """
@@ -22,7 +23,7 @@ from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
 from typing import Generic, TypeVar
 
-__all__ = ["LatestQueue", "LiveResult", "QueueClosedError", "live"]
+__all__ = ["LatestQueue", "LiveResult", "LiveSource", "QueueClosedError", "live", "paced"]
 
 T = TypeVar("T")
 R = TypeVar("R")
@@ -92,6 +93,53 @@ class LatestQueue(Generic[T]):
             return len(self._items)
 
 
+class LiveSource(Generic[T]):
+    """A live ``source`` read on a background thread into a :class:`LatestQueue` of ``maxsize``; iterate
+    to get ``(arrived_s, item)`` (``time.monotonic()`` seconds) as the consumer gets to them. Items
+    that arrive while the consumer is busy and the queue is full push out the oldest waiting one
+    (:attr:`dropped`). Iteration ends when the source ends (after what is queued); an error in the
+    source is raised there. :meth:`close` stops reading early."""
+
+    def __init__(self, source: Iterable[T], maxsize: int = 1) -> None:
+        self._queue: LatestQueue[tuple[float, T]] = LatestQueue(maxsize)
+        self._error: list[BaseException] = []
+        self._stop = threading.Event()
+        self._thread = threading.Thread(
+            target=self._read, args=(iter(source),), name="live-source", daemon=True
+        )
+        self._thread.start()
+
+    def _read(self, source: Iterator[T]) -> None:
+        try:
+            for item in source:
+                if self._stop.is_set():
+                    return
+                self._queue.put((time.monotonic(), item))
+        except BaseException as exc:  # handed to the consumer
+            self._error.append(exc)
+        finally:
+            self._queue.close()
+
+    @property
+    def dropped(self) -> int:
+        """Items dropped unread so far."""
+        return self._queue.dropped
+
+    def __iter__(self) -> Iterator[tuple[float, T]]:
+        while True:
+            try:
+                yield self._queue.get()
+            except QueueClosedError:
+                break
+        self._thread.join(timeout=1.0)
+        if self._error:
+            raise self._error[0]
+
+    def close(self) -> None:
+        """Stop reading the source (the reader thread ends at its next item)."""
+        self._stop.set()
+
+
 @dataclass(frozen=True, slots=True)
 class LiveResult(Generic[T, R]):
     """One processed input: the ``item``, the stage's ``result``, when the input arrived and when
@@ -111,40 +159,25 @@ class LiveResult(Generic[T, R]):
 
 
 def live(source: Iterable[T], stage: Callable[[T], R], *, maxsize: int = 1) -> Iterator[LiveResult[T, R]]:
-    """Run ``stage`` over a live ``source`` without ever falling behind (module docstring).
-
-    A background thread reads ``source`` (an iterator that yields as the sensor delivers) into a
-    :class:`LatestQueue` of ``maxsize``; each result is yielded as the stage finishes it. Inputs that
-    arrive while the stage is busy and the queue is full push out the oldest waiting one. Ends when
-    the source ends (after the items still queued); an error in the source is raised here.
-    """
-    q: LatestQueue[tuple[float, T]] = LatestQueue(maxsize)
-    error: list[BaseException] = []
-    stop = threading.Event()
-
-    def read() -> None:
-        try:
-            for item in source:
-                if stop.is_set():
-                    return
-                q.put((time.monotonic(), item))
-        except BaseException as exc:  # handed to the consumer
-            error.append(exc)
-        finally:
-            q.close()
-
-    reader = threading.Thread(target=read, name="live-source", daemon=True)
-    reader.start()
+    """Run ``stage`` over a live ``source`` without ever falling behind (module docstring): the
+    source is read as a :class:`LiveSource` and each result is yielded as the stage finishes it."""
+    feed = LiveSource(source, maxsize)
     try:
-        while True:
-            try:
-                arrived, item = q.get()
-            except QueueClosedError:
-                break
+        for arrived, item in feed:
             result = stage(item)
-            yield LiveResult(item, result, arrived, time.monotonic(), q.dropped)
+            yield LiveResult(item, result, arrived, time.monotonic(), feed.dropped)
     finally:
-        stop.set()
-    reader.join(timeout=1.0)
-    if error:
-        raise error[0]
+        feed.close()
+
+
+def paced(source: Iterable[T], rate_hz: float) -> Iterator[T]:
+    """``source``'s items delivered on a clock of ``rate_hz`` (a file played back as a live sensor
+    would deliver it: item ``k`` not before ``k / rate_hz`` seconds after the first)."""
+    if not rate_hz > 0:
+        raise ValueError(f"rate_hz must be positive, got {rate_hz}")
+    t0 = time.monotonic()
+    for k, item in enumerate(source):
+        wait = t0 + k / rate_hz - time.monotonic()
+        if wait > 0:
+            time.sleep(wait)
+        yield item

@@ -31,6 +31,7 @@ def detect(
     rule: str = DEFAULT_RULE,
     light_detector: str = DEFAULT_LIGHTS[0],
     colours: str = DEFAULT_LIGHTS[1],
+    realtime: bool = False,
 ) -> VideoRunSummary:
     """Detect, track and judge the vehicles of ``video``; write the annotated video, ``tracks.jsonl``
     and ``summary.json`` to ``out`` (default ``makeway_out/<video stem>``).
@@ -48,6 +49,8 @@ def detect(
     every ``classify_every``-th frame, and ``single_view`` skips the mirror image for heads. The
     classifier and its feature extractors are built before the first frame, so bad weights fail early.
     Returns the run's summary (frames, timings in ms per frame, real-time factor, files written).
+    ``realtime`` plays the video as a live camera would deliver it: when the pipeline falls behind,
+    the oldest waiting frame is dropped, never the newest (``dropped_frames`` counts them).
 
     Raises:
         InputError: the video, the detector weights or the classifier cannot be read (names the file;
@@ -80,4 +83,5 @@ def detect(
         rule=rule,
         light_detector=light_detector,
         light_colours=colours,
+        realtime=realtime,
     )

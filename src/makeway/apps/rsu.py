@@ -83,12 +83,15 @@ def run_rsu(
     classifier: str = "default",
     siren: bool = False,
     progress: bool = True,
+    realtime: bool = False,
 ) -> dict[str, Any]:
     """Run the roadside unit over ``video`` (module docstring); the run's summary: frames, EV
     tracks reported, alerts made and published, alerts per second of wall time, and where the
     logs went. ``connect``/``listen``: zenoh loopback endpoints (default: connect to a car
     listening on ``tcp/127.0.0.1:7447``); ``wait_s``: how long to wait for a subscriber before the
-    first frame (s). ``siren``: the siren flag of the alerts (a camera cannot hear it)."""
+    first frame (s). ``siren``: the siren flag of the alerts (a camera cannot hear it). ``realtime``
+    plays the video as a live camera: frames come on the video's clock and, when the unit falls
+    behind, the oldest waiting frame is dropped, never the newest (``dropped_frames``)."""
     from makeway.apps.v2x import DEFAULT_ENDPOINT
     from makeway.roadside.node import RoadsideNode, sign_report
     from makeway.roadside.transform import read_transform_calibration
@@ -167,6 +170,7 @@ def run_rsu(
             classifier=track_classifier,
             on_frame=on_frame,
             progress=progress,
+            realtime=realtime,
         )
     finally:
         if pub is not None and session is not None:
@@ -180,6 +184,7 @@ def run_rsu(
         "calibration": str(calib),
         "segment": segment,
         "frames": summary.frames,
+        "dropped_frames": summary.dropped_frames,
         "video_seconds": summary.video_seconds,
         "wall_seconds": round(wall, 3),
         "active_ev_tracks": summary.active_ev_tracks,

@@ -99,6 +99,14 @@ def detect(
             "us (red, blue, white), uk_amber, all, or a comma list."
         ),
     ] = "eu",
+    realtime: Annotated[
+        bool,
+        typer.Option(
+            "--realtime",
+            help="Play the video as a live camera: frames come at the video's rate and, when the "
+            "pipeline falls behind, the oldest waiting frame is dropped, never the newest.",
+        ),
+    ] = False,
     as_json: Annotated[bool, typer.Option("--json", help="Print the run summary as one JSON line.")] = False,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")] = False,
 ) -> None:
@@ -130,12 +138,15 @@ def detect(
         rule=rule,
         light_detector=light_detector or DEFAULT_LIGHT_DETECTOR,
         colours=colours,
+        realtime=realtime,
     )
     table = Table(title=f"makeway detect — {video.name}", show_header=False)
     table.add_row("frames", f"{summary.frames} ({summary.width}×{summary.height} @ {summary.fps:g} fps)")
     table.add_row("real-time factor", f"{summary.realtime_factor:.2f}× ({summary.wall_seconds:.1f} s wall)")
     table.add_row("ms / frame", ", ".join(f"{k} {v:.1f}" for k, v in summary.ms_per_frame.items()))
     table.add_row("tracks", f"{summary.unique_tracks} ids, at most {summary.max_tracks} at once")
+    if realtime:
+        table.add_row("dropped frames", f"{summary.dropped_frames} (the pipeline fell behind)")
     table.add_row(
         f"active EVs ({summary.rule})",
         ", ".join(f"#{i}" for i in summary.active_ev_tracks) or "none",

@@ -52,6 +52,14 @@ def run(
         str, typer.Option(help="EV crop classifier: default, fast, fastest, imagenet or a model file.")
     ] = "default",
     siren: Annotated[bool, typer.Option("--siren/--no-siren", help="Siren flag of the alerts.")] = False,
+    realtime: Annotated[
+        bool,
+        typer.Option(
+            "--realtime",
+            help="Play the video as a live camera: when the unit falls behind, the oldest "
+            "waiting frame is dropped, never the newest.",
+        ),
+    ] = False,
 ) -> None:
     """Run the roadside unit on a video.
 
@@ -77,6 +85,7 @@ def run(
             stride=stride,
             classifier=classifier,
             siren=siren,
+            realtime=realtime,
         )
     )
 

@@ -46,6 +46,7 @@ from makeway.perceive.vision.detectors import DETECTORS, Detector
 from makeway.perceive.vision.ev_classifier import TrackClassifier
 from makeway.perceive.vision.lights import DEFAULT_LIGHT_DETECTOR, LightDetector
 from makeway.progress import progress_bar
+from makeway.queues import LiveSource, paced
 from makeway.sense.video import VideoReader
 from makeway.track.lights import (
     ACTIVE_RULES,
@@ -224,9 +225,27 @@ class VideoRunSummary:
     unique_tracks: int
     active_ev_tracks: list[int] = field(default_factory=list)
     outputs: dict[str, str] = field(default_factory=dict)
+    dropped_frames: int = 0
 
     def to_json(self) -> dict[str, Any]:
         return asdict(self)
+
+
+class _LiveFrames:
+    """Frames of a file delivered on the video's clock, as a live camera would deliver them, through
+    a latest-wins queue of one frame (:class:`makeway.queues.LiveSource`): a frame that arrives
+    while the pipeline is busy replaces the one waiting, so the pipeline always works on the newest."""
+
+    def __init__(self, source: Iterator[Any], fps: float) -> None:
+        self.feed: LiveSource[Any] = LiveSource(paced(source, fps), maxsize=1)
+        self.seconds = 0.0
+
+    def __iter__(self) -> Iterator[Any]:
+        for _, item in self.feed:
+            yield item
+
+    def close(self) -> None:
+        self.feed.close()
 
 
 class _Prefetch:
@@ -428,6 +447,7 @@ def run_video(
     light_tracker: LightTracker | None = None,
     frame_filter: Callable[[Iterator[tuple[int, float, np.ndarray]]], Iterator[tuple[int, float, np.ndarray]]]
     | None = None,
+    realtime: bool = False,
 ) -> VideoRunSummary:
     """Run Framework B over ``video``; write the annotated video, JSONL and summary to ``out_dir``.
 
@@ -457,6 +477,10 @@ def run_video(
         frame_filter: what the camera's frames pass through before detection, e.g. a sensor fault
             of :data:`makeway.sense.faults.VIDEO_FAULTS` (it gets and yields ``(frame_index,
             time_s, image_bgr)``).
+        realtime: play the file as a live camera: frames arrive on the video's clock and, while
+            the pipeline is busy, a newer frame replaces the one waiting (the oldest is dropped,
+            never the newest; ``dropped_frames`` in the summary counts them). Without it every
+            frame is processed, however long it takes.
 
     Raises:
         InputError: the video or the model is missing or unreadable, or ``out_dir`` cannot be
@@ -523,7 +547,9 @@ def run_video(
             source: Iterator[tuple[int, float, np.ndarray]] = iter(reader)
             if frame_filter is not None:
                 source = iter(frame_filter(source))
-            frames = _Prefetch(source)
+            frames: _Prefetch | _LiveFrames = (
+                _LiveFrames(source, info.fps / stride) if realtime else _Prefetch(source)
+            )
             wall0 = time.perf_counter()
             try:
                 for index, t_s, image, (arrays, lights) in _detect_in_order(
@@ -587,7 +613,8 @@ def run_video(
         seconds["lights"] = detect_seconds[1]
     seconds["annotate"] = annotate_s
     seconds["encode"] = bg.seconds if bg is not None else 0.0
-    video_seconds = n_frames * stride / info.fps
+    dropped = frames.feed.dropped if isinstance(frames, _LiveFrames) else 0
+    video_seconds = (n_frames + dropped) * stride / info.fps
     summary = VideoRunSummary(
         video=str(video),
         out_dir=str(out) if out is not None else None,
@@ -607,6 +634,7 @@ def run_video(
         unique_tracks=len(seen_ids),
         active_ev_tracks=sorted(active_ids),
         outputs=outputs,
+        dropped_frames=dropped,
     )
     if out is not None:
         summary.outputs["summary"] = str(out / "summary.json")
