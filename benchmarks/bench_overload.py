@@ -14,7 +14,9 @@ resident memory (RSS) sampled every second: its drift from the first sample afte
 issue): at 10× the input rate, p99 latency ≤ 2× the unloaded p99, memory flat (± 5 %).
 
 An unbounded FIFO (the same code with a queue that never drops) runs ``--baseline-s`` seconds at
-10× beside it as the anchor: what the stage did before, falling behind without end.
+10× beside it as the anchor: what the stage did before, falling behind without end (its latency
+and memory grow with the backlog; the run stops when the source does). Each input is a fresh
+buffer, as a sensor delivers it.
 
 Stages (real data, real models):
 
@@ -79,8 +81,9 @@ class MemorySampler:
         self.samples.append((self.samples[-1][0] if self.samples else 0.0, rss_mb()))
 
 
-def paced(items: list[Any], rate_hz: float, seconds: float) -> Iterator[Any]:
-    """``items`` over and over at ``rate_hz`` for ``seconds`` (a sensor delivering on its clock)."""
+def looped_at(items: list[Any], rate_hz: float, seconds: float) -> Iterator[Any]:
+    """``(k, copy of items[k mod n])`` at ``rate_hz`` for ``seconds`` (a sensor delivering fresh
+    buffers on its clock)."""
     period = 1.0 / rate_hz
     t0 = time.monotonic()
     k = 0
@@ -91,7 +94,7 @@ def paced(items: list[Any], rate_hz: float, seconds: float) -> Iterator[Any]:
         wait = due - time.monotonic()
         if wait > 0:
             time.sleep(wait)
-        yield k, items[k % len(items)]
+        yield k, items[k % len(items)].copy()  # a sensor hands out a new buffer each time
         k += 1
 
 
@@ -143,11 +146,14 @@ def run_rate(
     lat: list[float] = []
     n_in = 0
     dropped = 0
+    t_end = time.monotonic() + seconds + 1.0
     with MemorySampler() as mem:
-        for res in live(paced(items, rate_hz, seconds), step, maxsize=maxsize):
+        for res in live(looped_at(items, rate_hz, seconds), step, maxsize=maxsize):
             lat.append(res.latency_s)
             dropped = res.dropped
             n_in = res.item[0] + 1
+            if res.done_s > t_end:  # an unbounded queue still holds a backlog: stop there
+                break
     rss = [m for _, m in mem.samples]
     warm = rss[max(1, len(rss) // 10) :] or rss
     arr = np.asarray(lat) * 1000.0

@@ -134,3 +134,20 @@ def test_video_pipeline_as_a_live_camera(video_dir: Path) -> None:
     assert seen == sorted(seen) and seen[-1] == 44
     assert summary.video_seconds == pytest.approx(45 / summary.fps, rel=1e-3)
     assert summary.realtime_factor <= 1.1  # paced: never faster than the camera
+
+
+def test_listener_as_a_live_array(data_root: Path) -> None:
+    """``listen(realtime=True)``: a window every hop of wall time through the latest-wins queue; the
+    messages are in time order and the last one is about the newest audio."""
+    from makeway.perceive.audio.stream import listen, listen_windows
+    from makeway.sim.audio_scenarios import simulate_recording
+
+    rec = simulate_recording("from_behind", 2.5, seed=2, siren="real", noise="real", data_root=data_root)
+    starts = listen_windows(rec)
+    t0 = time.monotonic()
+    messages = list(listen(rec, realtime=True, hop_s=0.17))
+    wall = time.monotonic() - t0
+    assert wall >= (len(starts) - 1) * 0.17 * 0.95  # paced on the array's clock
+    t_end = [m["t_end"] for m in messages]
+    assert t_end == sorted(t_end) and len(messages) <= len(starts)
+    assert t_end[-1] == pytest.approx((starts[-1] + round(0.5 * rec.sample_rate)) / rec.sample_rate)

@@ -60,6 +60,7 @@ from makeway.perceive.audio.windows import (
     window_starts,
 )
 from makeway.perceive.health import audio_health, repair_window
+from makeway.queues import live, paced
 from makeway.sense.recording import AUDIO_FILE, REFERENCE_FULL_SCALE_DB_SPL, Recording
 
 
@@ -194,6 +195,7 @@ def listen(
     model: SirenModel | None = None,
     smooth: int = LISTEN_SMOOTH,
     average: str = SMOOTH_AVERAGE,
+    realtime: bool = False,
 ) -> Iterator[dict[str, Any]]:
     """One JSON message per hop over ``recording`` (see the module docstring): a
     :class:`SirenListener` stepped over the windows of
@@ -204,7 +206,12 @@ def listen(
     bin assignment (:meth:`~makeway.perceive.audio.siren_model.SirenModel.sources`); ``method`` and
     ``detector`` are then unused. ``approach`` (default :func:`default_approach`) says approaching or
     receding for the nearest siren. ``smooth`` windows are averaged for the decision, their logits
-    or (``average``) probabilities (module docstring)."""
+    or (``average``) probabilities (module docstring).
+
+    ``realtime`` plays the recording as a live array delivers it: a window every ``hop_s`` seconds
+    of wall time, handed over through a latest-wins queue of one window
+    (:class:`makeway.queues.LiveSource`), so when the listener falls behind the oldest waiting
+    window is dropped, never the newest, and each message is about the latest audio."""
     sr = int(recording.sample_rate)
     listener = SirenListener(
         recording.mics,
@@ -221,7 +228,14 @@ def listen(
     )
     audio = np.asarray(recording.audio)
     win = listener.window_samples
-    for start in listen_windows(recording, window_s, hop_s):
+    starts = listen_windows(recording, window_s, hop_s)
+    if realtime:
+        for res in live(
+            paced(starts.tolist(), 1.0 / hop_s), lambda s: listener.step(audio[s : s + win].T, (s + win) / sr)
+        ):
+            yield res.result.to_json()
+        return
+    for start in starts:
         yield listener.step(audio[start : start + win].T, (int(start) + win) / sr).to_json()
 
 
