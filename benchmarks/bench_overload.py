@@ -81,9 +81,9 @@ class MemorySampler:
         self.samples.append((self.samples[-1][0] if self.samples else 0.0, rss_mb()))
 
 
-def looped_at(items: list[Any], rate_hz: float, seconds: float) -> Iterator[Any]:
+def looped_at(items: list[Any], rate_hz: float, seconds: float, count: list[int]) -> Iterator[Any]:
     """``(k, copy of items[k mod n])`` at ``rate_hz`` for ``seconds`` (a sensor delivering fresh
-    buffers on its clock)."""
+    buffers on its clock); ``count[0]`` follows how many were delivered."""
     period = 1.0 / rate_hz
     t0 = time.monotonic()
     k = 0
@@ -96,6 +96,7 @@ def looped_at(items: list[Any], rate_hz: float, seconds: float) -> Iterator[Any]
             time.sleep(wait)
         yield k, items[k % len(items)].copy()  # a sensor hands out a new buffer each time
         k += 1
+        count[0] = k
 
 
 def siren_stage() -> tuple[Callable[[Any], Any], list[Any]]:
@@ -144,14 +145,13 @@ def run_rate(
     step: Callable[[Any], Any], items: list[Any], rate_hz: float, seconds: float, maxsize: int = 1
 ) -> dict[str, Any]:
     lat: list[float] = []
-    n_in = 0
+    delivered = [0]
     dropped = 0
     t_end = time.monotonic() + seconds + 1.0
     with MemorySampler() as mem:
-        for res in live(looped_at(items, rate_hz, seconds), step, maxsize=maxsize):
+        for res in live(looped_at(items, rate_hz, seconds, delivered), step, maxsize=maxsize):
             lat.append(res.latency_s)
             dropped = res.dropped
-            n_in = res.item[0] + 1
             if res.done_s > t_end:  # an unbounded queue still holds a backlog: stop there
                 break
     rss = [m for _, m in mem.samples]
@@ -160,7 +160,7 @@ def run_rate(
     return {
         "rate_hz": rate_hz,
         "seconds": seconds,
-        "inputs": n_in,
+        "inputs": delivered[0],
         "processed": len(lat),
         "dropped": dropped,
         "latency_p50_ms": float(np.percentile(arr, 50)) if len(arr) else None,
