@@ -9,8 +9,9 @@ running); then a paced source hands it input at each of ``--rates`` times the ra
 process: 0.5× is the unloaded reference, 2× and 10× the overloads of the issue. Each overload runs
 ``--minutes`` (the others one minute at most). Measured: latency from the moment an input arrives
 to the moment its answer is out (p50, p99), the share of inputs dropped, and the process's
-resident memory (RSS) sampled every second: its drift from the first sample after warm-up
-(the first 10 % of the run) to the last, and its spread (max − min) over the median. Target (the
+resident memory (RSS) sampled every second while it runs: its drift from the first sample after
+warm-up (the first 10 % of the run) to the last, its spread (max − min) over the median, and its
+peak growth over the first sample. Target (the
 issue): at 10× the input rate, p99 latency ≤ 2× the unloaded p99, memory flat (± 5 %).
 
 An unbounded FIFO (the same code with a queue that never drops) runs ``--baseline-s`` seconds at
@@ -78,7 +79,6 @@ class MemorySampler:
     def __exit__(self, *exc: object) -> None:
         self._stop.set()
         self._thread.join()
-        self.samples.append((self.samples[-1][0] if self.samples else 0.0, rss_mb()))
 
 
 def looped_at(items: list[Any], rate_hz: float, seconds: float, count: list[int]) -> Iterator[Any]:
@@ -169,6 +169,7 @@ def run_rate(
         "rss_last_mb": warm[-1],
         "rss_drift_pct": 100.0 * (warm[-1] - warm[0]) / warm[0],
         "rss_spread_pct": 100.0 * (max(warm) - min(warm)) / statistics.median(warm),
+        "rss_peak_growth_pct": 100.0 * (max(warm) - warm[0]) / warm[0],
         "load": os.getloadavg(),
     }
 
@@ -200,7 +201,7 @@ def main() -> int:
         )
         print(
             f"  {'rate':>6s} {'s':>5s} {'inputs':>7s} {'done':>6s} {'dropped':>8s} {'p50 ms':>8s} "
-            f"{'p99 ms':>8s} {'RSS MB':>8s} {'drift %':>8s} {'spread %':>9s} {'load':>5s}"
+            f"{'p99 ms':>8s} {'RSS MB':>8s} {'drift %':>8s} {'spread %':>9s} {'peak %':>7s} {'load':>5s}"
         )
         rows: dict[str, Any] = {}
 
@@ -209,7 +210,7 @@ def main() -> int:
                 f"  {label:>6s} {r['seconds']:5.0f} {r['inputs']:7d} {r['processed']:6d} "
                 f"{100 * r['dropped'] / max(r['inputs'], 1):7.1f}% {r['latency_p50_ms']:8.1f} "
                 f"{r['latency_p99_ms']:8.1f} {r['rss_last_mb']:8.1f} {r['rss_drift_pct']:+8.2f} "
-                f"{r['rss_spread_pct']:9.2f} {r['load'][0]:5.1f}"
+                f"{r['rss_spread_pct']:9.2f} {r['rss_peak_growth_pct']:+7.2f} {r['load'][0]:5.1f}"
             )
 
         for rate in rates:
