@@ -20,11 +20,11 @@ error it adds (median / 95th percentile over the siren windows).
 per-actor EV recall as ``benchmarks/bench_track_sweep.py`` scores it with
 ``data/video_track_labels.csv``; actors: the clean run's tracks the smoother can decide, ≥ 6 judged
 frames). The clips are run again with 30 % of the frames dropped at random (the tracker coasts over
-the gaps, :meth:`makeway.track.sort.Sort.coast`); the faulted run's tracks are matched to the clean
-actors by box overlap (IoU ≥ 0.5 on most of the frames they share) and an EV actor is recalled
-when one of its tracks becomes active. Target: recall drops ≤ 5 points. Then a frozen camera and a
-blackout from the middle of each clip: frames until the camera health flags it, and false flags on
-all five clean clips.
+the gaps, :meth:`makeway.track.sort.Sort.coast`); each clean actor is matched to the faulted run's
+track that covers it (IoU ≥ 0.5 on most of the frames both runs have) and is recalled when that
+track becomes active (a negative actor so matched is a false positive). Target: recall drops
+≤ 5 points. Then a frozen camera and a blackout from the middle of each clip: frames until the
+camera health flags it (counting the first faulted frame), and false flags on all five clean clips.
 
 ``--quick``: 6 recordings of 6 s, the first 150 frames of each clip.
 """
@@ -201,24 +201,27 @@ def audio_part(args: argparse.Namespace, tmp: Path) -> dict[str, Any]:
     return {"rows": rows, "clock": out_skew, "recordings": len(recs), "windows": sum(counts)}
 
 
-def _match(clean: ClipRecord, faulty: ClipRecord) -> dict[int, int | None]:
-    """Faulty track → the clean track it overlaps (IoU ≥ 0.5) on most of its shared frames."""
+def _cover(clean: ClipRecord, faulty: ClipRecord) -> dict[int, int | None]:
+    """Clean actor → the faulty run's track that covers it (IoU ≥ 0.5) on most of the frames both
+    runs have (``None``: none does). Actor-centric, so a faulty track that follows one vehicle
+    the clean run split into two tracks covers both."""
     by_frame: dict[int, list[int]] = defaultdict(list)
-    for i, f in enumerate(clean.frame.tolist()):
+    for i, f in enumerate(faulty.frame.tolist()):
         by_frame[f].append(i)
+    frames_of = set(faulty.frame.tolist())
     votes: dict[int, Counter[int]] = defaultdict(Counter)
     shared: Counter[int] = Counter()
-    for i, (f, tid) in enumerate(zip(faulty.frame.tolist(), faulty.track_id.tolist(), strict=True)):
-        rows = by_frame.get(f)
-        if not rows:
+    for i, (f, tid) in enumerate(zip(clean.frame.tolist(), clean.track_id.tolist(), strict=True)):
+        if f not in frames_of:  # a dropped frame: nothing to compare
             continue
         shared[tid] += 1
-        iou = np.nan_to_num(iou_matrix(faulty.boxes[i : i + 1], clean.boxes[rows]))[0]
+        rows = by_frame[f]
+        iou = np.nan_to_num(iou_matrix(clean.boxes[i : i + 1], faulty.boxes[rows]))[0]
         best = int(iou.argmax())
         if iou[best] >= 0.5:
-            votes[tid][int(clean.track_id[rows[best]])] += 1
+            votes[tid][int(faulty.track_id[rows[best]])] += 1
     out: dict[int, int | None] = {}
-    for tid in faulty.track_ids:
+    for tid in clean.track_ids:
         top = votes[tid].most_common(1)
         out[tid] = top[0][0] if top and top[0][1] >= 0.5 * shared[tid] else None
     return out
@@ -261,11 +264,8 @@ def video_part(args: argparse.Namespace, root: Path) -> dict[str, Any]:
         )
         pred_clean = actor_predictions(clean, 0.5)
         pred_faulty = actor_predictions(faulty, 0.5)
-        match = _match(clean, faulty)
-        found: dict[int, bool] = defaultdict(bool)
-        for tid, actor in match.items():
-            if actor is not None:
-                found[actor] |= pred_faulty[tid]
+        cover = _cover(clean, faulty)
+        found = {t: cover[t] is not None and pred_faulty[cover[t]] for t in clean.track_ids}
         actors = [
             t for t in clean.track_ids if int(np.sum(~np.isnan(clean.probabilities_of(t)))) >= MIN_JUDGED
         ]
@@ -315,6 +315,7 @@ def video_part(args: argparse.Namespace, root: Path) -> dict[str, Any]:
             health = CameraHealth()
             start = None
             first_flag = None
+            first_faulted = None
             flags = 0
             n = 0
             with VideoReader(video, max_frames=max_frames) as reader:
@@ -326,6 +327,8 @@ def video_part(args: argparse.Namespace, root: Path) -> dict[str, Any]:
                 for index, t, image in frames:
                     h = health.update(image, t)
                     n += 1
+                    if start is not None and t >= start and first_faulted is None:
+                        first_faulted = index
                     if not h.ok:
                         if start is None or t < start:
                             flags += 1
@@ -335,11 +338,11 @@ def video_part(args: argparse.Namespace, root: Path) -> dict[str, Any]:
                 res["false_flags"] = flags
                 res["frames"] = n
             else:
-                fps = VideoReader(video, max_frames=1).info.fps
-                first = round(start * fps) if start is not None else 0
                 res[fault] = {
                     "detected": first_flag is not None,
-                    "frames_to_flag": None if first_flag is None else first_flag - first + 1,
+                    "frames_to_flag": None
+                    if first_flag is None or first_faulted is None
+                    else first_flag - first_faulted + 1,
                     "false_flags_before": flags,
                 }
         camera[clip] = res
