@@ -227,3 +227,26 @@ def test_tracker_coasts_over_lost_frames() -> None:
             sort.coast(2)
         after = sort.update(det(8))
         assert (len(after) == 1 and after[0].track_id == track.track_id) is same_track
+
+
+def test_vision_pipeline_holds_its_tracks_while_the_camera_is_frozen(
+    frames: list[tuple[int, float, np.ndarray]],
+) -> None:
+    from makeway.perceive.vision.detectors import DETECTORS
+    from makeway.pipeline.video import VisionPipeline
+
+    pipe = VisionPipeline(DETECTORS["yolox_nano"](None, class_agnostic=True, num_threads=1))
+    stuck_from = 12
+    out = [
+        pipe.process(img, i, t)
+        for i, t, img in apply_video_fault(frames[:24], "frozen", start_s=frames[stuck_from][1])
+    ]
+    flagged = [f for f in out if f.health is not None and not f.health.ok]
+    first = stuck_from + FROZEN_FRAMES - 1
+    assert [f.frame_index for f in flagged] == [f[0] for f in frames[first:24]]
+    held = out[first - 1]
+    assert held.tracks  # the clip has vehicles; they are held, not lost
+    for f in flagged:
+        assert f.tracks == held.tracks and f.health is not None and f.health.reasons == ("frozen",)
+        assert f.to_json()["health"]["distrusted"] == {"0": "frozen"}
+    assert all(f.health is not None and f.health.ok and "health" not in f.to_json() for f in out[:first])
