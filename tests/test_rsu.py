@@ -126,7 +126,13 @@ def test_node_alerts_verify_and_reach_a_car_process(segment: Path, tmp_path: Pat
     assert car.returncode == 0, err
     rows = [json.loads(line) for line in out.splitlines()]
     alerts, car_summary = rows[:-1], rows[-1]["summary"]
-    assert car_summary == {"received": wanted, "valid": wanted, "rejected": 0, "reasons": {}}
+    assert car_summary == {
+        "received": wanted,
+        "valid": wanted,
+        "rejected": 0,
+        "reasons": {},
+        "dropped_unread": 0,
+    }
     assert all(r["valid"] and r["lights"] and r["key"] == "makeway/v2x/segment/rsu-test" for r in alerts)
     belief = alerts[-1]["belief"]
     assert belief["detected"] and belief["source"] == "v2x" and belief["lights"]

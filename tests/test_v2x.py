@@ -430,7 +430,13 @@ def test_alerts_over_zenoh_between_two_processes(tmp_path: Path) -> None:
     assert car.returncode == 0, err
     rows = [json.loads(line) for line in out.splitlines()]
     alerts, summary = rows[:-1], rows[-1]["summary"]
-    assert summary == {"received": n + 1, "valid": n, "rejected": 1, "reasons": {"unknown signer": 1}}
+    assert summary == {
+        "received": n + 1,
+        "valid": n,
+        "rejected": 1,
+        "reasons": {"unknown signer": 1},
+        "dropped_unread": 0,
+    }
     assert alerts[0]["valid"] is False and alerts[0]["belief"]["detected"] is False
     assert [r["sequence"] for r in alerts[1:]] == list(range(1, n + 1))
     assert all(r["valid"] and r["key"] == "makeway/v2x/segment/a7-km12" for r in alerts[1:])

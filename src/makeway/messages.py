@@ -204,16 +204,20 @@ class EVTrackState:
 
 @dataclass(frozen=True, slots=True)
 class PerceptionFrame:
-    """Everything the vision stages concluded about one video frame; one line of ``tracks.jsonl``."""
+    """Everything the vision stages concluded about one video frame; one line of ``tracks.jsonl``.
+
+    ``health`` is the camera's in this frame (``None``: not checked); while it is distrusted the
+    tracks are those of the last trusted frame, carried on (the tracker coasts)."""
 
     frame_index: int
     time_s: float
     tracks: tuple[Track, ...]
     ev_states: tuple[EVTrackState, ...] = field(default=())
+    health: SensorHealth | None = None
 
     def to_json(self) -> dict[str, Any]:
         """A JSON-ready dict: ``index`` (source frame index), ``time_s``, and per track its box, id,
-        score, class and EV state."""
+        score, class and EV state; ``health`` when the camera was distrusted in this frame."""
         ev = {s.track_id: s for s in self.ev_states}
         tracks = []
         for t in self.tracks:
@@ -231,7 +235,58 @@ class PerceptionFrame:
                     "ev_n_valid": s.n_valid if s is not None else 0,
                 }
             )
-        return {"index": self.frame_index, "time_s": round(self.time_s, 4), "tracks": tracks}
+        out: dict[str, Any] = {"index": self.frame_index, "time_s": round(self.time_s, 4), "tracks": tracks}
+        if self.health is not None and not self.health.ok:
+            out["health"] = self.health.to_json()
+        return out
+
+
+# -------------------------------------------------------------------------------------------- health
+
+
+@dataclass(frozen=True, slots=True)
+class SensorHealth:
+    """Which channels of one sensor a perception stage trusts at ``time_s`` (s), computed from the data.
+
+    ``sensor`` names it (``"audio"`` for the microphone array, ``"camera"`` for a camera);
+    ``trusted`` holds one flag per channel (a microphone capsule, in the array's channel order; one
+    entry for a camera) and ``reasons`` one word per channel: ``"ok"`` or what is wrong (``"dead"``,
+    ``"clipped"``, ``"loud"``, ``"uncorrelated"`` for a microphone; ``"frozen"``, ``"black"`` for a camera).
+    ``repaired`` lists the channels the stage rebuilt from their neighbours before using the data
+    (see :mod:`makeway.perceive.health`). Consumers (fusion, the decision) read :attr:`trust`.
+    """
+
+    time_s: float
+    sensor: str
+    trusted: tuple[bool, ...]
+    reasons: tuple[str, ...]
+    repaired: tuple[int, ...] = ()
+
+    @property
+    def ok(self) -> bool:
+        """Every channel trusted."""
+        return all(self.trusted)
+
+    @property
+    def trust(self) -> float:
+        """The share of trusted channels, in ``[0, 1]`` (1 for a sensor with no channel listed)."""
+        return sum(self.trusted) / len(self.trusted) if self.trusted else 1.0
+
+    def faults(self) -> tuple[str, ...]:
+        """One short text per distrusted channel: ``"audio:3 dead"``, ``"camera:0 frozen"``."""
+        pairs = enumerate(zip(self.trusted, self.reasons, strict=True))
+        return tuple(f"{self.sensor}:{k} {why}" for k, (ok, why) in pairs if not ok)
+
+    def to_json(self) -> dict[str, Any]:
+        """A JSON-ready dict: ``trust`` and, per distrusted channel, its index and reason."""
+        return {
+            "sensor": self.sensor,
+            "trust": round(self.trust, 4),
+            "distrusted": {
+                str(k): r for k, (ok, r) in enumerate(zip(self.trusted, self.reasons, strict=True)) if not ok
+            },
+            "repaired": list(self.repaired),
+        }
 
 
 # --------------------------------------------------------------------------------------------- audio
@@ -261,7 +316,8 @@ class SirenObservation:
     ``probability`` is this window's, ``smoothed_probability`` the listener's decision value and
     ``is_siren`` the decision. ``sources`` lists the sirens heard, nearest first (empty without a
     siren). ``level_db_spl`` is the window's level in the siren band (500–1800 Hz) at the array,
-    power-averaged over the capsules, ``None`` when unknown.
+    power-averaged over the capsules, ``None`` when unknown. ``health`` says which capsules the
+    listener trusted in this window (``None``: not checked).
     """
 
     t_end: float
@@ -270,10 +326,12 @@ class SirenObservation:
     smoothed_probability: float
     sources: tuple[SirenSource, ...] = ()
     level_db_spl: float | None = None
+    health: SensorHealth | None = None
 
     def to_json(self) -> dict[str, Any]:
-        """A JSON-ready dict (the ``listen`` message; bearings also in degrees)."""
-        return {
+        """A JSON-ready dict (the ``listen`` message; bearings also in degrees; ``health`` only
+        when the listener checked its channels and distrusted one)."""
+        out: dict[str, Any] = {
             "t_end": round(self.t_end, 6),
             "is_siren": self.is_siren,
             "probability": round(self.probability, 6),
@@ -292,6 +350,9 @@ class SirenObservation:
                 for s in self.sources
             ],
         }
+        if self.health is not None and not self.health.ok:
+            out["health"] = self.health.to_json()
+        return out
 
 
 # ------------------------------------------------------------------------------------- lights / v2x
@@ -432,7 +493,8 @@ class EVBelief:
     ``bearing_rad`` (0 ahead, positive to the left). ``approaching`` is ``None`` when unknown.
     ``lights``/``siren`` say which signals are perceived now. ``source`` names the producer;
     ``sources`` the senses supporting a fused belief (``"siren"``, ``"light"``, ``"v2x"``) and
-    ``track_id`` its EV track (``None`` for a single-sense belief).
+    ``track_id`` its EV track (``None`` for a single-sense belief). ``sensor_faults`` lists the
+    channels the producing stages distrusted (:meth:`SensorHealth.faults`; empty: all healthy).
     """
 
     time_s: float
@@ -449,6 +511,7 @@ class EVBelief:
     source: str = "simulated"
     sources: tuple[str, ...] = ()
     track_id: int | None = None
+    sensor_faults: tuple[str, ...] = ()
 
     @staticmethod
     def nothing(time_s: float, source: str = "simulated") -> EVBelief:

@@ -392,6 +392,7 @@ def listen_recording(
     audio_topic: str | None = None,
     pose_topic: str | None = None,
     mcap: str | Path | None = None,
+    realtime: bool = False,
 ) -> ListenRun:
     """Slide the siren listener (:func:`makeway.perceive.audio.stream.listen`) over the recording
     folder ``path``: the siren networks (shipped unless named; one thread), or a classical
@@ -399,7 +400,9 @@ def listen_recording(
     ``on_message`` as it is made; with ``jsonl`` the messages are also written there (JSON lines),
     with ``plot`` a spectrogram + polar bearing plot (PNG). Windows are ``window_s`` long every
     ``hop_s`` seconds; ``smooth`` windows are averaged for each decision. ``approach`` names the
-    approaching/receding method (:func:`approach_estimator`).
+    approaching/receding method (:func:`approach_estimator`). ``realtime`` plays the recording as a
+    live array (a window every ``hop_s`` of wall time; when the listener falls behind, the oldest
+    waiting window is dropped, never the newest; the summary's ``dropped_windows`` counts them).
 
     ``path`` may also be a robotics log (an MCAP file or a ROS 2 bag folder,
     :mod:`makeway.sense.logs`): its ``audio_topic`` (default: its only audio topic) with the array
@@ -445,6 +448,7 @@ def listen_recording(
             smooth=smooth,
             average=average,
             approach=estimator,
+            realtime=realtime,
         ):
             messages.append(msg)
             if on_message is not None:
@@ -467,6 +471,7 @@ def listen_recording(
             "recording": str(path),
             "messages": len(messages),
             "siren_messages": sum(1 for m in messages if m["is_siren"]),
+            "dropped_windows": hops - len(messages),
             "ms_per_hop": round(1000.0 * wall / max(len(messages), 1), 2),
             "jsonl": str(jsonl),
             "plot": None if plot is None else str(plot),

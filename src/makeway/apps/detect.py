@@ -33,6 +33,7 @@ def detect(
     colours: str = DEFAULT_LIGHTS[1],
     topic: str | None = None,
     mcap: str | Path | None = None,
+    realtime: bool = False,
 ) -> VideoRunSummary:
     """Detect, track and judge the vehicles of ``video``; write the annotated video, ``tracks.jsonl``
     and ``summary.json`` to ``out`` (default ``makeway_out/<video stem>``).
@@ -53,6 +54,8 @@ def detect(
     is read (``None``: the log's only camera topic). With ``mcap`` the run is also written there as a
     Foxglove MCAP file (images, box annotations, tracks; :mod:`makeway.viz.foxglove`).
     Returns the run's summary (frames, timings in ms per frame, real-time factor, files written).
+    ``realtime`` plays the video as a live camera would deliver it: when the pipeline falls behind,
+    the oldest waiting frame is dropped, never the newest (``dropped_frames`` counts them).
 
     Raises:
         InputError: the video, the detector weights or the classifier cannot be read (names the file;
@@ -87,4 +90,5 @@ def detect(
         light_colours=colours,
         topic=topic,
         mcap=mcap,
+        realtime=realtime,
     )

@@ -94,6 +94,7 @@ def run_rsu(
     progress: bool = True,
     topic: str | None = None,
     mcap: Path | None = None,
+    realtime: bool = False,
 ) -> dict[str, Any]:
     """Run the roadside unit over ``video`` (module docstring); the run's summary: frames, EV
     tracks reported, alerts made and published, alerts per second of wall time, and where the
@@ -103,7 +104,9 @@ def run_rsu(
     ``video`` may be a robotics log (an MCAP file or a ROS 2 bag folder) with the camera ``topic``
     (default: its only camera topic); with ``mcap`` the run is also written there for Foxglove (the
     camera, the boxes, the tracks, on ``/v2x/alerts`` every alert made and on ``/roadside/evs`` the
-    reported EVs as scene entities on the road)."""
+    reported EVs as scene entities on the road). ``realtime`` plays the video as a live camera:
+    frames come on the video's clock and, when the unit falls behind, the oldest waiting frame is
+    dropped, never the newest (``dropped_frames``)."""
     from makeway.apps.v2x import DEFAULT_ENDPOINT
     from makeway.roadside.node import RoadsideNode, sign_report
     from makeway.roadside.transform import read_transform_calibration
@@ -196,6 +199,7 @@ def run_rsu(
             progress=progress,
             topic=topic,
             mcap=recorder,
+            realtime=realtime,
         )
     except BaseException:
         if recorder is not None:
@@ -213,6 +217,7 @@ def run_rsu(
         "calibration": str(calib),
         "segment": segment,
         "frames": summary.frames,
+        "dropped_frames": summary.dropped_frames,
         "video_seconds": summary.video_seconds,
         "wall_seconds": round(wall, 3),
         "active_ev_tracks": summary.active_ev_tracks,

@@ -184,7 +184,8 @@ def listen(
         (lat, lon, heading clockwise from north in degrees, speed m/s): the belief's position is relative
         to it; without it the belief says presence, siren and lights only; ``hold_s`` is how long the belief
     keeps an alert after its generation time. Ends after ``duration_s`` or
-        ``count`` payloads, then yields a summary row ``{"summary": {...}}``."""
+        ``count`` payloads, then yields a summary row ``{"summary": {...}}`` (``dropped_unread``: alerts
+        that came faster than they were verified and were dropped, oldest first)."""
     from makeway.v2x.belief import LocalFrame, V2XBeliefSource
     from makeway.v2x.security import TrustStore, Verifier
     from makeway.v2x.transport import AlertSubscriber, open_peer, segment_key
@@ -194,7 +195,7 @@ def listen(
     verifier = Verifier(TrustStore.load(trust))
     frame = LocalFrame(ego[0], ego[1]) if ego is not None else None
     source = V2XBeliefSource(frame or LocalFrame(0.0, 0.0), hold_s=hold_s)
-    valid = rejected = 0
+    valid = rejected = dropped = 0
     reasons: dict[str, int] = {}
     session = open_peer(listen_on, connect)
     try:
@@ -218,9 +219,16 @@ def listen(
             yield row
             if count is not None and valid + rejected >= count:
                 break
+        dropped = sub.dropped
         sub.close()
     finally:
         session.close()
     yield {
-        "summary": {"received": valid + rejected, "valid": valid, "rejected": rejected, "reasons": reasons}
+        "summary": {
+            "received": valid + rejected,
+            "valid": valid,
+            "rejected": rejected,
+            "reasons": reasons,
+            "dropped_unread": dropped,
+        }
     }

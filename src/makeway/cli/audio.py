@@ -587,6 +587,14 @@ def listen(
             "level (level slope and Doppler only; the default, and the only choice, with --baseline).",
         ),
     ] = None,
+    realtime: Annotated[
+        bool,
+        typer.Option(
+            "--realtime",
+            help="Play the recording as a live array: a window every hop; when the listener falls "
+            "behind, the oldest waiting window is dropped, never the newest.",
+        ),
+    ] = False,
 ) -> None:
     """Listen to a recording for sirens, hop by hop.
 
@@ -622,6 +630,7 @@ def listen(
         # with --jsonl the messages go to a file: a progress bar on stderr instead (stdout stays JSON)
         on_message=print_json_line if jsonl is None else None,
         progress=jsonl is not None,
+        realtime=realtime,
     )
     _calibration_note(int(run.uncalibrated), baseline)
     if jsonl is not None:

@@ -119,6 +119,14 @@ def detect(
             "the boxes with their EV state, the tracks."
         ),
     ] = None,
+    realtime: Annotated[
+        bool,
+        typer.Option(
+            "--realtime",
+            help="Play the video as a live camera: frames come at the video's rate and, when the "
+            "pipeline falls behind, the oldest waiting frame is dropped, never the newest.",
+        ),
+    ] = False,
     as_json: Annotated[bool, typer.Option("--json", help="Print the run summary as one JSON line.")] = False,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")] = False,
 ) -> None:
@@ -153,6 +161,7 @@ def detect(
         colours=colours,
         topic=topic,
         mcap=mcap,
+        realtime=realtime,
     )
     table = Table(title=f"makeway detect — {video.name}", show_header=False)
     if summary.topic is not None:
@@ -161,6 +170,8 @@ def detect(
     table.add_row("real-time factor", f"{summary.realtime_factor:.2f}× ({summary.wall_seconds:.1f} s wall)")
     table.add_row("ms / frame", ", ".join(f"{k} {v:.1f}" for k, v in summary.ms_per_frame.items()))
     table.add_row("tracks", f"{summary.unique_tracks} ids, at most {summary.max_tracks} at once")
+    if realtime:
+        table.add_row("dropped frames", f"{summary.dropped_frames} (the pipeline fell behind)")
     table.add_row(
         f"active EVs ({summary.rule})",
         ", ".join(f"#{i}" for i in summary.active_ev_tracks) or "none",

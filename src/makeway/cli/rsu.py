@@ -65,6 +65,14 @@ def run(
             "the tracks and every alert made."
         ),
     ] = None,
+    realtime: Annotated[
+        bool,
+        typer.Option(
+            "--realtime",
+            help="Play the video as a live camera: when the unit falls behind, the oldest "
+            "waiting frame is dropped, never the newest.",
+        ),
+    ] = False,
 ) -> None:
     """Run the roadside unit on a video.
 
@@ -92,6 +100,7 @@ def run(
             siren=siren,
             topic=topic,
             mcap=mcap,
+            realtime=realtime,
         )
     )
 

@@ -48,9 +48,11 @@ from typing import Any
 import numpy as np
 
 from makeway.eval.siren_labels import label_recording
+from makeway.messages import SensorHealth
 from makeway.perceive.audio.doa import DOA_METHODS, SirenEnergyDetector, wrap_angle
 from makeway.perceive.audio.features import window_batch
 from makeway.perceive.audio.windows import SMOOTH_AVERAGE, StreamSmoother, smoothed_probability
+from makeway.perceive.health import audio_health, repair_window
 from makeway.sense.recording import Recording, assume_calibration, read_recording
 
 METRIC_KEYS = (
@@ -171,15 +173,32 @@ def baseline_estimator(method: str, detector: SirenEnergyDetector | None = None)
     return estimate
 
 
-def model_estimator(model: Any, source: str | Path | None = None) -> WindowEstimator:
+def model_estimator(
+    model: Any,
+    source: str | Path | None = None,
+    *,
+    repair: bool = False,
+    health: list[SensorHealth] | None = None,
+) -> WindowEstimator:
     """The trained network (:class:`~makeway.perceive.audio.siren_model.SirenModel`); every
     recording's array and sample rate are checked against the model's first, and its windows are
-    brought to the model's calibration (``Recording.full_scale_db_spl``)."""
+    brought to the model's calibration (``Recording.full_scale_db_spl``). With ``repair``, each
+    window's distrusted capsules are rebuilt first, as ``makeway audio listen`` does
+    (:func:`~makeway.perceive.health.audio_health`, :func:`~makeway.perceive.health.repair_window`);
+    ``health``, when given, receives every window's :class:`~makeway.messages.SensorHealth`."""
 
     def estimate(rec: Recording, windows: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         model.check_array(rec.mics, rec.sample_rate, rec.path or source or "recording")
         if not len(windows):
             return np.zeros(0), np.zeros(0), np.zeros(0)
+        if repair or health is not None:
+            checked = [audio_health(w, rec.mics, rec.sample_rate) for w in windows]
+            if health is not None:
+                health.extend(checked)
+            if repair:
+                windows = np.stack(
+                    [repair_window(w, rec.mics, h)[0] for w, h in zip(windows, checked, strict=True)]
+                )
         fs = rec.full_scale_db_spl
         preds = [model.predict(windows[i : i + 64], fs) for i in range(0, len(windows), 64)]
         return (

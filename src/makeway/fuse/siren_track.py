@@ -38,7 +38,9 @@ decision reads:
   across the road shrinking, from the track), which works far away too; once made, that call
   changes only after ``crossing_flip_fixes`` fixes in a row disagree (1 s: a far track's heading
   wobbles as the ego drives past the crossing road).
-* **Confidence** is the listener's smoothed probability, **detected** its decision.
+* **Confidence** is the listener's smoothed probability, **detected** its decision. When the
+  listener distrusted capsules of the array (the observation's ``health``), the confidence is
+  scaled by the share of capsules it trusted and the belief's ``sensor_faults`` names them.
 
 Position, distance and bearing in the belief are the filtered ones, relative to the ego (vehicle
 frame); beyond ``far_m`` only the bearing. A siren heard without a distance (the classical
@@ -189,17 +191,21 @@ class SirenTrackFusion:
                 self._predict(t)
         if not obs.is_siren or not obs.sources:
             return EVBelief.nothing(t, source=SOURCE)
+        # a degraded array (the listener distrusted capsules): same fix, less confidence, and say so
+        trust = obs.health.trust if obs.health is not None else 1.0
+        faults = obs.health.faults() if obs.health is not None else ()
         src = obs.sources[0]
         if src.distance_m is None:  # a bearing only: heard, not placed
             return EVBelief(
                 time_s=t,
                 detected=True,
-                confidence=float(obs.smoothed_probability),
+                confidence=float(obs.smoothed_probability) * trust,
                 relation=EVRelation.UNKNOWN,
                 bearing_rad=float(src.bearing_rad),
                 approaching=src.approaching,
                 siren=True,
                 source=SOURCE,
+                sensor_faults=faults,
             )
         z, r = self._fix(obs, ego_x, ego_y, ego_yaw)
         if self.state_ is None:
@@ -236,7 +242,7 @@ class SirenTrackFusion:
         return EVBelief(
             time_s=t,
             detected=True,
-            confidence=float(obs.smoothed_probability),
+            confidence=float(obs.smoothed_probability) * trust,
             relation=relation,
             rel_x_m=nan if far else rel_x,
             rel_y_m=nan if far else rel_y,
@@ -245,6 +251,7 @@ class SirenTrackFusion:
             approaching=approaching,
             siren=True,
             source=SOURCE,
+            sensor_faults=faults,
         )
 
     def _is_far(self, distance_m: float, level_db_spl: float | None) -> bool:

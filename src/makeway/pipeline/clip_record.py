@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import hashlib
 import json
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -49,6 +49,7 @@ def record_clip(
     model_path: str | Path | None = None,
     max_frames: int | None = None,
     progress: bool = False,
+    frame_filter: Callable[[Iterator[Any]], Iterator[Any]] | None = None,
 ) -> ClipRecord:
     """Run Framework B over ``video`` with :data:`RECORD_CONFIG`; record every track's probability.
 
@@ -59,6 +60,8 @@ def record_clip(
         model_path: detector ONNX file (default: searched).
         max_frames: stop after this many frames.
         progress: show a progress bar.
+        frame_filter: what the frames pass through first (e.g. a sensor fault,
+            :data:`makeway.sense.faults.VIDEO_FAULTS`; see :func:`~makeway.pipeline.video.run_video`).
     """
     cfg = RECORD_CONFIG
     det = DETECTORS[cfg["detector"]](
@@ -78,6 +81,7 @@ def record_clip(
         classifier=recorder,
         tracker=Sort(**cfg["sort"]),
         progress=progress,
+        frame_filter=frame_filter,
     )
     rows = recorder.rows
     arr = np.asarray(rows, dtype=np.float64).reshape(-1, 7)

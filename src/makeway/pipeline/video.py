@@ -45,10 +45,12 @@ import numpy as np
 
 from makeway.atomic import atomic_path, check_writable, removed_on_error, write_text_atomic
 from makeway.messages import EVObservation, EVTrackState, LightDetection, PerceptionFrame
+from makeway.perceive.health import CameraHealth
 from makeway.perceive.vision.detectors import DETECTORS, Detector
 from makeway.perceive.vision.ev_classifier import TrackClassifier
 from makeway.perceive.vision.lights import DEFAULT_LIGHT_DETECTOR, LightDetector
 from makeway.progress import progress_bar
+from makeway.queues import LiveSource, paced
 from makeway.sense.logs import open_frame_source
 from makeway.track.lights import (
     ACTIVE_RULES,
@@ -88,6 +90,13 @@ class VisionPipeline:
             the smoother. Without a classifier, ``crop`` gives tracks no EV state.
         light_tracker: the light tracker of the lights rules (default ``LightTracker()``); its
             detections come with each frame (:meth:`process_detections`).
+        camera_health: check the camera's health (:class:`~makeway.perceive.health.CameraHealth`;
+            ``False`` checks nothing). While the camera
+            is frozen or black, frames are not tracked: each reports the last trusted frame's tracks
+            and states with the health, and the tracks resume when the camera does.
+        frame_step: the index step between consecutive frames (the reader's stride). A larger
+            step means frames were lost on the way; the tracker then coasts over them
+            (:meth:`~makeway.track.sort.Sort.coast`) so that a gap does not end its tracks.
     """
 
     def __init__(
@@ -99,7 +108,15 @@ class VisionPipeline:
         *,
         rule: str = "crop",
         light_tracker: LightTracker | None = None,
+        camera_health: bool = True,
+        frame_step: int = 1,
     ) -> None:
+        if frame_step < 1:
+            raise ValueError(f"frame_step must be >= 1, got {frame_step}")
+        self.camera_health = CameraHealth() if camera_health else None
+        self.frame_step = int(frame_step)
+        self._last_index: int | None = None
+        self._last_frame: PerceptionFrame | None = None
         if rule not in ACTIVE_RULES:
             raise ValueError(f"unknown active rule {rule!r}; choose from: {', '.join(ACTIVE_RULES)}")
         self.detector = detector
@@ -136,6 +153,22 @@ class VisionPipeline:
         arrive in order, once each.
         """
         t1 = time.perf_counter()
+        health = None
+        if self.camera_health is not None:
+            health = self.camera_health.update(image_bgr, time_s)
+            if not health.ok:  # nothing to learn from this image: hold the tracks, say why
+                last = self._last_frame
+                self.seconds["track"] += time.perf_counter() - t1
+                return PerceptionFrame(
+                    frame_index,
+                    time_s,
+                    last.tracks if last is not None else (),
+                    last.ev_states if last is not None else (),
+                    health,
+                )
+        if self._last_index is not None and frame_index - self._last_index > self.frame_step:
+            self.tracker.coast((frame_index - self._last_index) // self.frame_step - 1)
+        self._last_index = frame_index
         boxes, scores, class_ids = arrays
         detections = Detector.to_detections((boxes, scores, class_ids))
         tracks = self.tracker.update(detections)
@@ -171,7 +204,8 @@ class VisionPipeline:
         t3 = time.perf_counter()
         self.seconds["track"] += t2 - t1
         self.seconds["classify"] += t3 - t2
-        return PerceptionFrame(frame_index, time_s, tuple(tracks), states)
+        self._last_frame = PerceptionFrame(frame_index, time_s, tuple(tracks), states, health)
+        return self._last_frame
 
 
 @dataclass
@@ -198,9 +232,27 @@ class VideoRunSummary:
     outputs: dict[str, str] = field(default_factory=dict)
     topic: str | None = None
     """The camera topic read, when the input was a robotics log."""
+    dropped_frames: int = 0
 
     def to_json(self) -> dict[str, Any]:
         return asdict(self)
+
+
+class _LiveFrames:
+    """Frames of a file delivered on the video's clock, as a live camera would deliver them, through
+    a latest-wins queue of one frame (:class:`makeway.queues.LiveSource`): a frame that arrives
+    while the pipeline is busy replaces the one waiting, so the pipeline always works on the newest."""
+
+    def __init__(self, source: Iterator[Any], fps: float) -> None:
+        self.feed: LiveSource[Any] = LiveSource(paced(source, fps), maxsize=1)
+        self.seconds = 0.0
+
+    def __iter__(self) -> Iterator[Any]:
+        for _, item in self.feed:
+            yield item
+
+    def close(self) -> None:
+        self.feed.close()
 
 
 class _Prefetch:
@@ -402,6 +454,9 @@ def run_video(
     light_tracker: LightTracker | None = None,
     topic: str | None = None,
     mcap: str | Path | DetectRecorder | None = None,
+    frame_filter: Callable[[Iterator[tuple[int, float, np.ndarray]]], Iterator[tuple[int, float, np.ndarray]]]
+    | None = None,
+    realtime: bool = False,
 ) -> VideoRunSummary:
     """Run Framework B over ``video``; write the annotated video, JSONL and summary to ``out_dir``.
 
@@ -435,6 +490,13 @@ def run_video(
             the camera image, box annotations, the tracks); on a log, in the log's own clock. A
             ready recorder may be given instead (a caller that adds channels of its own); the run
             closes it, or aborts it on an error.
+        frame_filter: what the camera's frames pass through before detection, e.g. a sensor fault
+            of :data:`makeway.sense.faults.VIDEO_FAULTS` (it gets and yields ``(frame_index,
+            time_s, image_bgr)``).
+        realtime: play the file as a live camera: frames arrive on the video's clock and, while
+            the pipeline is busy, a newer frame replaces the one waiting (the oldest is dropped,
+            never the newest; ``dropped_frames`` in the summary counts them). Without it every
+            frame is processed, however long it takes.
 
     Raises:
         InputError: the video or the model is missing or unreadable, or ``out_dir`` cannot be
@@ -467,7 +529,13 @@ def run_video(
         [build_light_detector(light_detector, light_colours) for _ in detectors] if rule != "crop" else None
     )
     pipe = VisionPipeline(
-        det, tracker=tracker, classifier=classifier, smoother=smoother, rule=rule, light_tracker=light_tracker
+        det,
+        tracker=tracker,
+        classifier=classifier,
+        smoother=smoother,
+        rule=rule,
+        light_tracker=light_tracker,
+        frame_step=stride,
     )
     detect_seconds = [0.0, 0.0]
     total = info.frame_count if info.frame_count > 0 else None
@@ -498,7 +566,12 @@ def run_video(
             recorder = DetectRecorder(mcap) if isinstance(mcap, str | Path) else mcap
             if recorder is not None:
                 recorder.start_ns = start_ns
-            frames = _Prefetch(iter(reader))
+            source: Iterator[tuple[int, float, np.ndarray]] = iter(reader)
+            if frame_filter is not None:
+                source = iter(frame_filter(source))
+            frames: _Prefetch | _LiveFrames = (
+                _LiveFrames(source, info.fps / stride) if realtime else _Prefetch(source)
+            )
             wall0 = time.perf_counter()
             try:
                 for index, t_s, image, (arrays, lights) in _detect_in_order(
@@ -569,7 +642,8 @@ def run_video(
         seconds["lights"] = detect_seconds[1]
     seconds["annotate"] = annotate_s
     seconds["encode"] = bg.seconds if bg is not None else 0.0
-    video_seconds = n_frames * stride / info.fps
+    dropped = frames.feed.dropped if isinstance(frames, _LiveFrames) else 0
+    video_seconds = (n_frames + dropped) * stride / info.fps
     summary = VideoRunSummary(
         video=str(video),
         out_dir=str(out) if out is not None else None,
@@ -590,6 +664,7 @@ def run_video(
         active_ev_tracks=sorted(active_ids),
         outputs=outputs,
         topic=getattr(reader, "topic", None),
+        dropped_frames=dropped,
     )
     if out is not None:
         summary.outputs["summary"] = str(out / "summary.json")

@@ -218,6 +218,16 @@ class Sort:
             for t in self._step(boxes, scores, classes, labels)
         ]
 
+    def coast(self, steps: int = 1) -> None:
+        """Carry every track ``steps`` frames forward on its motion model for frames that never
+        arrived (dropped by the camera or the transport): no association, and the lost frames do not
+        count as misses, so a gap does not end a track that ``max_age`` would keep."""
+        for _ in range(max(0, int(steps))):
+            for t in self._tracks:
+                age, streak, since = t.age, t.hit_streak, t.time_since_update
+                t.predict()
+                t.age, t.hit_streak, t.time_since_update = age, streak, since
+
     def update_arrays(
         self, boxes: np.ndarray, scores: np.ndarray | None = None, class_ids: np.ndarray | None = None
     ) -> tuple[np.ndarray, np.ndarray]:

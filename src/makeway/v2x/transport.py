@@ -12,7 +12,6 @@ connect to it. Only loopback endpoints are accepted here.
 from __future__ import annotations
 
 import json
-import queue
 import re
 import socket
 import time
@@ -20,6 +19,8 @@ from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 
 import zenoh
+
+from makeway.queues import LatestQueue
 
 __all__ = [
     "KEY_PREFIX",
@@ -119,10 +120,14 @@ class Received:
 
 class AlertSubscriber:
     """Receives payloads on the given segments, in arrival order (zenoh's callback thread stamps the
-    receive time and queues them; :meth:`receive` hands them out)."""
+    receive time and queues them; :meth:`receive` hands them out).
 
-    def __init__(self, session: zenoh.Session, segments: Sequence[str]) -> None:
-        self._queue: queue.SimpleQueue[Received] = queue.SimpleQueue()
+    The queue holds at most ``max_pending`` payloads (:class:`~makeway.queues.LatestQueue`): when
+    alerts arrive faster than the listener verifies them, the oldest waiting ones are dropped, never
+    the newest, and memory stays bounded (:attr:`dropped` counts them)."""
+
+    def __init__(self, session: zenoh.Session, segments: Sequence[str], max_pending: int = 1024) -> None:
+        self._queue: LatestQueue[Received] = LatestQueue(max_pending)
         self._subs = [session.declare_subscriber(segment_key(s), self._on_sample) for s in segments]
 
     def _on_sample(self, sample: zenoh.Sample) -> None:
@@ -137,8 +142,13 @@ class AlertSubscriber:
                 return
             try:
                 yield self._queue.get(timeout=min(left, 0.5))
-            except queue.Empty:
+            except TimeoutError:
                 continue
+
+    @property
+    def dropped(self) -> int:
+        """Payloads dropped unread because the queue was full."""
+        return self._queue.dropped
 
     def close(self) -> None:
         for sub in self._subs:

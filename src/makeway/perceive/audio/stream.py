@@ -38,6 +38,7 @@ at ≤ 1 % false alarms (see docs/results.md, section "Siren detection, bearing 
 from __future__ import annotations
 
 from collections.abc import Iterator
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -58,6 +59,8 @@ from makeway.perceive.audio.windows import (
     StreamSmoother,
     window_starts,
 )
+from makeway.perceive.health import audio_health, repair_window
+from makeway.queues import live, paced
 from makeway.sense.recording import AUDIO_FILE, REFERENCE_FULL_SCALE_DB_SPL, Recording
 
 
@@ -69,6 +72,11 @@ class SirenListener:
     drives (:class:`makeway.pipeline.siren_perception.SirenPerception`). ``mics`` and
     ``sample_rate`` are the array's, checked against the network's; ``full_scale_db_spl`` its
     calibration (``None``: the networks' scale). ``source`` names the stream in error messages.
+
+    With ``health`` (the default) every window's capsules are checked first
+    (:func:`~makeway.perceive.health.audio_health`: dead, clipped or uncorrelated) and a distrusted
+    one is rebuilt from its neighbours (:func:`~makeway.perceive.health.repair_window`) before
+    anything else reads the window; the observation's ``health`` says which.
     """
 
     def __init__(
@@ -85,7 +93,9 @@ class SirenListener:
         window_s: float = WINDOW_S,
         full_scale_db_spl: float | None = None,
         source: str | Path = "recording",
+        health: bool = True,
     ) -> None:
+        self.check_health = bool(health)
         self.smoother = StreamSmoother(smooth, average)
         self.doa = DOA_METHODS[method]
         self.mics = np.asarray(mics, dtype=np.float64)
@@ -138,6 +148,12 @@ class SirenListener:
         """Judge one window ``(channels, samples)`` ending at ``t_end`` (s)."""
         window = np.asarray(window, dtype=np.float64)
         sr = self.sample_rate
+        health = None
+        if self.check_health:
+            health = audio_health(window, self.mics, sr, t_end)
+            if not health.ok:
+                window, rebuilt = repair_window(window, self.mics, health)
+                health = replace(health, repaired=rebuilt)
         model = self.model
         pred = model.predict(window, self.full_scale_db_spl) if model is not None else None
         if pred is not None:
@@ -165,7 +181,7 @@ class SirenListener:
             for k, src in enumerate(found)
         )
         level = band_level_db(window, sr) + self.full_scale
-        return SirenObservation(float(t_end), bool(is_siren), p, float(p_smooth), sources, level)
+        return SirenObservation(float(t_end), bool(is_siren), p, float(p_smooth), sources, level, health)
 
 
 def listen(
@@ -179,6 +195,7 @@ def listen(
     model: SirenModel | None = None,
     smooth: int = LISTEN_SMOOTH,
     average: str = SMOOTH_AVERAGE,
+    realtime: bool = False,
 ) -> Iterator[dict[str, Any]]:
     """One JSON message per hop over ``recording`` (see the module docstring): a
     :class:`SirenListener` stepped over the windows of
@@ -189,7 +206,12 @@ def listen(
     bin assignment (:meth:`~makeway.perceive.audio.siren_model.SirenModel.sources`); ``method`` and
     ``detector`` are then unused. ``approach`` (default :func:`default_approach`) says approaching or
     receding for the nearest siren. ``smooth`` windows are averaged for the decision, their logits
-    or (``average``) probabilities (module docstring)."""
+    or (``average``) probabilities (module docstring).
+
+    ``realtime`` plays the recording as a live array delivers it: a window every ``hop_s`` seconds
+    of wall time, handed over through a latest-wins queue of one window
+    (:class:`makeway.queues.LiveSource`), so when the listener falls behind the oldest waiting
+    window is dropped, never the newest, and each message is about the latest audio."""
     sr = int(recording.sample_rate)
     listener = SirenListener(
         recording.mics,
@@ -206,7 +228,14 @@ def listen(
     )
     audio = np.asarray(recording.audio)
     win = listener.window_samples
-    for start in listen_windows(recording, window_s, hop_s):
+    starts = listen_windows(recording, window_s, hop_s)
+    if realtime:
+        for res in live(
+            paced(starts.tolist(), 1.0 / hop_s), lambda s: listener.step(audio[s : s + win].T, (s + win) / sr)
+        ):
+            yield res.result.to_json()
+        return
+    for start in starts:
         yield listener.step(audio[start : start + win].T, (int(start) + win) / sr).to_json()
 
 
