@@ -519,7 +519,13 @@ def read_yolo(
     grouping file has a different number of rows."""
     p = Path(label_file)
     out: list[tuple[int, tuple[int, int, int, int], int | None]] = []
-    for lineno, line in enumerate(p.read_text(encoding="utf-8").splitlines(), 1):
+    try:
+        text = p.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise InputError(p, "no such YOLO label file") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputError(p, f"cannot be read as a YOLO label file ({exc})") from None
+    for lineno, line in enumerate(text.splitlines(), 1):
         if not line.strip():
             continue
         parts = line.split()
@@ -539,7 +545,10 @@ def read_yolo(
         out.append((cls, box, None))
     if test_id_file is not None:
         t = Path(test_id_file)
-        ids = [s.strip() for s in t.read_text(encoding="utf-8").splitlines() if s.strip()]
+        try:
+            ids = [s.strip() for s in t.read_text(encoding="utf-8").splitlines() if s.strip()]
+        except (OSError, UnicodeDecodeError) as exc:
+            raise InputError(t, f"cannot be read as a vehicle id file ({exc})") from None
         if len(ids) != len(out):
             raise InputError(t, f"{len(ids)} vehicle ids for {len(out)} boxes in {p.name}")
         try:
