@@ -35,7 +35,7 @@ from pathlib import Path
 from typing import Any
 
 from cryptography import x509
-from cryptography.exceptions import InvalidSignature
+from cryptography.exceptions import InvalidSignature, UnsupportedAlgorithm
 from cryptography.hazmat.primitives import hashes, serialization
 from cryptography.hazmat.primitives.asymmetric import ec
 from cryptography.hazmat.primitives.asymmetric.utils import decode_dss_signature, encode_dss_signature
@@ -177,12 +177,21 @@ def _load_private(path: Path) -> ec.EllipticCurvePrivateKey:
 
 
 def _load_cert(path: Path) -> x509.Certificate:
+    """The certificate in ``path``, with every part makeway uses parsed once here: cryptography parses
+    some lazily, so a damaged key or name would otherwise fail later, far from the file."""
     try:
-        return x509.load_pem_x509_certificate(path.read_bytes())
+        cert = x509.load_pem_x509_certificate(path.read_bytes())
     except OSError as exc:
         raise InputError(path, f"cannot be read ({exc.strerror})") from None
     except ValueError:
         raise InputError(path, "is not a PEM X.509 certificate") from None
+    try:
+        cert.public_key()
+        _ = (cert.issuer, cert.subject, cert.signature, cert.tbs_certificate_bytes)
+        _ = (cert.not_valid_before_utc, cert.not_valid_after_utc)
+    except (ValueError, UnsupportedAlgorithm) as exc:
+        raise InputError(path, f"is a damaged X.509 certificate ({exc})") from None
+    return cert
 
 
 def load_identity(key_path: str | Path) -> Identity:
@@ -264,7 +273,11 @@ def _read_revoked(path: Path) -> set[bytes]:
     if not path.exists():
         return set()
     out: set[bytes] = set()
-    for i, line in enumerate(path.read_text(encoding="utf-8").splitlines(), 1):
+    try:
+        text = path.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputError(path, f"cannot be read as a revocation list ({exc})") from None
+    for i, line in enumerate(text.splitlines(), 1):
         text = line.split("#", 1)[0].strip()
         if not text:
             continue
