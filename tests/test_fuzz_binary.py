@@ -19,10 +19,13 @@ import pytest
 from hypothesis import example, given
 from hypothesis import strategies as st
 
+from conftest import require_module
 from fuzzing import budget, check_reader, file_contents, mutated_bytes
 from makeway.errors import InputError
 from makeway.onnx_models import open_makeway_onnx
+from makeway.perceive.vision.efficientnet_lite import read_torch_state_dict
 from makeway.perceive.vision.ev_classifier import SHIPPED_MODELS, EVCropClassifier, load_crop_classifier
+from makeway.perceive.vision.light_cnn import CnnLightDetector, default_lights_model
 from makeway.roadside.reference import LocationReference, load_reference
 from makeway.roadside.simulated import SIM_ORIGIN, sim_pairs
 from makeway.sense.crops import read_crop_folder, read_yolo_set
@@ -160,6 +163,55 @@ def test_fuzz_onnx_siren_model(work: Path) -> None:
             lambda: open_makeway_onnx(path, "siren_net", threads=1),
             inside=path,
         )
+
+    run()
+
+
+def test_fuzz_onnx_light_detector(work: Path) -> None:
+    seed = default_lights_model().read_bytes()
+
+    @budget(0.25)
+    @given(data=mutated_bytes(seed) | st.binary(max_size=256))
+    def run(data: bytes) -> None:
+        path = _write(work / "onnx_lights", "lights.onnx", data)
+        check_reader(
+            "model file (ONNX light detector)",
+            lambda: CnnLightDetector(model=path, num_threads=1),
+            inside=path,
+        )
+
+    run()
+
+
+@pytest.fixture(scope="module")
+def torch_weights(work: Path) -> dict[str, bytes]:
+    """A small ``state_dict`` saved by torch in both of its formats (zip and legacy pickle)."""
+    torch = require_module("torch")
+    state = {
+        "conv.weight": torch.arange(24, dtype=torch.float32).reshape(2, 3, 2, 2),
+        "bn.num": torch.tensor(7),
+    }
+    out = {}
+    for fmt, zipped in (("zip", True), ("legacy", False)):
+        path = work / f"weights_{fmt}.pt"
+        torch.save(state, path, _use_new_zipfile_serialization=zipped)
+        out[fmt] = path.read_bytes()
+    return out
+
+
+def test_fuzz_torch_weights(torch_weights: dict[str, bytes], work: Path) -> None:
+    """The pretrained-weights reader unpickles without torch and refuses anything but tensors: it
+    must never run code or fail otherwise, whatever the bytes."""
+
+    @budget(0.5)
+    @given(fmt=st.sampled_from(sorted(torch_weights)), data=st.data())
+    def run(fmt: str, data: st.DataObject) -> None:
+        path = _write(work / "torch", "weights.pt", data.draw(file_contents(torch_weights[fmt], "binary")))
+        got = check_reader(
+            f"model file (PyTorch weights, {fmt})", lambda: read_torch_state_dict(path), inside=path
+        )
+        if got is not None:
+            assert all(isinstance(v, np.ndarray) for v in got.values())
 
     run()
 
@@ -416,3 +468,30 @@ def test_revocation_list_not_utf8(unit: Path, work: Path) -> None:
     with pytest.raises(InputError, match="cannot be read as a revocation list") as info:
         TrustStore.load(folder)
     assert info.value.path == folder / "revoked.txt"
+
+
+def test_damaged_torch_weights_are_one_input_error(torch_weights: dict[str, bytes], work: Path) -> None:
+    """Found by fuzzing: a zip whose CRC or directory is damaged raised zipfile.BadZipFile, and pickle's
+    message for a stray persistent-id opcode spans two lines."""
+    raw = torch_weights["zip"]
+    at = raw.index(b"conv.weight")
+    crc = raw[:at] + bytes([raw[at] ^ 1]) + raw[at + 1 :]  # the pickle's bytes change, its CRC does not
+    central = raw.replace(b"PK\x01\x02", b"QK\x01\x02", 1)  # the central directory's magic
+    for name, data in (("crc", crc), ("central", central), ("persistent_id", b"P")):
+        path = _write(work / "torch_regressions", f"{name}.pt", data)
+        with pytest.raises(InputError, match="not a readable PyTorch state dict") as info:
+            read_torch_state_dict(path)
+        assert info.value.path == path and "\n" not in str(info.value)
+
+
+def test_torch_weights_cannot_run_code(work: Path) -> None:
+    """Found by fuzzing (a GLOBAL opcode importing module ``t``): the legacy format's header pickles
+    were read with plain ``pickle.load``, so a crafted weights file could import and call anything.
+    Here a file whose first pickle calls ``os.mkdir``: refused, and nothing is made."""
+    made = work / "made_by_a_weights_file"
+    payload = b"cos\nmkdir\n(V" + str(made).encode() + b"\ntR."
+    path = _write(work / "torch_regressions", "crafted.pt", payload)
+    with pytest.raises(InputError, match=r"found a reference to os\.mkdir") as info:
+        read_torch_state_dict(path)
+    assert info.value.path == path
+    assert not made.exists()
