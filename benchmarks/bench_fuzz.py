@@ -32,6 +32,7 @@ def main() -> int:
     ap.add_argument("--profile", default="long", choices=["long", "ci"], help="hypothesis profile")
     ap.add_argument("--json", type=Path, help="also write the counts here")
     ap.add_argument("-k", default=None, help="pytest -k expression (a subset of the fuzz tests)")
+    ap.add_argument("--log", type=Path, help="write pytest's whole output here (the failing inputs)")
     args = ap.parse_args()
 
     with tempfile.TemporaryDirectory() as tmp:
@@ -79,6 +80,10 @@ def main() -> int:
     print(f"pytest: {summary}")
     for line in failed:
         print(f"  {line}")
+    if args.log:
+        args.log.write_text(proc.stdout + proc.stderr)
+    elif proc.returncode != 0:
+        print(proc.stdout[-20000:])
     print(f"wall {wall:.0f} s, load average {os.getloadavg()[0]:.2f} {os.getloadavg()[1]:.2f}")
     if args.json:
         args.json.write_text(
