@@ -75,7 +75,9 @@ def azimuth(
             print_json_line(row.result)
         else:
             bad += 1
-            err_console.print(f"[bold red]error:[/] {escape(str(row.problem))}", highlight=False, soft_wrap=True)
+            err_console.print(
+                f"[bold red]error:[/] {escape(str(row.problem))}", highlight=False, soft_wrap=True
+            )
     if bad:
         raise typer.Exit(code=EXIT_BAD_INPUT)
 
