@@ -29,6 +29,7 @@ import datetime as dt
 import hashlib
 import json
 import os
+import tempfile
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -98,9 +99,22 @@ def _write_private(path: Path, key: ec.EllipticCurvePrivateKey) -> None:
     pem = key.private_bytes(
         serialization.Encoding.PEM, serialization.PrivateFormat.PKCS8, serialization.NoEncryption()
     )
-    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
-    with os.fdopen(fd, "wb") as f:
-        f.write(pem)
+    # all-or-nothing and private from the first byte: a temporary file made 0600 beside it, renamed
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".partial", dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as f:
+            f.write(pem)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def _write_public(path: Path, data: bytes) -> None:
+    from makeway.atomic import atomic_path
+
+    with atomic_path(path) as tmp:
+        tmp.write_bytes(data)
 
 
 def _cert(
@@ -149,17 +163,18 @@ def keygen(out: str | Path, name: str = "rsu", *, days: int = 365) -> Identity:
     else:
         root_key = ec.generate_private_key(ec.SECP256R1())
         root = _cert("makeway local root", root_key, None, root_key, days=3650, ca=True)
+        _write_public(root_pem, root.public_bytes(serialization.Encoding.PEM))
         _write_private(root_key_path, root_key)
-        root_pem.write_bytes(root.public_bytes(serialization.Encoding.PEM))
     revoked = trust / "revoked.txt"
     if not revoked.exists():
-        revoked.write_text("# revoked signers: one HashedId8 (16 hex digits) per line\n", encoding="utf-8")
+        _write_public(revoked, b"# revoked signers: one HashedId8 (16 hex digits) per line\n")
     key = ec.generate_private_key(ec.SECP256R1())
     cert = _cert(f"makeway unit {name}", key, root.subject, root_key, days=days, ca=False)
     pem = cert.public_bytes(serialization.Encoding.PEM)
+    # each file atomic; the key last, so that a run stopped part-way can simply be repeated
+    _write_public(out / f"{name}.crt", pem)
+    _write_public(trust / "units" / f"{name}.pem", pem)
     _write_private(out / f"{name}.key", key)
-    (out / f"{name}.crt").write_bytes(pem)
-    (trust / "units" / f"{name}.pem").write_bytes(pem)
     signer = hashed_id8(cert)
     return Identity(key, cert, signer, station_id_of(signer))
 
