@@ -131,8 +131,10 @@ PROFILE_ENV = "MAKEWAY_FUZZ_PROFILE"
 
 def budget(weight: float = 1.0) -> settings:
     """Settings for one fuzz test: the loaded profile with ``max_examples`` scaled by ``weight``
-    (below 1 for readers that decode video, audio or models, which take longer per input)."""
-    base = settings.default.max_examples
+    (below 1 for readers that decode video, audio or models, which take longer per input).
+    ``MAKEWAY_FUZZ_EXAMPLES`` replaces the profile's ``max_examples`` (a quick deeper look at one
+    reader)."""
+    base = int(os.environ.get("MAKEWAY_FUZZ_EXAMPLES", 0)) or settings.default.max_examples
     return settings(max_examples=max(5, round(base * weight)))
 
 

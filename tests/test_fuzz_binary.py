@@ -20,12 +20,13 @@ from hypothesis import example, given
 from hypothesis import strategies as st
 
 from conftest import require_module
-from fuzzing import budget, check_reader, file_contents, mutated_bytes
+from fuzzing import NASTY, budget, check_reader, file_contents, mutated_bytes
 from makeway.errors import InputError
 from makeway.onnx_models import open_makeway_onnx
 from makeway.perceive.vision.efficientnet_lite import read_torch_state_dict
 from makeway.perceive.vision.ev_classifier import SHIPPED_MODELS, EVCropClassifier, load_crop_classifier
 from makeway.perceive.vision.light_cnn import CnnLightDetector, default_lights_model
+from makeway.perceive.vision.light_verify import DEFAULT_VERIFIER_MODEL, LightVerifier
 from makeway.roadside.reference import LocationReference, load_reference
 from makeway.roadside.simulated import SIM_ORIGIN, sim_pairs
 from makeway.sense.crops import read_crop_folder, read_yolo_set
@@ -132,12 +133,52 @@ def test_fuzz_yolo_set_images(data_root: Path, work: Path) -> None:
 
 
 # ------------------------------------------------------------------------------------------- models
+@st.composite
+def mutated_onnx(draw: st.DrawFn, seed: bytes) -> bytes:
+    """An ONNX model parsed and edited where a loader looks: a metadata value replaced or removed, an
+    input's or output's declared shape changed, an operator renamed, a node or weight removed, a
+    weight's bytes cut short; serialised again."""
+    import onnx
+
+    model = onnx.load_from_string(seed)
+    graph = model.graph
+    for _ in range(draw(st.integers(1, 3))):
+        op = draw(st.sampled_from(["meta", "meta", "drop_meta", "shape", "op_type", "drop_node", "weight"]))
+        if op == "meta" and model.metadata_props:
+            prop = draw(st.sampled_from(list(model.metadata_props)))
+            prop.value = draw(st.sampled_from(NASTY) | st.text(max_size=20))
+        elif op == "drop_meta" and model.metadata_props:
+            del model.metadata_props[draw(st.integers(0, len(model.metadata_props) - 1))]
+        elif op == "shape":
+            value = draw(st.sampled_from([*graph.input, *graph.output]))
+            dims = value.type.tensor_type.shape.dim
+            if dims:
+                dim = dims[draw(st.integers(0, len(dims) - 1))]
+                dim.dim_value = draw(st.sampled_from([0, 1, 2, 3, 7, 4096]))
+        elif op == "op_type" and graph.node:
+            graph.node[draw(st.integers(0, len(graph.node) - 1))].op_type = draw(
+                st.sampled_from(["Relu", "Add", "Identity", "Softmax", "NoSuchOp"])
+            )
+        elif op == "drop_node" and graph.node:
+            del graph.node[draw(st.integers(0, len(graph.node) - 1))]
+        elif op == "weight" and graph.initializer:
+            init = graph.initializer[draw(st.integers(0, len(graph.initializer) - 1))]
+            if init.raw_data:
+                init.raw_data = init.raw_data[: draw(st.integers(0, len(init.raw_data)))]
+    return model.SerializeToString()
+
+
+def model_contents(seed: bytes) -> st.SearchStrategy[bytes]:
+    """Generated model files: mostly structure-aware edits, some byte-level, some random bytes."""
+    return st.one_of(mutated_onnx(seed), mutated_onnx(seed), mutated_bytes(seed), st.binary(max_size=256))
+
+
 def test_fuzz_onnx_crop_classifier(work: Path) -> None:
     seed = (MODELS / "ev_cnn_small32.onnx").read_bytes()
     crops = np.random.default_rng(0).integers(0, 256, (2, 32, 32, 3), dtype=np.uint8)
 
     @budget(0.25)
-    @given(data=mutated_bytes(seed) | st.binary(max_size=256))
+    @given(data=model_contents(seed))
     def run(data: bytes) -> None:
         path = _write(work / "onnx_cnn", "model.onnx", data)
 
@@ -155,7 +196,7 @@ def test_fuzz_onnx_siren_model(work: Path) -> None:
     seed = (MODELS / "siren_net.onnx").read_bytes()
 
     @budget(0.25)
-    @given(data=mutated_bytes(seed) | st.binary(max_size=256))
+    @given(data=model_contents(seed))
     def run(data: bytes) -> None:
         path = _write(work / "onnx_siren", "siren.onnx", data)
         check_reader(
@@ -171,7 +212,7 @@ def test_fuzz_onnx_light_detector(work: Path) -> None:
     seed = default_lights_model().read_bytes()
 
     @budget(0.25)
-    @given(data=mutated_bytes(seed) | st.binary(max_size=256))
+    @given(data=model_contents(seed))
     def run(data: bytes) -> None:
         path = _write(work / "onnx_lights", "lights.onnx", data)
         check_reader(
@@ -179,6 +220,18 @@ def test_fuzz_onnx_light_detector(work: Path) -> None:
             lambda: CnnLightDetector(model=path, num_threads=1),
             inside=path,
         )
+
+    run()
+
+
+def test_fuzz_onnx_light_verifier(work: Path) -> None:
+    seed = DEFAULT_VERIFIER_MODEL.read_bytes()
+
+    @budget(0.25)
+    @given(data=model_contents(seed))
+    def run(data: bytes) -> None:
+        path = _write(work / "onnx_verifier", "verifier.onnx", data)
+        check_reader("model file (ONNX light verifier)", lambda: LightVerifier(path), inside=path)
 
     run()
 
