@@ -17,6 +17,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import signal
 import subprocess
 import sys
 import tempfile
@@ -33,6 +34,12 @@ def main() -> int:
     ap.add_argument("--json", type=Path, help="also write the counts here")
     ap.add_argument("-k", default=None, help="pytest -k expression (a subset of the fuzz tests)")
     ap.add_argument("--log", type=Path, help="write pytest's whole output here (the failing inputs)")
+    ap.add_argument(
+        "--max-minutes",
+        type=float,
+        default=None,
+        help="stop pytest (Ctrl-C) after this long and report the inputs generated so far",
+    )
     args = ap.parse_args()
 
     with tempfile.TemporaryDirectory() as tmp:
@@ -43,14 +50,27 @@ def main() -> int:
             "MAKEWAY_FUZZ_COUNTS": str(counts_file),
             "PYTHONPATH": os.pathsep.join([str(ROOT / "src"), os.environ.get("PYTHONPATH", "")]),
         }
-        tests = sorted(str(p) for p in (ROOT / "tests").glob("test_fuzz_*.py"))
+        # the quick text readers first, the decoders of video, audio and models last
+        order = {"test_fuzz_text.py": 0, "test_fuzz_files.py": 1}
+        found = (ROOT / "tests").glob("test_fuzz_*.py")
+        tests = [str(p) for p in sorted(found, key=lambda p: (order.get(p.name, 2), p.name))]
         tests.append(str(ROOT / "tests" / "test_cli_contract.py") + "::test_fuzz_track_through_the_cli")
         tests.append(str(ROOT / "tests" / "test_cli_contract.py") + "::test_fuzz_v2x_verify_through_the_cli")
         cmd = [sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "-rf", *tests]
         if args.k:
             cmd += ["-k", args.k]
         t0 = time.perf_counter()
-        proc = subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True)
+        proc = subprocess.Popen(
+            cmd, cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+        )
+        limit = None if args.max_minutes is None else 60.0 * args.max_minutes
+        try:
+            out, err = proc.communicate(timeout=limit)
+            stopped = False
+        except subprocess.TimeoutExpired:
+            proc.send_signal(signal.SIGINT)  # pytest stops; the harness still writes its counts
+            out, err = proc.communicate()
+            stopped = True
         wall = time.perf_counter() - t0
         counts: dict[str, dict[str, int]] = (
             json.loads(counts_file.read_text()) if counts_file.is_file() else {}
@@ -75,21 +95,21 @@ def main() -> int:
         f"target: 0 uncaught over >= {TARGET_INPUTS:,} inputs -> {total['uncaught']} uncaught over "
         f"{total['inputs']:,} inputs ({'met' if met else 'NOT met'})"
     )
-    failed = [line for line in proc.stdout.splitlines() if line.startswith(("FAILED", "ERROR"))]
-    summary = proc.stdout.strip().splitlines()[-1] if proc.stdout.strip() else proc.stderr.strip()[-300:]
-    print(f"pytest: {summary}")
+    failed = [line for line in out.splitlines() if line.startswith(("FAILED", "ERROR"))]
+    summary = out.strip().splitlines()[-1] if out.strip() else err.strip()[-300:]
+    print(f"pytest: {summary}" + (f" (stopped after {args.max_minutes:g} min)" if stopped else ""))
     for line in failed:
         print(f"  {line}")
     if args.log:
-        args.log.write_text(proc.stdout + proc.stderr)
-    elif proc.returncode != 0:
-        print(proc.stdout[-20000:])
+        args.log.write_text(out + err)
+    elif proc.returncode != 0 and not stopped:
+        print(out[-20000:])
     print(f"wall {wall:.0f} s, load average {os.getloadavg()[0]:.2f} {os.getloadavg()[1]:.2f}")
     if args.json:
         args.json.write_text(
             json.dumps({"profile": args.profile, "readers": counts, "total": total, "wall_s": wall}, indent=1)
         )
-    return 0 if proc.returncode == 0 else 1
+    return 0 if proc.returncode == 0 or (stopped and total["uncaught"] == 0 and not failed) else 1
 
 
 if __name__ == "__main__":
