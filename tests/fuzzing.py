@@ -16,6 +16,7 @@ The budget comes from the hypothesis profile (``MAKEWAY_FUZZ_PROFILE``: ``ci``, 
 from __future__ import annotations
 
 import atexit
+import faulthandler
 import json
 import os
 import signal
@@ -55,9 +56,13 @@ def _time_limit(seconds: float, name: str) -> Iterator[None]:
 
     previous = signal.signal(signal.SIGALRM, _raise)
     signal.setitimer(signal.ITIMER_REAL, seconds)
+    # a hang inside C code (a decoder) never returns to Python to see the alarm: then, after twice
+    # the time, print every thread's stack and end the process, so the run fails instead of hanging
+    faulthandler.dump_traceback_later(2 * seconds, exit=True)
     try:
         yield
     finally:
+        faulthandler.cancel_dump_traceback_later()
         signal.setitimer(signal.ITIMER_REAL, 0)
         signal.signal(signal.SIGALRM, previous)
 
