@@ -232,3 +232,28 @@ def test_fuzz_rig_pixels(work: Path) -> None:
         check_reader("rig pixels CSV", lambda: read_rig_pixels(path), inside=path)
 
     run()
+
+
+def test_the_harness_reports_hangs_and_stray_exceptions(
+    monkeypatch: pytest.MonkeyPatch, tmp_path: Path
+) -> None:
+    """The contract is checked, not assumed: a reader that hangs, raises another type, or refuses
+    with an error naming another file fails the check."""
+    import time
+
+    import fuzzing
+
+    monkeypatch.setattr(fuzzing, "HANG_S", 0.2)
+    monkeypatch.setattr(fuzzing, "COUNTS", fuzzing.defaultdict(fuzzing.Counter))  # keep the real counts clean
+    with pytest.raises(fuzzing.ReaderHung):
+        check_reader("probe", lambda: time.sleep(3))
+    with pytest.raises(KeyError):
+        check_reader("probe", lambda: {}["x"])
+    with pytest.raises(AssertionError, match="not one line"):
+        check_reader("probe", lambda: (_ for _ in ()).throw(ValueError("a\nb")), allowed=(ValueError,))
+    with pytest.raises(AssertionError):
+        check_reader("probe", lambda: read_mot(tmp_path / "elsewhere.txt"), inside=tmp_path / "mine.txt")
+    assert (
+        check_reader("probe", lambda: read_mot(tmp_path / "gone.txt"), inside=tmp_path / "gone.txt") is None
+    )
+    assert fuzzing.COUNTS["probe"] == {"inputs": 5, "uncaught": 4, "rejected": 1}
