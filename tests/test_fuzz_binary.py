@@ -22,7 +22,7 @@ from hypothesis import strategies as st
 from conftest import require_module
 from fuzzing import NASTY, budget, check_reader, file_contents, mutated_bytes
 from makeway.errors import InputError
-from makeway.onnx_models import open_makeway_onnx
+from makeway.perceive.audio.siren_model import SirenModel
 from makeway.perceive.vision.efficientnet_lite import read_torch_state_dict
 from makeway.perceive.vision.ev_classifier import SHIPPED_MODELS, EVCropClassifier, load_crop_classifier
 from makeway.perceive.vision.light_cnn import CnnLightDetector, default_lights_model
@@ -193,17 +193,15 @@ def test_fuzz_onnx_crop_classifier(work: Path) -> None:
 
 
 def test_fuzz_onnx_siren_model(work: Path) -> None:
+    """The siren network as ``audio listen`` loads it: ONNX, its metadata (streams, feature settings
+    as JSON, threshold, calibration) and inputs checked against each other."""
     seed = (MODELS / "siren_net.onnx").read_bytes()
 
     @budget(0.25)
     @given(data=model_contents(seed))
     def run(data: bytes) -> None:
         path = _write(work / "onnx_siren", "siren.onnx", data)
-        check_reader(
-            "model file (ONNX siren model)",
-            lambda: open_makeway_onnx(path, "siren_net", threads=1),
-            inside=path,
-        )
+        check_reader("model file (ONNX siren model)", lambda: SirenModel(path, threads=1), inside=path)
 
     run()
 
