@@ -304,8 +304,16 @@ def mutated_npz(draw: st.DrawFn, seed: bytes) -> bytes:
 def test_fuzz_ev_head(work: Path) -> None:
     seed = Path(SHIPPED_MODELS["default"]).read_bytes()
 
+    def npz(**edits: object) -> bytes:
+        with np.load(io.BytesIO(seed)) as z:
+            arrays = {k: z[k] for k in z.files}
+        buf = io.BytesIO()
+        np.savez(buf, **{**arrays, **edits})
+        return buf.getvalue()
+
     @budget(0.25)
     @given(data=mutated_npz(seed) | mutated_bytes(seed) | st.binary(max_size=256))
+    @example(data=npz(C=np.ones(3)))  # found by fuzzing: C was read outside the checks (TypeError)
     def run(data: bytes) -> None:
         path = _write(work / "ev_head", "head.npz", data)
         check_reader(
