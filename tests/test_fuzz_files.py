@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import soundfile as sf
-from hypothesis import given
+from hypothesis import example, given
 from hypothesis import strategies as st
 
 from fuzzing import budget, check_reader, file_contents
@@ -148,6 +148,9 @@ def test_fuzz_replay_cache(work: Path) -> None:
 
     @budget()
     @given(data=file_contents(seed))
+    # found by fuzzing: a sequence of Infinity (JSON as Python writes it) raised OverflowError
+    @example(data=b'{"seen": [["00112233aabbccdd", Infinity, 1764000000000]]}')
+    @example(data=b'{"seen": [["00", 1.5, -3]]}')
     def run(data: bytes) -> None:
         path = _write(work / "replay", "replay.json", data)
         got = check_reader("V2X replay cache (JSON)", lambda: ReplayCache.load(path), inside=path)

@@ -345,7 +345,11 @@ class ReplayCache:
             return ReplayCache()
         try:
             rows = json.loads(path.read_text(encoding="utf-8"))["seen"]
-            return ReplayCache((bytes.fromhex(s), int(q), int(g)) for s, q, g in rows)
+            entries = [(bytes.fromhex(s), q, g) for s, q, g in rows]
+            for signer, q, g in entries:  # a HashedId8, a sequence number, a time in ms: whole numbers
+                if len(signer) != 8 or not all(type(v) is int and 0 <= v < 2**63 for v in (q, g)):
+                    raise ValueError("an entry is not [16 hex digits, sequence, generation time ms]")
+            return ReplayCache(entries)
         except (OSError, ValueError, KeyError, TypeError) as exc:
             raise InputError(path, f"is not a replay cache ({type(exc).__name__})") from None
 
