@@ -68,8 +68,12 @@ def main() -> int:
             out, err = proc.communicate(timeout=limit)
             stopped = False
         except subprocess.TimeoutExpired:
-            proc.send_signal(signal.SIGINT)  # pytest stops; the harness still writes its counts
-            out, err = proc.communicate()
+            proc.send_signal(signal.SIGINT)  # pytest stops; the harness writes its counts at exit
+            try:
+                out, err = proc.communicate(timeout=60)
+            except subprocess.TimeoutExpired:  # still busy: the counts written every 500 inputs remain
+                proc.kill()
+                out, err = proc.communicate()
             stopped = True
         wall = time.perf_counter() - t0
         counts: dict[str, dict[str, int]] = (

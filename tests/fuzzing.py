@@ -40,6 +40,9 @@ T = TypeVar("T")
 #: the seconds one reader call may take before it counts as a hang
 HANG_S = 20.0
 
+#: write the counts (``MAKEWAY_FUZZ_COUNTS``) every this many inputs, and at exit
+DUMP_EVERY = 500
+
 #: reader name → {"inputs", "accepted", "rejected", "uncaught"}
 COUNTS: defaultdict[str, Counter[str]] = defaultdict(Counter)
 
@@ -96,17 +99,24 @@ def check_reader(
         assert one_line, f"not one line: {message!r}"
         assert names_it, f"names {exc.path} (expected a path in {inside})"  # type: ignore[attr-defined]
         return None
+    except KeyboardInterrupt:  # the run was stopped (bench_fuzz --max-minutes): not the reader's fault
+        COUNTS[name]["inputs"] -= 1
+        raise
     except BaseException:
         COUNTS[name]["uncaught"] += 1
         raise
     COUNTS[name]["accepted"] += 1
+    if sum(c["inputs"] for c in COUNTS.values()) % DUMP_EVERY == 0:
+        _dump_counts()  # so that a run stopped hard still reports what it did
     return result
 
 
 def _dump_counts() -> None:
     target = os.environ.get("MAKEWAY_FUZZ_COUNTS")
     if target and COUNTS:
-        Path(target).write_text(json.dumps({k: dict(v) for k, v in sorted(COUNTS.items())}, indent=1))
+        tmp = Path(target + ".partial")
+        tmp.write_text(json.dumps({k: dict(v) for k, v in sorted(COUNTS.items())}, indent=1))
+        os.replace(tmp, target)
 
 
 atexit.register(_dump_counts)
