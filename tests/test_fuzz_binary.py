@@ -530,13 +530,16 @@ def test_revocation_list_not_utf8(unit: Path, work: Path) -> None:
 
 
 def test_damaged_torch_weights_are_one_input_error(torch_weights: dict[str, bytes], work: Path) -> None:
-    """Found by fuzzing: a zip whose CRC or directory is damaged raised zipfile.BadZipFile, and pickle's
-    message for a stray persistent-id opcode spans two lines."""
+    """Found by fuzzing: a zip whose CRC or directory is damaged raised zipfile.BadZipFile, pickle's
+    message for a stray persistent-id opcode spans two lines, and a pickle announcing more bytes than
+    memory holds raised MemoryError."""
     raw = torch_weights["zip"]
     at = raw.index(b"conv.weight")
     crc = raw[:at] + bytes([raw[at] ^ 1]) + raw[at + 1 :]  # the pickle's bytes change, its CRC does not
     central = raw.replace(b"PK\x01\x02", b"QK\x01\x02", 1)  # the central directory's magic
-    for name, data in (("crc", crc), ("central", central), ("persistent_id", b"P")):
+    # a legacy file whose first pickle is a BINBYTES8 announcing 2**62 bytes: MemoryError
+    huge = b"\x80\x02\x8e" + (2**62).to_bytes(8, "little") + b"."
+    for name, data in (("crc", crc), ("central", central), ("persistent_id", b"P"), ("huge", huge)):
         path = _write(work / "torch_regressions", f"{name}.pt", data)
         with pytest.raises(InputError, match="not a readable PyTorch state dict") as info:
             read_torch_state_dict(path)
@@ -554,3 +557,19 @@ def test_torch_weights_cannot_run_code(work: Path) -> None:
         read_torch_state_dict(path)
     assert info.value.path == path
     assert not made.exists()
+
+
+def test_key_of_an_unknown_type_is_one_input_error(unit: Path, work: Path) -> None:
+    """Found by fuzzing: a PEM private key whose algorithm OID is unknown raised UnsupportedAlgorithm."""
+    import base64
+
+    pem = (unit / "rsu.key").read_bytes()
+    der = base64.b64decode(b"".join(line for line in pem.splitlines() if not line.startswith(b"-----")))
+    der = der.replace(EC_PUBLIC_KEY, EC_PUBLIC_KEY[:-1] + b"\x09", 1)
+    folder = work / "unknown_key_type"
+    shutil.copytree(unit, folder)
+    body = base64.encodebytes(der)
+    (folder / "rsu.key").write_bytes(b"-----BEGIN PRIVATE KEY-----\n" + body + b"-----END PRIVATE KEY-----\n")
+    with pytest.raises(InputError, match="not an unencrypted PEM private key") as info:
+        load_identity(folder / "rsu.key")
+    assert info.value.path == folder / "rsu.key"
