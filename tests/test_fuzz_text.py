@@ -57,6 +57,9 @@ def test_fuzz_mot(mot15_root: Path, work: Path) -> None:
     @example(data=b"9223372036854775296,1,399,182,121,229,1\n", kind=True)
     @example(data=b"1,9223372036854775296,399,182,121,229,1\n", kind=True)
     @example(data=b"1,-1,399,182,121,229,1\n9007199254740992,9007199254740991,1,1,5,5,1\n", kind=True)
+    # found by fuzzing through `makeway track`: y = 1.15e18 made the box's height 0 (ZeroDivisionError)
+    @example(data=b"1,-1,281.9,1.152921504606847e+18,187.4,79.9,0.99\n", kind=False)
+    @example(data=b"1,-1,281.9,10,1e-300,1e-300,0.99\n", kind=False)
     def run(data: bytes, kind: bool) -> None:
         path = _write(work / "mot", "gt.txt", data)
         got = check_reader(

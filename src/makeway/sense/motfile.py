@@ -58,6 +58,9 @@ class MotData:
 
 #: the largest frame number or |id| a file may hold: every integer up to it is exact in a float64
 MAX_INDEX = 2**53
+#: the largest |x|, |y|, w or h of a box, pixels, and the smallest w or h
+MAX_PIXELS = 1e6
+MIN_SIZE_PX = 1e-3
 
 
 def read_mot(path: str | Path, *, kind: str = "detection") -> MotData:
@@ -108,6 +111,13 @@ def read_mot(path: str | Path, *, kind: str = "detection") -> MotData:
         if w <= 0 or h <= 0:
             raise InputError(
                 p, f"line {lineno}: box width and height must be positive, found w={w:g} h={h:g}"
+            )
+        if max(abs(v) for v in vals[2:6]) > MAX_PIXELS or min(w, h) < MIN_SIZE_PX:
+            # beyond these a box's corners lose its size to rounding (x + w == x): no box at all
+            raise InputError(
+                p,
+                f"line {lineno}: box outside ±{MAX_PIXELS:g} px or smaller than {MIN_SIZE_PX:g} px: "
+                f"{s[:60]!r}",
             )
         if len(vals) == 6:
             vals.append(1.0)
