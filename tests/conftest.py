@@ -119,3 +119,23 @@ def ev_crops(data_root: Path) -> CropSet:
     if not root.is_dir():
         pytest.fail(f"{root} missing from the shared data")
     return read_crop_folder(root)
+
+
+# ------------------------------------------------------------------- fuzzing (issue 29, item 1)
+def _register_fuzz_profiles() -> None:
+    """Register the hypothesis profiles of ``tests/test_fuzz_*.py`` and load the one that
+    ``MAKEWAY_FUZZ_PROFILE`` names: ``ci`` (the default: a fixed budget of about a minute) or ``long``
+    (``make fuzz``: over 100,000 inputs across the readers)."""
+    from hypothesis import settings
+
+    from fuzzing import PROFILE_ENV, PROFILES
+
+    for name, profile in PROFILES.items():
+        settings.register_profile(name, profile)
+    chosen = os.environ.get(PROFILE_ENV, "ci")
+    if chosen not in PROFILES:
+        raise pytest.UsageError(f"{PROFILE_ENV}={chosen!r}: expected one of {', '.join(PROFILES)}")
+    settings.load_profile(chosen)
+
+
+_register_fuzz_profiles()

@@ -338,6 +338,7 @@ def test_export_normalises_each_image_by_its_own_size(tmp_path: Path) -> None:
     lab = read_labels(tmp_path / "l.csv")
     with pytest.raises(InputError, match="data root"):
         export_yolo([lab], tmp_path / "y")
+    assert not (tmp_path / "y").exists()  # nothing half-written
     assert export_yolo([lab], tmp_path / "y", data_root=tmp_path) == {"images": 2, "boxes": 2}
     assert (tmp_path / "y/labels/wide.txt").read_text() == "0 0.800000 0.460000 0.100000 0.120000\n"
     assert (tmp_path / "y/labels/tall.txt").read_text() == "0 0.250000 0.133333 0.250000 0.100000\n"

@@ -20,6 +20,16 @@ def _umask() -> int:
 
 
 @contextlib.contextmanager
+def _naming(target: Path) -> Iterator[None]:
+    """Turn an operating-system error while making room for ``target`` (its folder, the temporary
+    beside it) into an :class:`InputError` naming ``target``, not the temporary."""
+    try:
+        yield
+    except OSError as exc:
+        raise InputError(target, f"cannot be written ({exc.strerror or exc})") from None
+
+
+@contextlib.contextmanager
 def atomic_path(path: str | Path, suffix: str | None = None) -> Iterator[Path]:
     """Yield a temporary path beside ``path``; move it onto ``path`` only if the block succeeds.
 
@@ -28,9 +38,10 @@ def atomic_path(path: str | Path, suffix: str | None = None) -> Iterator[Path]:
     deleted and the exception propagates.
     """
     target = Path(path)
-    target.parent.mkdir(parents=True, exist_ok=True)
     sfx = target.suffix if suffix is None else suffix
-    fd, tmp_name = tempfile.mkstemp(prefix=f".{target.stem}.", suffix=f".partial{sfx}", dir=target.parent)
+    with _naming(target):
+        target.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp_name = tempfile.mkstemp(prefix=f".{target.stem}.", suffix=f".partial{sfx}", dir=target.parent)
     os.close(fd)
     tmp = Path(tmp_name)
     os.chmod(tmp, 0o666 & ~_umask())  # mkstemp creates 0600; outputs get the usual permissions
@@ -121,8 +132,9 @@ def atomic_dir(path: str | Path, *, marker: str | None = None) -> Iterator[Path]
     target = Path(path).expanduser().absolute()
     if marker is not None:
         check_replaceable(target, marker)
-    target.parent.mkdir(parents=True, exist_ok=True)
-    stage = Path(tempfile.mkdtemp(prefix=f".{target.name}.", suffix=".partial", dir=target.parent))
+    with _naming(target):
+        target.parent.mkdir(parents=True, exist_ok=True)
+        stage = Path(tempfile.mkdtemp(prefix=f".{target.name}.", suffix=".partial", dir=target.parent))
     os.chmod(stage, 0o777 & ~_umask())  # mkdtemp makes it private; the published folder should not be
     try:
         yield stage

@@ -19,10 +19,12 @@ class InputError(MakewayError):
 
     Args:
         path: the file (or folder) at fault.
-        problem: what is wrong, phrased so the user knows what to fix.
+        problem: what is wrong, phrased so the user knows what to fix (line breaks in it, from a
+            library's message, become spaces).
     """
 
     def __init__(self, path: str | Path, problem: str) -> None:
         self.path = Path(path)
-        self.problem = problem
-        super().__init__(f"{self.path}: {problem}")
+        # one line, whatever a library's message held (the CLI prints it as one ``error:`` line)
+        self.problem = " ".join(part.strip() for part in problem.splitlines() if part.strip())
+        super().__init__(f"{self.path}: {self.problem}")

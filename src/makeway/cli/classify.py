@@ -14,6 +14,7 @@ from pathlib import Path
 from typing import Annotated, Any
 
 import typer
+from rich.markup import escape
 from rich.table import Table
 
 from makeway.cli.common import console, err_console, friendly_errors, new_app, print_json_line
@@ -369,7 +370,7 @@ def eval_cmd(
 
 def _skip_line(exc: InputError) -> None:
     """Print ``skipped: FILE: problem`` (one line on stderr)."""
-    err_console.print(f"[yellow]skipped:[/] {exc}", highlight=False, soft_wrap=True)
+    err_console.print(f"[yellow]skipped:[/] {escape(str(exc))}", highlight=False, soft_wrap=True)
 
 
 # ------------------------------------------------------------------------------------- cross-source

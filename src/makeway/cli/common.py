@@ -10,6 +10,7 @@ from typing import Any, TypeVar
 
 import typer
 from rich.console import Console
+from rich.markup import escape
 
 from makeway.errors import MakewayError
 from makeway.jsonable import to_jsonable
@@ -20,17 +21,48 @@ err_console = Console(stderr=True)
 F = TypeVar("F", bound=Callable[..., Any])
 
 
+#: exit codes of every makeway command (docs/cli_contract.md)
+EXIT_OK = 0
+EXIT_NEGATIVE = 1  # the command ran and its answer is "no" (e.g. ``v2x verify`` rejected a message)
+EXIT_BAD_INPUT = 2  # bad input, bad output path or bad usage: one ``error:`` line names the file
+EXIT_INTERRUPTED = 130  # Ctrl-C (128 + SIGINT); outputs are written atomically, so none is half-written
+
+
+def _one_line(text: str) -> str:
+    return " ".join(text.split())
+
+
+def error_line(exc: BaseException) -> str:
+    """The one line a command prints for an error it refuses: ``FILE: problem`` for makeway's own
+    errors, the file and the system's words for an operating-system error (``OSError``), the message
+    for a bad option value (``ValueError``)."""
+    if isinstance(exc, OSError) and not isinstance(exc, MakewayError):
+        where = exc.filename if exc.filename is not None else ""
+        what = exc.strerror or type(exc).__name__
+        return _one_line(f"{where}: {what}" if where != "" else f"{what}")
+    return _one_line(str(exc))
+
+
 def friendly_errors(func: F) -> F:
-    """Turn makeway's own errors (and ValueErrors from bad options) into one red line, exit code 2."""
+    """The command-line contract (docs/cli_contract.md) for one command: makeway's own errors, bad
+    option values (``ValueError``) and operating-system errors on a file (``OSError``: a full disk, a
+    folder without write permission) end in one red ``error:`` line on stderr and exit code 2;
+    Ctrl-C ends in one line and exit code 130. Any other exception is a bug and keeps its traceback."""
 
     @functools.wraps(func)
     def wrapper(*args: Any, **kwargs: Any) -> Any:
         try:
             return func(*args, **kwargs)
-        except (MakewayError, ValueError) as exc:
-            err_console.print(f"[bold red]error:[/] {exc}", highlight=False, soft_wrap=True)
-            raise typer.Exit(code=2) from None
+        except (MakewayError, ValueError, OSError) as exc:
+            err_console.print(
+                f"[bold red]error:[/] {escape(error_line(exc))}", highlight=False, soft_wrap=True
+            )
+            raise typer.Exit(code=EXIT_BAD_INPUT) from None
+        except KeyboardInterrupt:
+            err_console.print("interrupted: no output was left half-written", highlight=False)
+            raise typer.Exit(code=EXIT_INTERRUPTED) from None
 
+    wrapper.__makeway_contract__ = True  # type: ignore[attr-defined]  # checked by tests/test_cli_contract.py
     return wrapper  # type: ignore[return-value]
 
 

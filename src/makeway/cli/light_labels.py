@@ -207,13 +207,14 @@ def tracklets(
     OUT/tracklets.csv (tracklet, frame, n: the box's number on the contact sheets) and
     OUT/tracklets_NNN.png (thumbnails captioned with the tracklet number, colour initial and length).
     """
+    from makeway.atomic import write_text_atomic
     from makeway.train.light_labels import iter_label_frames, link_tracklets, read_labels, tracklet_sheets
 
     lab = read_labels(labels)
     tracks = link_tracklets(lab, max_gap=max_gap)
     out.mkdir(parents=True, exist_ok=True)
     lines = ["tracklet,frame,n"] + [f"{i},{k},{n}" for i, t in enumerate(tracks) for k, n in t]
-    (out / "tracklets.csv").write_text("\n".join(lines) + "\n", encoding="utf-8")
+    write_text_atomic(out / "tracklets.csv", "\n".join(lines) + "\n")
     keys = {k for t in tracks if len(t) >= min_length for k, _n in t}
     frames = iter_label_frames(lab, None, keys=keys, source=video)
     paths = tracklet_sheets(frames, lab, tracks, out, min_length=min_length)

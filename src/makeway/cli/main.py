@@ -609,6 +609,7 @@ def simulate(
 
 # --------------------------------------------------------------------------------------------- info
 @app.command()
+@friendly_errors
 def info() -> None:
     """Show versions, data and model folders, H.264 encoder.
 

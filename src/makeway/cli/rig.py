@@ -11,8 +11,9 @@ from pathlib import Path
 from typing import Annotated
 
 import typer
+from rich.markup import escape
 
-from makeway.cli.common import err_console, friendly_errors, new_app, print_json_line
+from makeway.cli.common import EXIT_BAD_INPUT, err_console, friendly_errors, new_app, print_json_line
 
 rig_app = new_app(
     "rig",
@@ -74,9 +75,11 @@ def azimuth(
             print_json_line(row.result)
         else:
             bad += 1
-            err_console.print(f"[bold red]error:[/] {row.problem}", highlight=False, soft_wrap=True)
+            err_console.print(
+                f"[bold red]error:[/] {escape(str(row.problem))}", highlight=False, soft_wrap=True
+            )
     if bad:
-        raise typer.Exit(code=2)
+        raise typer.Exit(code=EXIT_BAD_INPUT)
 
 
 @rig_app.command()

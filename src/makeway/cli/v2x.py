@@ -13,7 +13,7 @@ from typing import Annotated
 
 import typer
 
-from makeway.cli.common import err_console, friendly_errors, new_app, print_json_line
+from makeway.cli.common import EXIT_NEGATIVE, err_console, friendly_errors, new_app, print_json_line
 
 v2x_app = new_app(
     "v2x",
@@ -116,7 +116,7 @@ def verify(
     for row in rows:
         print_json_line(row)
     if not all(r["valid"] for r in rows):
-        raise typer.Exit(code=1)
+        raise typer.Exit(code=EXIT_NEGATIVE)
 
 
 @v2x_app.command()

@@ -203,7 +203,10 @@ def read_track_labels(path: str | Path = TRACK_LABELS) -> TrackLabels:
     path = Path(path)
     if not path.is_file():
         raise InputError(path, "track label file not found")
-    text = path.read_text(encoding="utf-8-sig")
+    try:
+        text = path.read_text(encoding="utf-8-sig")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputError(path, f"cannot be read as a track label CSV ({exc})") from None
     lines = [ln for ln in text.splitlines() if not ln.lstrip().startswith("#")]
     reader = csv.reader(io.StringIO("\n".join(lines)))
     header = [c.strip().lower() for c in next(reader, [])]

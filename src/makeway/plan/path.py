@@ -456,6 +456,10 @@ def _shifted(base: ReferencePath, lc_start: float, transition_m: float, offset_m
 # ---------------------------------------------------------------------------------------------- files
 
 
+#: the largest |x| or |y| a path file may hold, metres: a local frame (10,000 km)
+MAX_COORDINATE_M = 1e7
+
+
 def load_path_csv(path: str | Path) -> ReferencePath:
     """A recorded path from a CSV file with a header naming columns ``x`` and ``y`` (SPEC §6).
 
@@ -466,7 +470,8 @@ def load_path_csv(path: str | Path) -> ReferencePath:
     Raises:
         InputError: naming the file, when it is missing, not UTF-8 text, empty, lacks an ``x`` or ``y``
             column (the columns found are listed), has a short row or a non-numeric value (with its
-            line number), holds NaN or inf, or has fewer than 3 distinct points.
+            line number), holds NaN or inf or a coordinate beyond :data:`MAX_COORDINATE_M`, or has
+            fewer than 3 distinct points (or points too close to give a heading and curvature).
     """
     p = Path(path)
     if not p.exists():
@@ -481,11 +486,14 @@ def load_path_csv(path: str | Path) -> ReferencePath:
         ) from exc
     except OSError as exc:
         raise InputError(p, f"cannot be read: {exc.strerror or exc}") from exc
-    rows = [
-        (n, row)
-        for n, row in enumerate(csv.reader(io.StringIO(text)), start=1)
-        if any(c.strip() for c in row)
-    ]
+    try:  # newline="": a lone carriage return ends a line, as in a file opened by csv's own rules
+        rows = [
+            (n, row)
+            for n, row in enumerate(csv.reader(io.StringIO(text, newline="")), start=1)
+            if any(c.strip() for c in row)
+        ]
+    except csv.Error as exc:
+        raise InputError(p, f"is not a readable CSV ({exc})") from None
     if not rows:
         raise InputError(p, "is empty; expected a header line with columns x and y")
     header_line, header = rows[0]
@@ -512,10 +520,17 @@ def load_path_csv(path: str | Path) -> ReferencePath:
                 raise InputError(p, f"line {line}: column {col} value {raw!r} is not a number") from None
             if not math.isfinite(value):
                 raise InputError(p, f"line {line}: column {col} value {raw!r} is not finite")
+            if abs(value) > MAX_COORDINATE_M:
+                raise InputError(
+                    p,
+                    f"line {line}: column {col} value {raw!r} is beyond ±{MAX_COORDINATE_M:g} m "
+                    "(x and y are metres in a local frame)",
+                )
             out.append(value)
     try:
-        return make_path(xs, ys)
-    except ValueError as exc:
+        with np.errstate(divide="raise", over="raise", invalid="raise"):  # points too close, or too far
+            return make_path(xs, ys)
+    except (ValueError, FloatingPointError) as exc:
         raise InputError(p, f"not a usable path: {exc}") from None
 
 

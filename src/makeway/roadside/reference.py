@@ -218,21 +218,34 @@ def _fit(pixels: np.ndarray, xy: np.ndarray, smoothing: float) -> RBFInterpolato
 def load_reference(path: str | Path) -> LocationReference:
     """A reference saved by :meth:`LocationReference.save`; InputError when it is not one."""
     path = Path(path)
+    if not path.is_file():
+        raise InputError(path, "reference file not found")
     try:
         with np.load(path, allow_pickle=False) as z:
             pixels, xy, origin, smoothing = (z[k] for k in ("pixels", "xy", "origin", "smoothing"))
-    except FileNotFoundError:
-        raise InputError(path, "reference file not found") from None
-    except (OSError, ValueError, KeyError) as exc:
-        raise InputError(path, f"is not a location reference from 'fit-reference' ({exc})") from None
+    except Exception as exc:  # zipfile, numpy and the OS raise several types on a damaged file
+        raise InputError(
+            path, f"is not a location reference from 'fit-reference' ({type(exc).__name__}: {exc})"
+        ) from None
+    if any(a.dtype.kind not in "fiu" for a in (pixels, xy, origin, smoothing)):
+        raise InputError(path, "is not a location reference: its arrays must hold numbers")
     if pixels.ndim != 2 or pixels.shape[1:] != (2,) or xy.shape != pixels.shape or origin.shape != (3,):
         raise InputError(path, "is not a location reference: pixels/xy must be (n, 2), origin 3 numbers")
+    if smoothing.shape != () or not (np.isfinite(smoothing) and smoothing >= 0):
+        raise InputError(path, "is not a location reference: smoothing must be one number >= 0")
     check_pairs(pixels, xy, path)
     try:
         frame = LocalFrame(*(float(v) for v in origin))
     except ValueError as exc:
         raise InputError(path, str(exc)) from None
-    return LocationReference(pixels, xy, frame, float(smoothing))
+    try:
+        ref = LocationReference(pixels, xy, frame, float(smoothing))
+        finite = bool(np.isfinite(ref.locate(pixels)).all())
+    except (ValueError, RuntimeError) as exc:  # a singular fit (LinAlgError), a degenerate hull (Qhull)
+        raise InputError(path, f"its pairs make no map ({type(exc).__name__})") from None
+    if not finite:
+        raise InputError(path, "its pairs make no finite map (numbers too large?)")
+    return ref
 
 
 def kfold_errors(

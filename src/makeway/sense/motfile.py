@@ -56,6 +56,13 @@ class MotData:
         return MotData(self.frames[mask], self.ids[mask], self.xywh[mask], self.conf[mask])
 
 
+#: the largest frame number or |id| a file may hold: every integer up to it is exact in a float64
+MAX_INDEX = 2**53
+#: the largest |x|, |y|, w or h of a box, pixels, and the smallest w or h
+MAX_PIXELS = 1e6
+MIN_SIZE_PX = 1e-3
+
+
 def read_mot(path: str | Path, *, kind: str = "detection") -> MotData:
     """Read a MOTChallenge file; every problem is an :class:`InputError` naming file and line.
 
@@ -94,12 +101,23 @@ def read_mot(path: str | Path, *, kind: str = "detection") -> MotData:
             raise InputError(p, f"line {lineno}: non-numeric value in {s[:60]!r}") from None
         if not all(np.isfinite(vals)):
             raise InputError(p, f"line {lineno}: NaN or infinite value in {s[:60]!r}")
-        frame, _, _, _, w, h = vals[:6]
-        if frame < 1 or frame != int(frame):
-            raise InputError(p, f"line {lineno}: frame must be a positive integer, found {parts[0]}")
+        frame, ident, _, _, w, h = vals[:6]
+        if frame < 1 or frame != int(frame) or frame > MAX_INDEX:
+            raise InputError(
+                p, f"line {lineno}: frame must be a positive integer up to 2**53, found {parts[0]}"
+            )
+        if ident != int(ident) or abs(ident) > MAX_INDEX:
+            raise InputError(p, f"line {lineno}: id must be an integer up to ±2**53, found {parts[1]}")
         if w <= 0 or h <= 0:
             raise InputError(
                 p, f"line {lineno}: box width and height must be positive, found w={w:g} h={h:g}"
+            )
+        if max(abs(v) for v in vals[2:6]) > MAX_PIXELS or min(w, h) < MIN_SIZE_PX:
+            # beyond these a box's corners lose its size to rounding (x + w == x): no box at all
+            raise InputError(
+                p,
+                f"line {lineno}: box outside ±{MAX_PIXELS:g} px or smaller than {MIN_SIZE_PX:g} px: "
+                f"{s[:60]!r}",
             )
         if len(vals) == 6:
             vals.append(1.0)
@@ -117,12 +135,11 @@ def read_mot(path: str | Path, *, kind: str = "detection") -> MotData:
         conf=arr[:, 6].copy(),
     )
     if kind != "detection" and len(data):
-        key = data.frames * (int(data.ids.max()) + 2) + (data.ids + 1)
-        uniq, counts = np.unique(key, return_counts=True)
+        pairs = np.stack([data.frames, data.ids], axis=1)  # (frame, id) rows: no product to overflow
+        uniq, counts = np.unique(pairs, axis=0, return_counts=True)
         if (counts > 1).any():
-            dup = int(np.flatnonzero(counts > 1)[0])
-            i = int(np.flatnonzero(key == uniq[dup])[0])
-            raise InputError(p, f"object id {data.ids[i]} appears more than once in frame {data.frames[i]}")
+            frame, ident = uniq[int(np.flatnonzero(counts > 1)[0])]
+            raise InputError(p, f"object id {ident} appears more than once in frame {frame}")
     return data
 
 

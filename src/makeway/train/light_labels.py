@@ -471,42 +471,52 @@ def export_yolo(
     belong to the same vehicle). ``out/classes.txt`` names the classes. Unchecked frames are skipped.
     A label file with a per-image size (``width``/``height`` 0) normalises by each image's size, read
     from its source under ``data_root`` (:func:`iter_label_frames`, which also checks the boxes fit).
-    Returns counts: images, boxes.
+    Returns counts: images, boxes. The folder appears only when complete; an earlier export at ``out``
+    is replaced, another non-empty folder refused.
     """
-    root = Path(out)
-    (root / "labels").mkdir(parents=True, exist_ok=True)
-    (root / "test_id").mkdir(parents=True, exist_ok=True)
-    classes = ["lit_light"] if single_class else list(COLOURS)
-    (root / "classes.txt").write_text("\n".join(classes) + "\n", encoding="utf-8")
-    images = boxes = 0
-    for lf in labels:
-        frames = lf.frames()
-        sizes: dict[str, tuple[int, int]] = {}
-        if lf.per_image:
-            checked = [k for k, v in frames.items() if v[0].checked]
-            if data_root is None and checked:
-                raise InputError(str(lf.path), "per-image sizes (width 0): the export needs the data root")
-            for key, img in iter_label_frames(lf, data_root, keys=checked):
-                sizes[key] = (img.shape[1], img.shape[0])
-        for frame, rows in frames.items():
-            if not rows[0].checked:
-                continue
-            width, height = sizes.get(frame, (lf.width, lf.height))
-            name = image_name(lf.source, frame)
-            lines, ids = [], []
-            for r in rows:
-                if r.kind != "light" or r.box is None:
+    from makeway.atomic import atomic_dir
+
+    # built in a temporary folder renamed into place at the end: a bad label file leaves nothing
+    with atomic_dir(out, marker="classes.txt") as root:
+        (root / "labels").mkdir(parents=True, exist_ok=True)
+        (root / "test_id").mkdir(parents=True, exist_ok=True)
+        classes = ["lit_light"] if single_class else list(COLOURS)
+        (root / "classes.txt").write_text("\n".join(classes) + "\n", encoding="utf-8")
+        images = boxes = 0
+        for lf in labels:
+            frames = lf.frames()
+            sizes: dict[str, tuple[int, int]] = {}
+            if lf.per_image:
+                checked = [k for k, v in frames.items() if v[0].checked]
+                if data_root is None and checked:
+                    raise InputError(
+                        str(lf.path), "per-image sizes (width 0): the export needs the data root"
+                    )
+                for key, img in iter_label_frames(lf, data_root, keys=checked):
+                    sizes[key] = (img.shape[1], img.shape[0])
+            for frame, rows in frames.items():
+                if not rows[0].checked:
                     continue
-                x1, y1, x2, y2 = r.box
-                cls = 0 if single_class else COLOURS.index(r.colour)
-                cx, cy = (x1 + x2) / 2 / width, (y1 + y2) / 2 / height
-                bw, bh = (x2 - x1) / width, (y2 - y1) / height
-                lines.append(f"{cls} {cx:.6f} {cy:.6f} {bw:.6f} {bh:.6f}")
-                ids.append(str(r.vehicle))
-            (root / "labels" / f"{name}.txt").write_text("".join(s + "\n" for s in lines), encoding="utf-8")
-            (root / "test_id" / f"{name}.txt").write_text("".join(s + "\n" for s in ids), encoding="utf-8")
-            images += 1
-            boxes += len(lines)
+                width, height = sizes.get(frame, (lf.width, lf.height))
+                name = image_name(lf.source, frame)
+                lines, ids = [], []
+                for r in rows:
+                    if r.kind != "light" or r.box is None:
+                        continue
+                    x1, y1, x2, y2 = r.box
+                    cls = 0 if single_class else COLOURS.index(r.colour)
+                    cx, cy = (x1 + x2) / 2 / width, (y1 + y2) / 2 / height
+                    bw, bh = (x2 - x1) / width, (y2 - y1) / height
+                    lines.append(f"{cls} {cx:.6f} {cy:.6f} {bw:.6f} {bh:.6f}")
+                    ids.append(str(r.vehicle))
+                (root / "labels" / f"{name}.txt").write_text(
+                    "".join(s + "\n" for s in lines), encoding="utf-8"
+                )
+                (root / "test_id" / f"{name}.txt").write_text(
+                    "".join(s + "\n" for s in ids), encoding="utf-8"
+                )
+                images += 1
+                boxes += len(lines)
     return {"images": images, "boxes": boxes}
 
 
@@ -519,7 +529,13 @@ def read_yolo(
     grouping file has a different number of rows."""
     p = Path(label_file)
     out: list[tuple[int, tuple[int, int, int, int], int | None]] = []
-    for lineno, line in enumerate(p.read_text(encoding="utf-8").splitlines(), 1):
+    try:
+        text = p.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise InputError(p, "no such YOLO label file") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputError(p, f"cannot be read as a YOLO label file ({exc})") from None
+    for lineno, line in enumerate(text.splitlines(), 1):
         if not line.strip():
             continue
         parts = line.split()
@@ -539,7 +555,10 @@ def read_yolo(
         out.append((cls, box, None))
     if test_id_file is not None:
         t = Path(test_id_file)
-        ids = [s.strip() for s in t.read_text(encoding="utf-8").splitlines() if s.strip()]
+        try:
+            ids = [s.strip() for s in t.read_text(encoding="utf-8").splitlines() if s.strip()]
+        except (OSError, UnicodeDecodeError) as exc:
+            raise InputError(t, f"cannot be read as a vehicle id file ({exc})") from None
         if len(ids) != len(out):
             raise InputError(t, f"{len(ids)} vehicle ids for {len(out)} boxes in {p.name}")
         try:

@@ -29,13 +29,14 @@ import datetime as dt
 import hashlib
 import json
 import os
+import tempfile
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from cryptography import x509
-from cryptography.exceptions import InvalidSignature
+from cryptography.exceptions import InvalidSignature, UnsupportedAlgorithm
 from cryptography.hazmat.primitives import hashes, serialization
 from cryptography.hazmat.primitives.asymmetric import ec
 from cryptography.hazmat.primitives.asymmetric.utils import decode_dss_signature, encode_dss_signature
@@ -98,9 +99,22 @@ def _write_private(path: Path, key: ec.EllipticCurvePrivateKey) -> None:
     pem = key.private_bytes(
         serialization.Encoding.PEM, serialization.PrivateFormat.PKCS8, serialization.NoEncryption()
     )
-    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
-    with os.fdopen(fd, "wb") as f:
-        f.write(pem)
+    # all-or-nothing and private from the first byte: a temporary file made 0600 beside it, renamed
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".partial", dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as f:
+            f.write(pem)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def _write_public(path: Path, data: bytes) -> None:
+    from makeway.atomic import atomic_path
+
+    with atomic_path(path) as tmp:
+        tmp.write_bytes(data)
 
 
 def _cert(
@@ -149,17 +163,18 @@ def keygen(out: str | Path, name: str = "rsu", *, days: int = 365) -> Identity:
     else:
         root_key = ec.generate_private_key(ec.SECP256R1())
         root = _cert("makeway local root", root_key, None, root_key, days=3650, ca=True)
+        _write_public(root_pem, root.public_bytes(serialization.Encoding.PEM))
         _write_private(root_key_path, root_key)
-        root_pem.write_bytes(root.public_bytes(serialization.Encoding.PEM))
     revoked = trust / "revoked.txt"
     if not revoked.exists():
-        revoked.write_text("# revoked signers: one HashedId8 (16 hex digits) per line\n", encoding="utf-8")
+        _write_public(revoked, b"# revoked signers: one HashedId8 (16 hex digits) per line\n")
     key = ec.generate_private_key(ec.SECP256R1())
     cert = _cert(f"makeway unit {name}", key, root.subject, root_key, days=days, ca=False)
     pem = cert.public_bytes(serialization.Encoding.PEM)
+    # each file atomic; the key last, so that a run stopped part-way can simply be repeated
+    _write_public(out / f"{name}.crt", pem)
+    _write_public(trust / "units" / f"{name}.pem", pem)
     _write_private(out / f"{name}.key", key)
-    (out / f"{name}.crt").write_bytes(pem)
-    (trust / "units" / f"{name}.pem").write_bytes(pem)
     signer = hashed_id8(cert)
     return Identity(key, cert, signer, station_id_of(signer))
 
@@ -169,7 +184,7 @@ def _load_private(path: Path) -> ec.EllipticCurvePrivateKey:
         key = serialization.load_pem_private_key(path.read_bytes(), password=None)
     except OSError as exc:
         raise InputError(path, f"cannot be read ({exc.strerror})") from None
-    except (ValueError, TypeError):
+    except (ValueError, TypeError, UnsupportedAlgorithm):  # the last: a key of an unknown type
         raise InputError(path, "is not an unencrypted PEM private key") from None
     if not isinstance(key, ec.EllipticCurvePrivateKey) or key.curve.name != "secp256r1":
         raise InputError(path, "is not a P-256 (secp256r1) key")
@@ -177,12 +192,21 @@ def _load_private(path: Path) -> ec.EllipticCurvePrivateKey:
 
 
 def _load_cert(path: Path) -> x509.Certificate:
+    """The certificate in ``path``, with every part makeway uses parsed once here: cryptography parses
+    some lazily, so a damaged key or name would otherwise fail later, far from the file."""
     try:
-        return x509.load_pem_x509_certificate(path.read_bytes())
+        cert = x509.load_pem_x509_certificate(path.read_bytes())
     except OSError as exc:
         raise InputError(path, f"cannot be read ({exc.strerror})") from None
     except ValueError:
         raise InputError(path, "is not a PEM X.509 certificate") from None
+    try:
+        cert.public_key()
+        _ = (cert.issuer, cert.subject, cert.signature, cert.tbs_certificate_bytes)
+        _ = (cert.not_valid_before_utc, cert.not_valid_after_utc)
+    except (ValueError, UnsupportedAlgorithm) as exc:
+        raise InputError(path, f"is a damaged X.509 certificate ({exc})") from None
+    return cert
 
 
 def load_identity(key_path: str | Path) -> Identity:
@@ -264,7 +288,11 @@ def _read_revoked(path: Path) -> set[bytes]:
     if not path.exists():
         return set()
     out: set[bytes] = set()
-    for i, line in enumerate(path.read_text(encoding="utf-8").splitlines(), 1):
+    try:
+        text = path.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputError(path, f"cannot be read as a revocation list ({exc})") from None
+    for i, line in enumerate(text.splitlines(), 1):
         text = line.split("#", 1)[0].strip()
         if not text:
             continue
@@ -317,7 +345,11 @@ class ReplayCache:
             return ReplayCache()
         try:
             rows = json.loads(path.read_text(encoding="utf-8"))["seen"]
-            return ReplayCache((bytes.fromhex(s), int(q), int(g)) for s, q, g in rows)
+            entries = [(bytes.fromhex(s), q, g) for s, q, g in rows]
+            for signer, q, g in entries:  # a HashedId8, a sequence number, a time in ms: whole numbers
+                if len(signer) != 8 or not all(type(v) is int and 0 <= v < 2**63 for v in (q, g)):
+                    raise ValueError("an entry is not [16 hex digits, sequence, generation time ms]")
+            return ReplayCache(entries)
         except (OSError, ValueError, KeyError, TypeError) as exc:
             raise InputError(path, f"is not a replay cache ({type(exc).__name__})") from None
 

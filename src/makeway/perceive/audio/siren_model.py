@@ -123,13 +123,20 @@ class SirenModel:
             self.path, "siren_net", threads=threads, missing_hint="train one with `makeway audio train`"
         )
         try:
-            self.streams: tuple[str, ...] = tuple(json.loads(meta["streams"]))
-            self.features = SirenFeatures(SirenFeatureConfig.from_dict(json.loads(meta["features"])))
+            streams, features = json.loads(meta["streams"]), json.loads(meta["features"])
+            if not isinstance(streams, list) or not all(isinstance(x, str) for x in streams):
+                raise ValueError("streams must be a list of names")
+            if not isinstance(features, dict):
+                raise ValueError("features must be a mapping")
+            self.streams: tuple[str, ...] = tuple(streams)
+            self.features = SirenFeatures(SirenFeatureConfig.from_dict(features))
             stored = float(meta.get("threshold", "0.5"))
             # models written before the key existed were all trained at the reference scale
             self.full_scale_db_spl = float(meta.get("full_scale_db_spl", REFERENCE_FULL_SCALE_DB_SPL))
-        except (KeyError, ValueError, TypeError) as exc:
-            raise InputError(self.path, f"malformed siren model metadata ({exc})") from None
+        except (KeyError, ValueError, TypeError, ArithmeticError) as exc:
+            raise InputError(
+                self.path, f"malformed siren model metadata ({type(exc).__name__}: {exc})"
+            ) from None
         self.threshold = float(threshold) if threshold is not None else stored
         self.metadata: dict[str, str] = dict(meta)
         names = [i.name for i in self.session.get_inputs()]

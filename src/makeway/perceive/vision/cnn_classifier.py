@@ -22,6 +22,7 @@ import cv2
 import numpy as np
 
 from makeway.errors import InputError
+from makeway.onnx_models import model_metadata, smoke_run
 
 __all__ = ["ONNX_FORMAT", "OnnxCropClassifier"]
 
@@ -85,7 +86,7 @@ class OnnxCropClassifier:
         except Exception as exc:  # onnxruntime raises its own types on a garbage file
             first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
             raise InputError(self.path, f"not an ONNX model ONNX Runtime can load ({first})") from None
-        meta: dict[str, str] = dict(self._session.get_modelmeta().custom_metadata_map)
+        meta: dict[str, str] = model_metadata(self._session, self.path)
         missing = [k for k in _REQUIRED if k not in meta]
         if missing:
             raise InputError(
@@ -124,6 +125,9 @@ class OnnxCropClassifier:
         if len(outputs) != 1 or not (len(out_shape) == 1 or (len(out_shape) == 2 and out_shape[1] == 1)):
             found = ", ".join(f"{o.name}{list(o.shape)}" for o in outputs)
             raise InputError(self.path, f"expected one output (n,) of probabilities; found {found or 'none'}")
+        probs = smoke_run(self._session, self.path)[0]
+        if np.asarray(probs).size != 2:  # the smoke run's batch of two crops
+            raise InputError(self.path, f"gives {np.asarray(probs).shape} for 2 crops, not 2 probabilities")
         self._input_name = inputs[0].name
         # x = (p·scale − mean)/std = p·a − b, per channel
         self._a = (scale / std).astype(np.float32).reshape(1, 3, 1, 1)
@@ -131,6 +135,10 @@ class OnnxCropClassifier:
         self.metadata = meta
         self.arch = meta.get("arch", "")
         self.training = meta.get("training", "")
+        if threshold is None and not 0.0 < stored < 1.0:
+            raise InputError(
+                self.path, f"malformed crop-classifier metadata (threshold {stored} not in (0, 1))"
+            )
         chosen = stored if threshold is None else float(threshold)
         if not 0.0 < chosen < 1.0:
             raise ValueError(f"threshold must be in (0, 1), got {chosen}")

@@ -191,6 +191,21 @@ class _StateDictUnpickler(pickle.Unpickler):
         return self.storages[key]
 
 
+class _PlainUnpickler(pickle.Unpickler):
+    """Reads pickled plain data only (numbers, strings, lists, dicts): it resolves no class and no
+    persistent id, so a crafted file cannot import or call anything."""
+
+    def find_class(self, module: str, name: str) -> Any:
+        raise pickle.UnpicklingError(f"expected plain data, found a reference to {module}.{name}")
+
+    def persistent_load(self, pid: Any) -> Any:
+        raise pickle.UnpicklingError("expected plain data, found a persistent id")
+
+
+def _plain_load(stream: Any) -> Any:
+    return _PlainUnpickler(stream).load()
+
+
 def _materialise(obj: Any) -> Any:
     if isinstance(obj, _Tensor):
         return obj.array()
@@ -226,12 +241,12 @@ def read_torch_state_dict(path: str | Path) -> dict[str, np.ndarray]:
                     storage.data = np.frombuffer(archive.read(f"{root}data/{key}"), dtype=storage.dtype)
         else:
             stream = io.BytesIO(raw)
-            if pickle.load(stream) != _LEGACY_MAGIC:
+            if _plain_load(stream) != _LEGACY_MAGIC:
                 raise ValueError("no PyTorch magic number")
-            pickle.load(stream)  # protocol version
-            pickle.load(stream)  # system info (endianness, type sizes)
+            _plain_load(stream)  # protocol version
+            _plain_load(stream)  # system info (endianness, type sizes)
             result = _StateDictUnpickler(stream, storages).load()
-            keys = pickle.load(stream)
+            keys = _plain_load(stream)
             for key in keys:
                 storage = storages[str(key)]
                 count = int(np.frombuffer(stream.read(8), dtype="<i8")[0])
@@ -241,8 +256,10 @@ def read_torch_state_dict(path: str | Path) -> dict[str, np.ndarray]:
                     raise ValueError("truncated tensor data")
                 storage.data = np.frombuffer(chunk, dtype=storage.dtype)
         state = _materialise(result)
-    except (pickle.UnpicklingError, ValueError, EOFError, KeyError, IndexError, TypeError) as exc:
-        raise InputError(path, f"not a readable PyTorch state dict ({exc})") from None
+    # pickle opcodes from a damaged file raise almost any type (UnpicklingError, AttributeError on a
+    # stray APPEND, MemoryError on a huge announced length, zipfile's BadZipFile, zlib.error …)
+    except Exception as exc:
+        raise InputError(path, f"not a readable PyTorch state dict ({type(exc).__name__}: {exc})") from None
     if not isinstance(state, dict) or not all(isinstance(v, np.ndarray) for v in state.values()):
         raise InputError(path, "not a PyTorch state dict (expected a mapping of names to tensors)")
     return dict(state)

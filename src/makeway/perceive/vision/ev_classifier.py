@@ -423,9 +423,9 @@ class EVCropClassifier:
                 model_path=model_path,
                 **kwargs,
             )
+            c = float(data["C"])
         except (ValueError, TypeError) as exc:
             raise InputError(path, f"malformed EV classifier head ({exc})") from None
-        c = float(data["C"])
         clf.C = c if np.isfinite(c) else None
         clf.training = str(data["training"])
         clf.mean_, clf.scale_, clf.coef_, clf.intercept_ = mean, scale, coef, intercept

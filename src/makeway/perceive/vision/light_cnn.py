@@ -26,6 +26,7 @@ import numpy as np
 
 from makeway.errors import InputError
 from makeway.messages import Box, LightDetection
+from makeway.onnx_models import model_metadata, smoke_run
 from makeway.perceive.vision.light_colour import WIDE_HSV, colour_masks
 
 __all__ = [
@@ -172,7 +173,7 @@ class CnnLightDetector:
         except Exception as exc:  # onnxruntime raises its own types on a garbage file
             first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
             raise InputError(self.path, f"not an ONNX model ONNX Runtime can load ({first})") from None
-        meta = dict(self._session.get_modelmeta().custom_metadata_map)
+        meta = model_metadata(self._session, self.path)
         missing = [k for k in _REQUIRED_META if k not in meta]
         if missing or meta.get("makeway.format") != LIGHTS_ONNX_FORMAT:
             raise InputError(
@@ -181,12 +182,29 @@ class CnnLightDetector:
                 f"want {LIGHTS_ONNX_FORMAT}; missing {', '.join(missing) or 'nothing'})",
             )
         self.metadata = meta
-        self.input_width = int(meta["input_width"])
-        self.input_height = int(meta["input_height"])
-        self.stride = int(meta["stride"])
-        self.threshold = float(meta.get("threshold", "0.3")) if threshold is None else float(threshold)
+        try:
+            self.input_width = int(meta["input_width"])
+            self.input_height = int(meta["input_height"])
+            self.stride = int(meta["stride"])
+            stored = float(meta.get("threshold", "0.3"))
+            if min(self.input_width, self.input_height, self.stride) < 1 or not 0.0 < stored < 1.0:
+                raise ValueError("sizes and stride must be positive, the threshold in (0, 1)")
+        except ValueError as exc:
+            raise InputError(self.path, f"malformed lights-detector metadata ({exc})") from None
+        self.threshold = stored if threshold is None else float(threshold)
         if not 0.0 < self.threshold < 1.0:
             raise ValueError(f"threshold must be in (0, 1), got {self.threshold}")
+        outputs = dict(
+            zip(
+                [o.name for o in self._session.get_outputs()],
+                smoke_run(self._session, self.path),
+                strict=True,
+            )
+        )
+        want = (self.input_height // self.stride, self.input_width // self.stride)
+        shapes = {k: getattr(outputs.get(k), "shape", None) for k in ("heat", "size", "offset")}
+        if any(v is None or len(v) != 4 or tuple(v[2:]) != want for v in shapes.values()):
+            raise InputError(self.path, f"outputs {shapes} do not match a {want[1]}×{want[0]} heat map")
         self.attention = meta.get("attention", "")
         self.max_detections = int(max_detections)
         self._input = self._session.get_inputs()[0].name

@@ -28,6 +28,7 @@ import numpy as np
 
 from makeway.errors import InputError
 from makeway.messages import Box, LightDetection
+from makeway.onnx_models import model_metadata, smoke_run
 from makeway.perceive.vision.light_colour import COLOURS, WIDE_HSV, ProposalConfig, colour_masks, propose
 
 __all__ = [
@@ -228,18 +229,34 @@ class LightVerifier:
             self.session = ort.InferenceSession(str(path), opts, providers=["CPUExecutionProvider"])
         except Exception as exc:  # onnxruntime raises its own types
             raise InputError(path, f"not a readable ONNX model ({exc})") from exc
-        meta = self.session.get_modelmeta().custom_metadata_map
+        meta = model_metadata(self.session, path)
         if meta.get("makeway_model") != "light_verifier":
             raise InputError(path, "not a light verifier model (metadata makeway_model missing)")
-        names = json.loads(meta.get("feature_names", "[]"))
-        if tuple(names) != FEATURE_NAMES:
-            raise InputError(
-                path, f"its features do not match this code's ({len(names)} vs {len(FEATURE_NAMES)})"
-            )
+        try:
+            names = json.loads(meta.get("feature_names", "[]"))
+            threshold = float(meta.get("threshold", 0.5))
+        except (ValueError, TypeError) as exc:
+            raise InputError(path, f"malformed light verifier metadata ({exc})") from None
+        if not isinstance(names, list) or tuple(names) != FEATURE_NAMES:
+            n = len(names) if isinstance(names, list) else 0
+            raise InputError(path, f"its features do not match this code's ({n} vs {len(FEATURE_NAMES)})")
+        if not 0.0 <= threshold <= 1.0:
+            raise InputError(path, f"malformed light verifier metadata (threshold {threshold} not in [0, 1])")
         self.path = path
-        self.threshold = float(meta.get("threshold", 0.5))
+        self.threshold = threshold
         self.metadata = dict(meta)
-        self._input = self.session.get_inputs()[0].name
+        inputs = self.session.get_inputs()
+        if len(inputs) != 1:
+            raise InputError(path, f"expected one input of feature rows; found {len(inputs)}")
+        self._input = inputs[0].name
+        smoke_run(self.session, path)
+        try:  # two rows of zeros must give two probabilities
+            probe = self.score(np.zeros((2, len(FEATURE_NAMES)), np.float32))
+            ok = probe.shape == (2,)
+        except Exception:  # onnxruntime's own types, or outputs of another layout (IndexError, …)
+            ok = False
+        if not ok:
+            raise InputError(path, "does not give one probability per feature row")
 
     def score(self, features: np.ndarray) -> np.ndarray:
         """P(lit emergency light) per feature row ``(n, len(FEATURE_NAMES))``."""
