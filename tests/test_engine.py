@@ -199,3 +199,41 @@ def test_cli_local_cluster_bad_input_exit_2(inputs: dict[str, Path | str], tmp_p
     summary = json.loads(result.stdout.strip().splitlines()[-1])
     assert summary["done"] == 1 and summary["failed"] == 1 and summary["workers"] == 1
     assert "nope.mp4: no such file or folder" in summary["failures"][0]["error"]
+
+
+def test_a_robotics_log_is_mined_like_its_video_and_recording(
+    inputs: dict[str, Path | str], video_dir: Path, tmp_path: Path
+) -> None:
+    """An MCAP log holding a clip's raw frames and a recording's audio is one input of kind ``log``:
+    its camera gives the same crops as the video's frames, its audio the recording's snippets."""
+    from makeway.engine.mine import run_input
+    from makeway.sense.log_writer import make_test_log
+
+    clip = video_dir / "night_ambulance_lights.mp4"
+    log = tmp_path / "drive.mcap"
+    make_test_log(log, video=clip, recording=inputs["rec"], image="raw", max_frames=8)
+    inp = parse_input(log)
+    assert inp.kind == "log"
+    with pytest.raises(InputError, match="frame range"):
+        parse_input(f"{log}@0:4")
+    record = run_input(inp, FAST, tmp_path / "mined")
+    assert record["status"] == "done", record.get("error")
+    rows = _rows(tmp_path / "mined" / inp.input_id / "samples.csv")
+    video_rows = [r for r in rows if r["media"].startswith("crops/camera_image/")]
+    audio_rows = [r for r in rows if r["media"].startswith("audio/audio_raw/")]
+    assert video_rows and audio_rows
+
+    ref = run_input(parse_input(f"{clip}@0:8"), FAST, tmp_path / "ref")
+    ref_rows = _rows(tmp_path / "ref" / ref["id"] / "samples.csv")
+    key = lambda r: (r["frame"], r["track"])  # noqa: E731
+    assert sorted(map(key, video_rows)) == sorted(map(key, ref_rows))
+    for a, b in zip(sorted(video_rows, key=key), sorted(ref_rows, key=key), strict=True):
+        assert float(a["probability"]) == pytest.approx(float(b["probability"]), abs=1e-4)
+    rec = run_input(parse_input(inputs["rec"]), FAST, tmp_path / "ref")
+    rec_rows = _rows(tmp_path / "ref" / rec["id"] / "samples.csv")
+    assert sorted(r["frame"] for r in audio_rows) == sorted(r["frame"] for r in rec_rows)
+
+    audio_only = tmp_path / "audio_only.mcap"
+    make_test_log(audio_only, recording=inputs["rec"], audio_topic="/mic")
+    record = run_input(parse_input(audio_only), FAST, tmp_path / "mined")
+    assert record["status"] == "done" and record["samples"] == len(rec_rows)

@@ -30,7 +30,8 @@ def mine(
         list[str],
         typer.Argument(
             help="Road videos (VIDEO, or VIDEO@START:END for frames START to END-1), folders of road "
-            "images, or recording folders (audio.flac + array.yaml)."
+            "images, recording folders (audio.flac + array.yaml), or robotics logs (MCAP files, "
+            "ROS 2 bag folders)."
         ),
     ],
     out: Annotated[Path, typer.Option("--out", "-o", help="Output folder (a rerun resumes it).")],

@@ -7,12 +7,13 @@ An input is one unit of work, one task on the cluster. It is named on the comman
   frame indices (``END`` may be left out: to the end), so a long drive splits into tasks;
 * ``FOLDER`` of road images (JPEG/PNG…, e.g. a camera's dumped frames) — each image on its own;
 * ``FOLDER`` holding a multichannel recording (``audio.flac`` + ``array.yaml``,
-  :mod:`makeway.sense.recording`) — the siren models' input.
+  :mod:`makeway.sense.recording`) — the siren models' input;
+* ``LOG`` — a robotics log, an MCAP file or a ROS 2 bag folder (:mod:`makeway.sense.logs`): its
+  camera topics are mined as videos, its audio topics (with their array description) as recordings.
 
 :data:`INPUT_KINDS` maps a kind name to an :class:`InputKind`: ``matches(path)`` says whether a path
 is of the kind (first match wins, in registration order) and ``mine`` is the task
-(:mod:`makeway.engine.mine`). A new kind — e.g. an MCAP or ROS 2 log with topic names — registers
-one more entry; nothing else changes.
+(:mod:`makeway.engine.mine`). A new kind registers one more entry; nothing else changes.
 
 :func:`expand_inputs` turns the command-line names into :class:`EngineInput` objects, cutting each
 video into ``segment_frames``-long slices when asked. A name it cannot resolve is returned in the
@@ -101,6 +102,12 @@ def _is_image_folder(path: Path) -> bool:
     )
 
 
+def _is_log(path: Path) -> bool:
+    from makeway.sense.logs import is_log
+
+    return (path.is_file() and path.suffix.lower() == ".mcap") or (path.is_dir() and is_log(path))
+
+
 def _video_frames(path: Path) -> int:
     from makeway.sense.video import probe_video
 
@@ -119,18 +126,26 @@ def _mine_images(*args: Any, **kwargs: Any) -> list[dict[str, Any]]:
     return mine_images(*args, **kwargs)
 
 
+def _mine_log(*args: Any, **kwargs: Any) -> list[dict[str, Any]]:
+    from makeway.engine.mine import mine_log
+
+    return mine_log(*args, **kwargs)
+
+
 def _mine_recording(*args: Any, **kwargs: Any) -> list[dict[str, Any]]:
     from makeway.engine.mine import mine_recording
 
     return mine_recording(*args, **kwargs)
 
 
-#: Input kinds, tried in this order: ``video`` (a file with a video suffix), ``recording`` (a folder
-#: with ``audio.flac`` and ``array.yaml``), ``images`` (a folder with image files).
+#: Input kinds, tried in this order: ``video`` (a file with a video suffix), ``log`` (an ``.mcap``
+#: file or a ROS 2 bag folder), ``recording`` (a folder with ``audio.flac`` and ``array.yaml``),
+#: ``images`` (a folder with image files).
 INPUT_KINDS: Registry[InputKind] = Registry("input kind")
 INPUT_KINDS.register("video")(
     InputKind("road video (or a frame range of one)", _is_video, _mine_video, True, _video_frames)
 )
+INPUT_KINDS.register("log")(InputKind("robotics log (MCAP file or ROS 2 bag folder)", _is_log, _mine_log))
 INPUT_KINDS.register("recording")(
     InputKind("multichannel recording folder (audio.flac + array.yaml)", _is_recording, _mine_recording)
 )

@@ -174,50 +174,96 @@ def mine_video(inp: EngineInput, config: MineConfig, folder: Path) -> list[dict[
     Raises:
         InputError: the video cannot be opened or ends well before its stated length (truncated).
     """
+    from makeway.sense.video import VideoReader
+
+    limit = None if inp.end is None else -(-inp.end // config.stride)
+    with VideoReader(inp.path, stride=config.stride, max_frames=limit) as reader:
+        samples, processed = _mine_frames(inp, config, folder, reader, "crops")
+    if processed == 0:
+        raise InputError(inp.path, f"no frames in the range @{inp.start}:{inp.end or ''}")
+    return samples
+
+
+def mine_log(inp: EngineInput, config: MineConfig, folder: Path) -> list[dict[str, Any]]:
+    """Hard samples of a robotics log (an MCAP file or a ROS 2 bag folder,
+    :mod:`makeway.sense.logs`): every camera topic is mined as a video (crops under
+    ``folder/crops/<topic>/``, ``frame`` the message index on that topic) and every audio topic
+    with its array description as a recording (snippets under ``folder/audio/<topic>/``).
+
+    Raises:
+        InputError: the log cannot be read, or holds neither a camera nor an audio topic.
+    """
+    from makeway.sense.logs import LogFrameReader, open_log
+
+    with open_log(inp.path) as log:
+        topics = log.topics()
+    cameras = sorted(t for t, i in topics.items() if i.kind == "camera")
+    audios = sorted(t for t, i in topics.items() if i.kind == "audio")
+    if not cameras and not audios:
+        found = ", ".join(f"{t} ({i.kind})" for t, i in sorted(topics.items())) or "none"
+        raise InputError(inp.path, f"holds no camera or audio topic to mine (topics: {found})")
+    samples: list[dict[str, Any]] = []
+    for topic in cameras:
+        with LogFrameReader(inp.path, topic, stride=config.stride) as reader:
+            samples += _mine_frames(inp, config, folder, reader, f"crops/{_topic_folder(topic)}")[0]
+    for topic in audios:
+        from makeway.sense.logs import read_log_recording
+
+        rec = read_log_recording(inp.path, topic)
+        samples += _mine_audio(inp, config, folder, rec, f"audio/{_topic_folder(topic)}")
+    samples.sort(key=lambda s: -float(s["probability"]))
+    return samples
+
+
+def _topic_folder(topic: str) -> str:
+    """A topic name as one folder name (``/camera/front/image`` → ``camera_front_image``)."""
+    return "_".join(p for p in topic.split("/") if p) or "root"
+
+
+def _mine_frames(
+    inp: EngineInput, config: MineConfig, folder: Path, reader: Any, prefix: str
+) -> tuple[list[dict[str, Any]], int]:
+    """Detect, track and classify the frames of ``reader`` (``(index, time_s, image)``), keeping
+    the tracks whose EV probability is active or near the threshold; crops go under
+    ``folder/prefix``. Returns the samples and the number of frames processed."""
     from makeway.perceive.vision.crops import crops_for_tracks, square_crop
     from makeway.perceive.vision.detectors import Detector
-    from makeway.sense.video import VideoReader
     from makeway.track.sort import Sort
 
     det, clf = _models(config)
     thr = float(config.threshold if config.threshold is not None else getattr(clf, "threshold", 0.5))
-    stride = config.stride
-    limit = None if inp.end is None else -(-inp.end // stride)
     sort = Sort()
     last_kept: dict[int, int] = {}
     samples: list[dict[str, Any]] = []
     processed = 0
-    with VideoReader(inp.path, stride=stride, max_frames=limit) as reader:
-        for index, t_s, image in reader:
-            if index < inp.start:
-                continue
-            if inp.end is not None and index >= inp.end:
-                break
-            tracks = sort.update(Detector.to_detections(det.detect_arrays(image)))
-            if tracks:
-                crops, kept = crops_for_tracks(
-                    image, [t.box for t in tracks], margin=config.margin, size=clf.input_size
+    for index, t_s, image in reader:
+        if index < inp.start:
+            continue
+        if inp.end is not None and index >= inp.end:
+            break
+        tracks = sort.update(Detector.to_detections(det.detect_arrays(image)))
+        if tracks:
+            crops, kept = crops_for_tracks(
+                image, [t.box for t in tracks], margin=config.margin, size=clf.input_size
+            )
+            probs = clf.predict_proba(crops).tolist() if len(kept) else []
+            for i, p in zip(kept.tolist(), probs, strict=True):
+                tr = tracks[i]
+                why = _reason(float(p), thr, config.band)
+                if why is None or processed - last_kept.get(tr.track_id, -config.every) < config.every:
+                    continue
+                crop = square_crop(image, tr.box, margin=config.margin, size=config.crop_size)
+                if crop is None:
+                    continue
+                last_kept[tr.track_id] = processed
+                media = f"{prefix}/t{tr.track_id}_f{index:06d}.jpg"
+                _write_jpeg(folder / media, crop)
+                samples.append(
+                    _sample(inp, media, float(p), thr, why, index, t_s, tr.track_id, _box_text(tr.box))
                 )
-                probs = clf.predict_proba(crops).tolist() if len(kept) else []
-                for i, p in zip(kept.tolist(), probs, strict=True):
-                    tr = tracks[i]
-                    why = _reason(float(p), thr, config.band)
-                    if why is None or processed - last_kept.get(tr.track_id, -config.every) < config.every:
-                        continue
-                    crop = square_crop(image, tr.box, margin=config.margin, size=config.crop_size)
-                    if crop is None:
-                        continue
-                    last_kept[tr.track_id] = processed
-                    media = f"crops/t{tr.track_id}_f{index:06d}.jpg"
-                    _write_jpeg(folder / media, crop)
-                    samples.append(
-                        _sample(inp, media, float(p), thr, why, index, t_s, tr.track_id, _box_text(tr.box))
-                    )
-            processed += 1
-        reader.check_complete()
-    if processed == 0:
-        raise InputError(inp.path, f"no frames in the range @{inp.start}:{inp.end or ''}")
-    return samples
+        processed += 1
+    reader.check_complete()
+    return samples, processed
 
 
 def _sample(
@@ -315,13 +361,21 @@ def mine_recording(inp: EngineInput, config: MineConfig, folder: Path) -> list[d
         InputError: the recording is malformed, its array or rate is not the model's, or it is
             shorter than one window.
     """
+    from makeway.sense.recording import read_recording
+
+    return _mine_audio(inp, config, folder, read_recording(inp.path), "audio")
+
+
+def _mine_audio(
+    inp: EngineInput, config: MineConfig, folder: Path, rec: Any, prefix: str
+) -> list[dict[str, Any]]:
+    """The siren windows of the recording ``rec`` that are active or near the threshold, as FLAC
+    snippets (with spectrogram JPEGs) under ``folder/prefix``."""
     import soundfile as sf
 
     from makeway.perceive.audio.windows import HOP_S, WINDOW_S, window_starts
-    from makeway.sense.recording import read_recording
 
     net = _siren_model(config.siren_model, config.siren_threshold)
-    rec = read_recording(inp.path)
     net.check_array(rec.mics, rec.sample_rate, inp.path)
     sr = int(rec.sample_rate)
     win = round(WINDOW_S * sr)
@@ -343,11 +397,11 @@ def mine_recording(inp: EngineInput, config: MineConfig, folder: Path) -> list[d
         last = k
         window = audio[s : s + win].T
         t_end = (s + win) / sr
-        media = f"audio/w{k:05d}.flac"
+        media = f"{prefix}/w{k:05d}.flac"
         target = folder / media
         target.parent.mkdir(parents=True, exist_ok=True)
         sf.write(str(target), window.T, sr, format="FLAC", subtype="PCM_24")
-        _write_jpeg(folder / f"audio/w{k:05d}.jpg", spectrogram_thumbnail(window, sr))
+        _write_jpeg(folder / f"{prefix}/w{k:05d}.jpg", spectrogram_thumbnail(window, sr))
         samples.append(_sample(inp, media, p, thr, why, k, t_end, None))
     return samples
 
