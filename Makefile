@@ -8,7 +8,7 @@ OUT    ?= reports/demo
 
 .PHONY: venv demo test lint typecheck bench bench-sort bench-video bench-crops bench-detection bench-pull-over \
 	bench-siren-loop bench-audio bench-rig bench-v2x bench-fusion bench-roadside bench-lights bench-active-rule \
-	bench-rsu bench-fusion-ablation clean
+	bench-rsu bench-fusion-ablation bench-mcap bench-engine bench-robust bench-faults bench-overload fuzz clean
 
 # `make demo` installs the runtime only; `make test` and the benchmarks add the dev extra (linters,
 # scikit-learn, XGBoost, torch for the training tests).
@@ -109,9 +109,33 @@ bench-active-rule: venv
 bench-rsu: venv
 	$(BIN)/python benchmarks/bench_rsu.py
 
+# reading a camera topic from MCAP / ROS 2 bags beside reading the same frames from the mp4
+bench-mcap: venv
+	$(BIN)/python benchmarks/bench_mcap.py
+
+# the data engine: 1 and 2 Dask workers on one 20-input mining job, scheduler overhead, projection for N
+bench-engine: venv
+	$(BIN)/python benchmarks/bench_engine_scaling.py
+
+# the pull-over on CommonRoad's vehicle models (3 cars, dry/wet, steering delay) beside Stanley and pure pursuit
+bench-robust: venv
+	$(BIN)/python benchmarks/bench_robust_pull_over.py
+
+# sensor faults (dead, clipped, noisy, swapped capsule; dropped, frozen, black frames; clock skew) beside clean
+bench-faults: venv
+	$(BIN)/python benchmarks/bench_sensor_faults.py
+
+# streaming stages fed 2x and 10x faster than they run, 10 minutes each: latency p50/p99 and memory
+bench-overload: venv
+	$(BIN)/python benchmarks/bench_overload.py
+
+# the long fuzz run over every reader (about half an hour); the test suite runs a small fixed budget
+fuzz: venv
+	$(BIN)/python benchmarks/bench_fuzz.py --profile long
+
 bench: bench-sort bench-video bench-crops bench-detection bench-pull-over bench-siren-loop bench-audio bench-rig \
 	bench-v2x bench-fusion bench-roadside bench-lights bench-active-rule bench-rsu \
-	bench-fusion-ablation
+	bench-fusion-ablation bench-mcap bench-engine bench-robust bench-faults bench-overload
 
 clean:
 	rm -rf $(VENV) reports .pytest_cache .mypy_cache .ruff_cache
