@@ -1,7 +1,7 @@
 """``makeway engine …``: the data engine (issue 28) — mine many inputs on a Dask cluster, and feed
 the labels a person wrote on the mined samples back into training.
 
-:func:`engine_mine` is the mining job (:func:`makeway.engine.cluster.mine_inputs`).
+The mining job is :func:`makeway.engine.cluster.mine_inputs`.
 :func:`engine_feedback` closes seed 000's loop: the labels file (the job's ``labels_template.csv``
 with the ``emergency`` column filled: 1 = emergency vehicle, 0 = not, blank = not reviewed) becomes a
 crop folder (``images/`` + ``labels.csv`` with a ``group`` per input and track), which joins the
@@ -20,37 +20,9 @@ from pathlib import Path
 from typing import Any
 
 from makeway.atomic import atomic_dir, check_writable, write_text_atomic
-from makeway.engine.cluster import EngineRun, mine_inputs
-from makeway.engine.mine import MineConfig
 from makeway.errors import InputError
 
-__all__ = ["FeedbackRun", "engine_feedback", "engine_mine", "labelled_crop_folder"]
-
-
-def engine_mine(
-    names: Sequence[str | Path],
-    out: str | Path,
-    *,
-    config: MineConfig | None = None,
-    scheduler: str | None = None,
-    workers: int | None = None,
-    segment_frames: int | None = None,
-    top: int = 64,
-    progress: bool = True,
-) -> EngineRun:
-    """The mining job over ``names`` into ``out`` (:func:`makeway.engine.cluster.mine_inputs`)."""
-    if not names:
-        raise ValueError("no inputs given: name videos, image folders or recording folders")
-    return mine_inputs(
-        names,
-        out,
-        config=config,
-        scheduler=scheduler,
-        workers=workers,
-        segment_frames=segment_frames,
-        top=top,
-        progress=progress,
-    )
+__all__ = ["FeedbackRun", "engine_feedback", "labelled_crop_folder"]
 
 
 def _group(image: str) -> str:

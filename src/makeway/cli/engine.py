@@ -78,11 +78,11 @@ def mine(
     the command runs again. An input that cannot be read is listed and the rest completes; the exit
     code is then 2.
     """
-    from makeway.apps.engine import engine_mine
+    from makeway.engine.cluster import mine_inputs
     from makeway.engine.mine import MineConfig
 
     config = MineConfig(classifier=classifier, threshold=threshold, band=band, stride=stride, every=every)
-    run = engine_mine(
+    run = mine_inputs(
         inputs,
         out,
         config=config,

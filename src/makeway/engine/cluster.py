@@ -221,11 +221,15 @@ def mine_inputs(
     Raises:
         InputError: ``out`` cannot be written, or is another program's non-empty folder; the
             scheduler is unreachable (all before any task runs).
+        ValueError: no names given.
     """
     from distributed import as_completed
 
     from makeway.atomic import check_replaceable
     from makeway.progress import progress_bar
+
+    if not names:
+        raise ValueError("no inputs given: name videos, image folders, recording folders or logs")
 
     cfg = config or MineConfig()
     target = check_writable(out, folder=True)
