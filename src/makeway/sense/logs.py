@@ -182,6 +182,15 @@ def _stamp_ns(msg: Any, log_time_ns: int) -> int:
     return ns if ns > 0 else log_time_ns
 
 
+def _own_stamp(msg: Any, log_time_ns: int) -> int:
+    """:func:`_stamp_ns` of a message parsed in place (:class:`~makeway.sense.mcap_camera.ImageMessage`)
+    or decoded the general way."""
+    stamp = getattr(msg, "stamp_ns", None)
+    if stamp is None:
+        return _stamp_ns(msg, log_time_ns)
+    return int(stamp) if stamp > 0 else log_time_ns
+
+
 def _bytes(data: Any) -> np.ndarray:
     """A message's byte payload (``bytes`` from mcap_ros2 and protobuf, a uint8 array from rosbags)."""
     if isinstance(data, bytes | bytearray | memoryview):
@@ -522,6 +531,8 @@ class McapLog(LogReader):
         from mcap_ros2.decoder import DecoderFactory
 
         self._file = path.open("rb")
+        self._summary: Any = None
+        self._camera_indexes: dict[str, Any] = {}
         self._decoders: list[McapDecoderFactory] = [DecoderFactory(), _ProtobufDecoders(), _JsonDecoders()]
         try:
             reader = make_reader(self._file, decoder_factories=self._decoders)
@@ -543,6 +554,7 @@ class McapLog(LogReader):
                         schemas[schema.id] = schema
             else:
                 channels, schemas = summary.channels, summary.schemas
+            self._summary = summary if summary is not None and counts is not None else None
         except InputError:
             self._file.close()
             raise
@@ -559,6 +571,68 @@ class McapLog(LogReader):
             self._topics[channel.topic] = TopicInfo(
                 channel.topic, name, channel.message_encoding, counts.get(cid, 0), _kind(name, channel.topic)
             )
+
+    # ------------------------------------------------ cameras: the direct path (sense.mcap_camera)
+
+    def _camera_index(self, topic: str) -> Any:
+        """The direct reader of camera ``topic`` (:func:`makeway.sense.mcap_camera.camera_index`),
+        or ``None`` where the general reader must do."""
+        if topic not in self._camera_indexes:
+            from makeway.sense.mcap_camera import camera_index
+
+            info = self._topics[topic]
+            self._camera_indexes[topic] = camera_index(
+                self.path, self._file, self._summary, topic, info.schema, self._decoder_of(topic)
+            )
+        return self._camera_indexes[topic]
+
+    def _decoder_of(self, topic: str) -> Any:
+        """The general decoder of ``topic``'s messages (``bytes`` → message), made on first use."""
+        made: list[Any] = []
+
+        def decode(data: bytes) -> Any:
+            if not made:
+                summary = self._summary
+                channel = next(c for c in summary.channels.values() if c.topic == topic)
+                schema = summary.schemas.get(channel.schema_id)
+                for factory in self._decoders:
+                    decoder = factory.decoder_for(channel.message_encoding, schema)
+                    if decoder is not None:
+                        made.append(decoder)
+                        break
+                else:
+                    raise ValueError(f"no decoder for {channel.message_encoding} messages")
+            return made[0](data)
+
+        return decode
+
+    def frames(
+        self, topic: str, *, stride: int = 1, max_frames: int | None = None
+    ) -> Iterator[tuple[int, int, np.ndarray]]:
+        info = self.topic(topic, "camera")
+        index = self._camera_index(topic)
+        if index is None:
+            yield from super().frames(topic, stride=stride, max_frames=max_frames)
+            return
+        n = len(index)
+        if max_frames is not None:
+            n = min(n, max_frames * stride)
+        for k, log_ns, msg in index.messages(iter(range(0, n, stride))):
+            yield k, _own_stamp(msg, log_ns), self._image(msg, info.schema, topic, k)
+
+    def stamps(self, topic: str, limit: int | None = None) -> list[int]:
+        info = self._topics.get(topic)
+        index = self._camera_index(topic) if info is not None and info.kind == "camera" else None
+        if index is None:
+            return super().stamps(topic, limit)
+        out: list[int] = []
+        for k, (log_ns, own) in enumerate(index.stamps(limit)):
+            if own is None:  # not where the in-place parser looks: decode the message whole
+                _, _, msg = next(index.messages(iter([k])))
+                out.append(_own_stamp(msg, log_ns))
+            else:
+                out.append(own if own > 0 else log_ns)
+        return out
 
     def _scan(self) -> Iterator[tuple[Any, Any, Any]]:
         from mcap.reader import NonSeekingReader  # reads every record in order, so it checks them all
