@@ -29,9 +29,13 @@ What is read (ROS 2 types by their ``pkg/msg/Type`` names, Foxglove protobuf sch
 * pose: ``nav_msgs/msg/Odometry``, ``geometry_msgs/msg/PoseStamped``, ``foxglove.PoseInFrame``;
   the planar ``x, y`` (m) and yaw (rad, counter-clockwise about z) in the message's frame.
 
-MCAP messages are decoded with ``mcap_ros2`` (CDR), with protobuf message classes built from the
-schema's own ``FileDescriptorSet`` (as Foxglove writes it) and with ``json``; bag folders (SQLite or
-MCAP storage) with ``rosbags``. A file that is not a log, a truncated or damaged log, a missing
+Camera topics of indexed MCAP files are read by the direct path of
+:mod:`makeway.sense.mcap_camera` (only the topic's chunks, decompressed once, the image message
+parsed in place, the pixels a view of the chunk: a raw frame costs about one decompression).
+Other MCAP messages, and camera messages the direct path does not take, are decoded with
+``mcap_ros2`` (CDR), with protobuf message classes built from the schema's own
+``FileDescriptorSet`` (as Foxglove writes it) and with ``json``; bag folders (SQLite or MCAP
+storage) with ``rosbags``. A file that is not a log, a truncated or damaged log, a missing
 topic (the message lists the topics there are), a topic of the wrong kind and an unsupported
 encoding are each one :class:`~makeway.errors.InputError` naming the log.
 """
@@ -585,6 +589,12 @@ class McapLog(LogReader):
                 self.path, self._file, self._summary, topic, info.schema, self._decoder_of(topic)
             )
         return self._camera_indexes[topic]
+
+    def reads_directly(self, topic: str) -> bool:
+        """Whether the camera ``topic`` is read by the direct path (an indexed file, zstd, lz4 or
+        uncompressed chunks, a ROS 2 or Foxglove image schema); else the ``mcap`` reader decodes
+        it. Both give the same frames."""
+        return self.topic(topic, "camera") is not None and self._camera_index(topic) is not None
 
     def _decoder_of(self, topic: str) -> Any:
         """The general decoder of ``topic``'s messages (``bytes`` → message), made on first use."""

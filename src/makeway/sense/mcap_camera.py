@@ -305,6 +305,8 @@ class McapCameraIndex:
         self._stamp = stamp
         self._fallback = fallback
         self._zstd: Any = None
+        #: messages decoded by the general decoder because the in-place parser did not take them
+        self.decoded_generally = 0
 
     def __len__(self) -> int:
         return int(self.entries.shape[0])
@@ -431,6 +433,7 @@ class McapCameraIndex:
             try:
                 msg: Any = self._parse(payload)
             except _NotParsedError:
+                self.decoded_generally += 1
                 try:
                     msg = self._fallback(payload.tobytes())
                 except Exception as exc:
