@@ -29,6 +29,7 @@ is an :class:`~makeway.errors.InputError` naming the log.
 
 from __future__ import annotations
 
+import os
 import struct
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
@@ -49,6 +50,7 @@ _RECORD_HEAD = 9  # opcode (1) + record length (8)
 _MESSAGE_HEAD = 22  # channel id (2) + sequence (4) + log time (8) + publish time (8)
 _ROS_SCHEMAS = ("sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage")
 _FOXGLOVE_SCHEMAS = ("foxglove.RawImage", "foxglove.CompressedImage")
+_MAX_RECORDS = 4 * 2**30  # the mcap reader's limit on a record's size (bytes)
 _INDEX_DTYPE = np.dtype([("log_time", "<u8"), ("offset", "<u8")])
 
 
@@ -326,6 +328,11 @@ class McapCameraIndex:
         try:
             if raw[0] != _OP_CHUNK:
                 raise self._damaged(chunk, "not a chunk record")
+            (stated,) = struct.unpack_from("<Q", raw.data, _RECORD_HEAD + 16)
+            if stated != chunk.uncompressed_size:
+                raise self._damaged(
+                    chunk, f"it states {stated} bytes of records, its index {chunk.uncompressed_size}"
+                )
             (clen,) = struct.unpack_from("<I", raw.data, _RECORD_HEAD + 28)
             p = _RECORD_HEAD + 32
             compression = bytes(raw[p : p + clen]).decode("ascii")
@@ -522,6 +529,7 @@ def camera_index(
 
     else:
         return None
+    file_size = os.fstat(file.fileno()).st_size
     chunks: list[Any] = []
     times: list[np.ndarray] = []
     offsets: list[np.ndarray] = []
@@ -534,6 +542,12 @@ def camera_index(
             continue
         if ci.compression not in ("zstd", "lz4", ""):
             return None
+        if (
+            ci.chunk_length < _RECORD_HEAD + 40
+            or ci.chunk_start_offset + ci.chunk_length > file_size
+            or ci.uncompressed_size > _MAX_RECORDS
+        ):
+            return None  # an index that does not fit the file: the mcap reader reads the records
         for off in mine:
             read = _read_message_index(file, int(off))
             if read is None or read[0] not in ids:
