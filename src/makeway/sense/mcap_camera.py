@@ -471,7 +471,11 @@ class McapCameraIndex:
         return out
 
 
-def _read_message_index(file: BufferedReader, offset: int) -> tuple[int, np.ndarray] | None:
+def _read_message_index(file: BufferedReader, offset: int, file_size: int) -> tuple[int, np.ndarray] | None:
+    """The channel id and ``(log_time, offset)`` entries of the message index record at
+    ``offset``; ``None`` if there is none."""
+    if not 0 <= offset < file_size:
+        return None
     file.seek(offset)
     head = file.read(_RECORD_HEAD + 6)
     if len(head) < _RECORD_HEAD + 6 or head[0] != _OP_MESSAGE_INDEX:
@@ -549,7 +553,7 @@ def camera_index(
         ):
             return None  # an index that does not fit the file: the mcap reader reads the records
         for off in mine:
-            read = _read_message_index(file, int(off))
+            read = _read_message_index(file, int(off), file_size)
             if read is None or read[0] not in ids:
                 return None
             index = read[1]
