@@ -694,16 +694,75 @@ class BagLog(LogReader):
                 name, schema, str(encoding), int(info.msgcount), _kind(schema, name)
             )
 
-    def _messages(self, topics: Iterable[str]) -> Iterator[tuple[str, int, Any]]:
+    def _raw_messages(self, topics: Iterable[str]) -> Iterator[tuple[Any, int, Any]]:
+        """``(connection, log_time_ns, serialized bytes)`` for ``topics``, in log-time order."""
         wanted = set(topics)
         conns = [c for c in self._reader.connections if c.topic in wanted]
         try:
             for conn, stamp, raw in self._reader.messages(connections=conns):
-                yield conn.topic, int(stamp), self._reader.deserialize(raw, conn.msgtype)
+                yield conn, int(stamp), raw
         except InputError:
             raise
         except Exception as exc:
             raise InputError(self.path, f"is truncated or damaged ({_first_line(exc)})") from None
+
+    def _deserialize(self, raw: Any, conn: Any) -> Any:
+        try:
+            return self._reader.deserialize(raw, conn.msgtype)
+        except Exception as exc:
+            raise InputError(self.path, f"is truncated or damaged ({_first_line(exc)})") from None
+
+    def _messages(self, topics: Iterable[str]) -> Iterator[tuple[str, int, Any]]:
+        for conn, stamp, raw in self._raw_messages(topics):
+            yield conn.topic, stamp, self._deserialize(raw, conn)
+
+    def _parses_in_place(self, topic: str) -> bool:
+        info = self._topics.get(topic)
+        return (
+            info is not None
+            and info.encoding == "cdr"
+            and info.schema in ("sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage")
+        )
+
+    def frames(
+        self, topic: str, *, stride: int = 1, max_frames: int | None = None
+    ) -> Iterator[tuple[int, int, np.ndarray]]:
+        """As :meth:`LogReader.frames`; ROS 2 image messages are parsed in place
+        (:func:`makeway.sense.mcap_camera.parse_ros_image`) and the skipped ones not at all."""
+        info = self.topic(topic, "camera")
+        if not self._parses_in_place(topic):
+            yield from super().frames(topic, stride=stride, max_frames=max_frames)
+            return
+        from makeway.sense.mcap_camera import parse_ros_image
+
+        compressed = info.schema.endswith("CompressedImage")
+        yielded = 0
+        for index, (conn, log_ns, raw) in enumerate(self._raw_messages([topic])):
+            if index % stride:
+                continue
+            msg: Any = parse_ros_image(raw, compressed)
+            if msg is None:
+                msg = self._deserialize(raw, conn)
+            yield index, _own_stamp(msg, log_ns), self._image(msg, info.schema, topic, index)
+            yielded += 1
+            if max_frames is not None and yielded >= max_frames:
+                return
+
+    def stamps(self, topic: str, limit: int | None = None) -> list[int]:
+        if not self._parses_in_place(topic):
+            return super().stamps(topic, limit)
+        from makeway.sense.mcap_camera import ros_stamp
+
+        out: list[int] = []
+        for conn, log_ns, raw in self._raw_messages([topic]):
+            own = ros_stamp(raw)
+            if own is None:
+                out.append(_stamp_ns(self._deserialize(raw, conn), log_ns))
+            else:
+                out.append(own if own > 0 else log_ns)
+            if limit is not None and len(out) >= limit:
+                break
+        return out
 
     def close(self) -> None:
         self._reader.close()

@@ -41,7 +41,7 @@ import numpy as np
 
 from makeway.errors import InputError
 
-__all__ = ["ImageMessage", "McapCameraIndex", "camera_index"]
+__all__ = ["ImageMessage", "McapCameraIndex", "camera_index", "parse_ros_image", "ros_stamp"]
 
 _OP_MESSAGE_INDEX = 0x07
 _OP_CHUNK = 0x06
@@ -134,6 +134,25 @@ def _cdr_stamp(head: np.ndarray) -> int:
         raise _NotParsedError
     sec, nanosec = struct.unpack_from("<iI" if head[1] == 1 else ">iI", head.data, 4)
     return int(sec) * 1_000_000_000 + int(nanosec)
+
+
+def parse_ros_image(data: bytes | np.ndarray, compressed: bool) -> ImageMessage | None:
+    """A ROS 2 ``sensor_msgs/msg/CompressedImage`` (``compressed=True``) or ``Image`` message's CDR
+    bytes parsed in place (the image bytes a view of ``data``); ``None`` where this parser does not
+    take the message (the caller's general deserializer reads it)."""
+    try:
+        return _cdr(np.frombuffer(data, dtype=np.uint8), compressed)
+    except _NotParsedError:
+        return None
+
+
+def ros_stamp(data: bytes | np.ndarray) -> int | None:
+    """The header stamp (ns) of a ROS 2 message whose first field is a ``std_msgs/Header``, read
+    from its CDR bytes; ``None`` where this parser does not take the message."""
+    try:
+        return _cdr_stamp(np.frombuffer(data, dtype=np.uint8))
+    except _NotParsedError:
+        return None
 
 
 # ------------------------------------------------------------------------------ protobuf (Foxglove)
