@@ -4,7 +4,8 @@ The first ``--frames`` frames of a shared clip are written, in a temporary folde
 fleet records (:func:`makeway.sense.log_writer.make_test_log`): JPEG frames
 (``sensor_msgs/msg/CompressedImage`` in an MCAP file, ``foxglove.CompressedImage`` in a
 Foxglove-profile MCAP file, and in a ROS 2 bag folder with SQLite storage) and uncompressed
-``bgr8`` frames (``sensor_msgs/msg/Image`` and ``foxglove.RawImage`` in MCAP). MCAP chunks are
+``bgr8`` frames (``sensor_msgs/msg/Image`` and ``foxglove.RawImage`` in MCAP, ``Image`` in a
+SQLite bag). MCAP chunks are
 zstd-compressed, as the ``mcap`` writer does by default; the raw ROS 2 frames also with lz4 and
 with uncompressed chunks (zstd decompression of 2.7 MB per 1280×720 frame is what raw frames
 cost). Each source is then read whole, the way ``makeway detect`` reads it (open, then every frame
@@ -53,6 +54,7 @@ SOURCES = (
     ("mcap-ros2", "raw", "lz4", "MCAP, ROS 2 Image (bgr8), lz4 chunks"),
     ("mcap-ros2", "raw", "none", "MCAP, ROS 2 Image (bgr8), plain chunks"),
     ("mcap-foxglove", "raw", "zstd", "MCAP, Foxglove RawImage (bgr8), zstd chunks"),
+    ("ros2-bag", "raw", "none", "ROS 2 bag (SQLite), Image (bgr8)"),
 )
 RAW_ZSTD = "MCAP, ROS 2 Image (bgr8), zstd chunks"
 GENERAL = "  the same, by mcap's own reader + mcap_ros2"

@@ -765,3 +765,44 @@ def test_a_damaged_chunk_is_one_line(logs: dict[tuple[str, str], Path], tmp_path
     bad.write_bytes(bytes(data))
     with open_log(bad) as log, pytest.raises(InputError, match="not a chunk record"):
         list(log.frames("/camera/image"))
+
+
+@pytest.mark.parametrize("compression", ["zstd", "lz4", "none"])
+def test_corrupted_logs_read_or_fail_in_one_line(
+    crops: list[np.ndarray], tmp_path: Path, compression: str
+) -> None:
+    """Flipped bits, overwritten bytes and cuts anywhere in a small camera log: reading it gives
+    frames or one InputError line, never another exception."""
+    from makeway.sense.logs import LogFrameReader
+
+    path = tmp_path / "small.mcap"
+    with Ros2LogWriter(path, compression=compression, chunk_size=20_000) as w:
+        w.channel("/cam", "sensor_msgs/msg/Image")
+        w.channel("/chatter", "std_msgs/msg/String")
+        for k, image in enumerate(crops):
+            t = START_NS + k * 40_000_000
+            w.write("/chatter", t, w.msg("std_msgs/msg/String", data="x" * k))
+            w.write("/cam", t, _ros_raw(w, t, image[:32, :48], "bgr8"))
+    data = path.read_bytes()
+    rng = np.random.default_rng(28)
+    bad = tmp_path / "bad.mcap"
+    failed = 0
+    for trial in range(45):
+        d = bytearray(data)
+        if trial % 3 == 0:
+            i = int(rng.integers(0, len(d)))
+            d[i] ^= 1 << int(rng.integers(0, 8))
+        elif trial % 3 == 1:
+            i = int(rng.integers(0, len(d) - 8))
+            d[i : i + 8] = rng.integers(0, 256, 8, dtype=np.uint8).tobytes()
+        else:
+            d = d[: int(rng.integers(0, len(d)))]
+        bad.write_bytes(bytes(d))
+        try:
+            with LogFrameReader(bad) as reader:
+                for _ in reader:
+                    pass
+        except InputError as err:
+            assert "\n" not in str(err) and str(bad) in str(err)
+            failed += 1
+    assert 0 < failed < 45
