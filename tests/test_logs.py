@@ -806,3 +806,23 @@ def test_corrupted_logs_read_or_fail_in_one_line(
             assert "\n" not in str(err) and str(bad) in str(err)
             failed += 1
     assert 0 < failed < 45
+
+
+def test_chunks_that_overlap_in_time_come_out_in_log_time_order(
+    crops: list[np.ndarray], tmp_path: Path
+) -> None:
+    """Two frames a chunk, logged 0 3 | 1 4 | 2 5: every chunk overlaps the others in time; the
+    frames come out in log-time order, as the mcap reader merges them."""
+    path = tmp_path / "overlap.mcap"
+    logged = [0, 3, 1, 4, 2, 5]
+    with Ros2LogWriter(path, chunk_size=30_000) as w:
+        w.channel("/bgr", "sensor_msgs/msg/Image")
+        for k, image in enumerate(crops):
+            t = START_NS + logged[k] * 40_000_000
+            w.write("/bgr", t, _ros_raw(w, t, image, "bgr8"))
+    assert len(_chunk_offsets(path)) == 3
+    with open_log(path) as log:
+        frames = _both_paths(log, "/bgr")
+        _both_paths(log, "/bgr", stride=2)
+    for (_, _, got), k in zip(frames, np.argsort(logged), strict=True):
+        np.testing.assert_array_equal(got, crops[k])

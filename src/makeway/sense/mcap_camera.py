@@ -309,6 +309,7 @@ class McapCameraIndex:
     def __init__(
         self,
         path: Path,
+        topic: str,
         file: BufferedReader,
         chunks: list[Any],
         entries: np.ndarray,
@@ -318,6 +319,7 @@ class McapCameraIndex:
         fallback: Callable[[bytes], Any],
     ) -> None:
         self.path = path
+        self.topic = topic
         self._file = file
         self.chunks = chunks
         self.entries = entries
@@ -416,13 +418,18 @@ class McapCameraIndex:
         stored = raw[p : p + size]
         if compression == "":
             return stored[:length]
-        if compression == "zstd":
-            try:
+        try:
+            if compression == "zstd":
                 with self._decompressor().stream_reader(stored, read_across_frames=True) as reader:
                     return np.frombuffer(reader.read(length), dtype=np.uint8)
-            except Exception:
-                pass
-        return self.records(chunk)[:length]  # lz4, or a damaged head: the full path says what is wrong
+            if compression == "lz4":
+                import lz4.frame
+
+                head = lz4.frame.LZ4FrameDecompressor().decompress(stored, max_length=length)
+                return np.frombuffer(head, dtype=np.uint8)
+        except Exception:
+            pass
+        return self.records(chunk)[:length]  # a damaged head: the full path says what is wrong
 
     def _message(
         self, chunk: Any, records: np.ndarray, offset: int, log_time: int, head: bool = False
@@ -448,13 +455,20 @@ class McapCameraIndex:
         """``(entry index, log_time_ns, message)`` for the entries ``select`` yields (increasing;
         all: ``None``). ``message`` is an :class:`ImageMessage`, or what the general decoder made
         of a message the in-place parser does not take."""
-        chunk_no = -1
-        records = np.empty(0, dtype=np.uint8)
         entries = self.entries
-        for k in select if select is not None else range(len(self)):
+        wanted = list(select) if select is not None else list(range(len(self)))
+        # a chunk is decompressed once and kept while messages of it are still to come (chunks
+        # that overlap in time interleave their messages)
+        left = np.bincount(entries[wanted, 1].astype(np.intp), minlength=len(self.chunks))
+        held: dict[int, np.ndarray] = {}
+        for k in wanted:
             log_time, c, offset = (int(v) for v in entries[k])
-            if c != chunk_no:
-                chunk_no, records = c, self.records(self.chunks[c])
+            records = held.get(c)
+            if records is None:
+                records = held[c] = self.records(self.chunks[c])
+            left[c] -= 1
+            if left[c] == 0:
+                del held[c]
             payload = self._message(self.chunks[c], records, offset, log_time)
             try:
                 msg: Any = self._parse(payload)
@@ -464,8 +478,9 @@ class McapCameraIndex:
                     msg = self._fallback(payload.tobytes())
                 except Exception as exc:
                     text = str(exc).strip().splitlines()
+                    why = text[0] if text else type(exc).__name__
                     raise InputError(
-                        self.path, f"message {k} does not decode ({text[0] if text else type(exc).__name__})"
+                        self.path, f"message {k} on {self.topic} does not decode ({why})"
                     ) from None
             yield k, log_time, msg
 
@@ -587,4 +602,4 @@ def camera_index(
         starts = np.array([ch.chunk_start_offset for ch in chunks], dtype=np.uint64)[c.astype(np.intp)]
         order = np.lexsort((o, starts, t))  # log time, then chunk position, then place in the chunk
         entries = np.stack([t[order], c[order], o[order]], axis=1)
-    return McapCameraIndex(path, file, chunks, entries, ids, parse, stamp, fallback)
+    return McapCameraIndex(path, topic, file, chunks, entries, ids, parse, stamp, fallback)
