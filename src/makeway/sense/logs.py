@@ -619,6 +619,9 @@ class McapLog(LogReader):
     def frames(
         self, topic: str, *, stride: int = 1, max_frames: int | None = None
     ) -> Iterator[tuple[int, int, np.ndarray]]:
+        """As :meth:`LogReader.frames`, by the direct path where the file allows it
+        (:meth:`reads_directly`): only the chunks holding the selected messages are read, raw
+        images are views of the decompressed chunk (writable; one frame keeps its chunk alive)."""
         info = self.topic(topic, "camera")
         index = self._camera_index(topic)
         if index is None:
@@ -631,6 +634,8 @@ class McapLog(LogReader):
             yield k, _own_stamp(msg, log_ns), self._image(msg, info.schema, topic, k)
 
     def stamps(self, topic: str, limit: int | None = None) -> list[int]:
+        """As :meth:`LogReader.stamps`; a camera topic read directly decompresses each chunk only
+        up to the stamp."""
         info = self._topics.get(topic)
         index = self._camera_index(topic) if info is not None and info.kind == "camera" else None
         if index is None:
@@ -749,6 +754,7 @@ class BagLog(LogReader):
                 return
 
     def stamps(self, topic: str, limit: int | None = None) -> list[int]:
+        """As :meth:`LogReader.stamps`; ROS 2 image stamps are read from the CDR bytes."""
         if not self._parses_in_place(topic):
             return super().stamps(topic, limit)
         from makeway.sense.mcap_camera import ros_stamp
