@@ -696,23 +696,14 @@ def test_an_unindexed_mcap_is_read_by_mcap_itself(crops: list[np.ndarray], tmp_p
         np.testing.assert_array_equal(got, want)
 
 
-def test_a_message_the_direct_path_does_not_parse_goes_to_mcap_ros2(
-    crops: list[np.ndarray], tmp_path: Path
-) -> None:
-    """Messages flagged as a CDR parameter list (encapsulation kind 3), which mcap_ros2 reads as
-    plain little-endian CDR and the in-place parser leaves alone, come out as mcap_ros2 decodes them."""
+def _rewrite(src: Path, dst: Path, flag: int | None = None, **writer_options: Any) -> None:
+    """Copy the MCAP ``src`` to ``dst`` with the ``mcap`` writer's ``writer_options``, each message's
+    encapsulation kind byte set to ``flag`` (``None``: as it is)."""
     from mcap.reader import make_reader
     from mcap.writer import Writer
 
-    src = tmp_path / "src.mcap"
-    with Ros2LogWriter(src) as w:
-        w.channel("/bgr", "sensor_msgs/msg/Image")
-        for k, image in enumerate(crops):
-            t = START_NS + k * 40_000_000
-            w.write("/bgr", t, _ros_raw(w, t, image, "bgr8"))
-    path = tmp_path / "pl.mcap"
-    with src.open("rb") as f, path.open("wb") as out:
-        writer = Writer(out)
+    with src.open("rb") as f, dst.open("wb") as out:
+        writer = Writer(out, **writer_options)
         writer.start(profile="ros2", library="test")
         ids: dict[int, int] = {}
         for schema, channel, message in make_reader(f).iter_messages():
@@ -720,9 +711,31 @@ def test_a_message_the_direct_path_does_not_parse_goes_to_mcap_ros2(
                 sid = writer.register_schema(schema.name, schema.encoding, schema.data)
                 ids[channel.id] = writer.register_channel(channel.topic, channel.message_encoding, sid)
             data = bytearray(message.data)
-            data[1] = 3
+            if flag is not None:
+                data[1] = flag
             writer.add_message(ids[channel.id], message.log_time, bytes(data), message.publish_time)
         writer.finish()
+
+
+def test_a_message_the_direct_path_does_not_parse_goes_to_mcap_ros2(
+    crops: list[np.ndarray], tmp_path: Path
+) -> None:
+    """Messages flagged as a CDR parameter list (encapsulation kind 3), which mcap_ros2 reads as
+    plain little-endian CDR and the in-place parser leaves alone, come out as mcap_ros2 decodes them;
+    a file without statistics in its summary is still read directly."""
+    src = tmp_path / "src.mcap"
+    with Ros2LogWriter(src) as w:
+        w.channel("/bgr", "sensor_msgs/msg/Image")
+        for k, image in enumerate(crops):
+            t = START_NS + k * 40_000_000
+            w.write("/bgr", t, _ros_raw(w, t, image, "bgr8"))
+    nostats = tmp_path / "nostats.mcap"
+    _rewrite(src, nostats, use_statistics=False)
+    with open_log(nostats) as log:
+        assert log.topics()["/bgr"].count == len(crops)
+        _both_paths(log, "/bgr")
+    path = tmp_path / "pl.mcap"
+    _rewrite(src, path, flag=3)
     with open_log(path) as log:
         frames = list(log.frames("/bgr"))
         assert log.reads_directly("/bgr") and log._camera_index("/bgr").decoded_generally == len(crops)

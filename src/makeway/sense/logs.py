@@ -558,7 +558,7 @@ class McapLog(LogReader):
                         schemas[schema.id] = schema
             else:
                 channels, schemas = summary.channels, summary.schemas
-            self._summary = summary if summary is not None and counts is not None else None
+            self._summary = summary  # None for a file without one: no direct camera path
         except InputError:
             self._file.close()
             raise
