@@ -24,7 +24,14 @@ does the least the file format allows instead:
 A message this parser does not take (another CDR encapsulation, an unexpected layout) is decoded
 with the general decoder the caller passes in, so the output never depends on which path read
 it. A chunk that does not decompress to its stated size, or whose records do not match its index,
-is an :class:`~makeway.errors.InputError` naming the log.
+is an :class:`~makeway.errors.InputError` naming the log. Chunk CRCs are not checked (nor does the
+``mcap`` reader by default): a CRC-32 over a 2.7 MB raw frame costs about a third of its zstd
+decompression.
+
+References: the MCAP format specification (https://mcap.dev/spec: the Chunk, Chunk Index, Message
+Index and Message records); OMG Common Data Representation (DDS-XTypes 1.3, §7.4.3, plain CDR
+version 1, the encoding of ROS 2's RMW); the protobuf wire format
+(https://protobuf.dev/programming-guides/encoding/).
 """
 
 from __future__ import annotations
