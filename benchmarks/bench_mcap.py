@@ -114,17 +114,17 @@ def stage_split(path: Path) -> dict[str, dict[str, float]]:
                     general[key] += dt
                 n += len(msgs)
         index = log._camera_index(topic)
-        for k in range(len(index)):
-            log_time, c, offset = (int(v) for v in index.entries[k])
-            chunk_index = index.chunks[c]
+        for c, chunk_index in enumerate(index.chunks):  # each chunk once, then its messages
             c0 = time.process_time()
             index._chunk_record(chunk_index)
             c1 = time.process_time()
             records = index.records(chunk_index)
             c2 = time.process_time()
-            msg = index._parse(index._message(chunk_index, records, offset, log_time))
+            mine = [(k, int(e[0]), int(e[2])) for k, e in enumerate(index.entries) if int(e[1]) == c]
+            msgs = [index._parse(index._message(chunk_index, records, o, t)) for _, t, o in mine]
             c3 = time.process_time()
-            log._image(msg, schema, topic, k)
+            for (k, _, _), msg in zip(mine, msgs, strict=True):
+                log._image(msg, schema, topic, k)
             c4 = time.process_time()
             for key, dt in zip(direct, (c1 - c0, c2 - c1 - (c1 - c0), c3 - c2, c4 - c3), strict=True):
                 direct[key] += dt
