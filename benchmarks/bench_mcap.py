@@ -4,12 +4,16 @@ The first ``--frames`` frames of a shared clip are written, in a temporary folde
 fleet records (:func:`makeway.sense.log_writer.make_test_log`): JPEG frames
 (``sensor_msgs/msg/CompressedImage`` in an MCAP file, ``foxglove.CompressedImage`` in a
 Foxglove-profile MCAP file, and in a ROS 2 bag folder with SQLite storage) and uncompressed
-``bgr8`` frames (``sensor_msgs/msg/Image`` in MCAP). MCAP chunks are zstd-compressed, as the
-``mcap`` writer does by default; the raw frames also with lz4 and with uncompressed chunks (zstd
-decompression of 2.7 MB per 1280×720 frame is what raw frames cost). Each source is then read
-whole, the way ``makeway detect`` reads it (open, then every frame as a BGR image:
-:class:`makeway.sense.video.VideoReader` for the mp4, :class:`makeway.sense.logs.LogFrameReader`
-for the logs), ``--reps`` times in rotating order.
+``bgr8`` frames (``sensor_msgs/msg/Image`` and ``foxglove.RawImage`` in MCAP, ``Image`` in a
+SQLite bag). MCAP chunks are
+zstd-compressed, as the ``mcap`` writer does by default; the raw ROS 2 frames also with lz4 and
+with uncompressed chunks (zstd decompression of 2.7 MB per 1280×720 frame is what raw frames
+cost). Each source is then read whole, the way ``makeway detect`` reads it (open, then every frame
+as a BGR image: :class:`makeway.sense.video.VideoReader` for the mp4,
+:class:`makeway.sense.logs.LogFrameReader` for the logs, whose MCAP camera topics take the direct
+path of :mod:`makeway.sense.mcap_camera`), ``--reps`` times in rotating order. One more row reads
+the raw zstd log the same way through the ``mcap`` reader and the ``mcap_ros2`` decoder (the path
+before the direct one), and the CPU time of each stage of both paths is split out for that log.
 
 Prints per source the median wall and CPU milliseconds per frame (CPU: all threads of the process;
 FFmpeg decodes H.264 on several threads), their ratio to the mp4's, beside the target (a log costs
@@ -37,7 +41,7 @@ from makeway.jsonable import to_jsonable
 from makeway.messages import PerceptionFrame
 from makeway.paths import data_dir
 from makeway.sense.log_writer import make_test_log
-from makeway.sense.logs import LogFrameReader
+from makeway.sense.logs import LogFrameReader, LogReader, open_log
 from makeway.sense.video import VideoReader
 from makeway.viz.foxglove import DetectRecorder
 
@@ -49,7 +53,85 @@ SOURCES = (
     ("mcap-ros2", "raw", "zstd", "MCAP, ROS 2 Image (bgr8), zstd chunks"),
     ("mcap-ros2", "raw", "lz4", "MCAP, ROS 2 Image (bgr8), lz4 chunks"),
     ("mcap-ros2", "raw", "none", "MCAP, ROS 2 Image (bgr8), plain chunks"),
+    ("mcap-foxglove", "raw", "zstd", "MCAP, Foxglove RawImage (bgr8), zstd chunks"),
+    ("ros2-bag", "raw", "none", "ROS 2 bag (SQLite), Image (bgr8)"),
 )
+RAW_ZSTD = "MCAP, ROS 2 Image (bgr8), zstd chunks"
+GENERAL = "  the same, by mcap's own reader + mcap_ros2"
+
+
+def _read_general(path: Path) -> int:
+    """What :class:`LogFrameReader` does (first frame, 50 stamps, then every frame), through the
+    ``mcap`` reader and the ``mcap_ros2`` decoder: the path before the direct one."""
+    with open_log(path) as log:
+        topic = log.only_topic("camera")
+        next(iter(LogReader.frames(log, topic, max_frames=1)))
+        LogReader.stamps(log, topic, 50)
+        return sum(1 for _ in LogReader.frames(log, topic))
+
+
+def stage_split(path: Path) -> dict[str, dict[str, float]]:
+    """CPU ms per frame of each stage of reading the camera topic of ``path`` (one message per
+    chunk), by the ``mcap`` reader + ``mcap_ros2`` and by the direct path."""
+    import zstandard
+    from mcap.data_stream import ReadDataStream
+    from mcap.reader import make_reader
+    from mcap.records import Chunk, Message
+    from mcap.stream_reader import breakup_chunk
+    from mcap_ros2.decoder import DecoderFactory
+
+    general = dict.fromkeys(("chunk read", "zstd decompression", "records out of the chunk (copies)",
+                             "CDR deserialisation", "image (numpy view, reshape)"), 0.0)  # fmt: skip
+    direct = dict.fromkeys(("chunk read", "zstd decompression into a numpy buffer",
+                            "message parse in place", "image (numpy view, reshape)"), 0.0)  # fmt: skip
+    n = 0
+    with open_log(path) as log:
+        topic = log.only_topic("camera")
+        schema = log.topic(topic).schema
+        with path.open("rb") as f:
+            summary = make_reader(f).get_summary()
+            assert summary is not None
+            ch = next(c for c in summary.channels.values() if c.topic == topic)
+            decode = DecoderFactory().decoder_for("cdr", summary.schemas[ch.schema_id])
+            assert decode is not None
+            for ci in summary.chunk_indexes:
+                c0 = time.process_time()
+                f.seek(ci.chunk_start_offset + 9)
+                chunk = Chunk.read(ReadDataStream(f))
+                c1 = time.process_time()
+                zstandard.decompress(chunk.data, chunk.uncompressed_size)
+                c2 = time.process_time()
+                records = [r for r in breakup_chunk(chunk) if isinstance(r, Message)]
+                c3 = time.process_time()
+                msgs = [decode(r.data) for r in records]
+                c4 = time.process_time()
+                for m in msgs:
+                    log._image(m, schema, topic, 0)
+                c5 = time.process_time()
+                for key, dt in zip(
+                    general, (c1 - c0, c2 - c1, c3 - c2 - (c2 - c1), c4 - c3, c5 - c4), strict=True
+                ):
+                    general[key] += dt
+                n += len(msgs)
+        index = log._camera_index(topic)
+        for c, chunk_index in enumerate(index.chunks):  # each chunk once, then its messages
+            c0 = time.process_time()
+            index._chunk_record(chunk_index)
+            c1 = time.process_time()
+            records = index.records(chunk_index)
+            c2 = time.process_time()
+            mine = [(k, int(e[0]), int(e[2])) for k, e in enumerate(index.entries) if int(e[1]) == c]
+            msgs = [index._parse(index._message(chunk_index, records, o, t)) for _, t, o in mine]
+            c3 = time.process_time()
+            for (k, _, _), msg in zip(mine, msgs, strict=True):
+                log._image(msg, schema, topic, k)
+            c4 = time.process_time()
+            for key, dt in zip(direct, (c1 - c0, c2 - c1 - (c1 - c0), c3 - c2, c4 - c3), strict=True):
+                direct[key] += dt
+    return {
+        "mcap + mcap_ros2": {k: 1000.0 * v / n for k, v in general.items()},
+        "direct path": {k: 1000.0 * v / len(index) for k, v in direct.items()},
+    }
 
 
 def _timed(read: Callable[[], int]) -> tuple[float, float, int]:
@@ -97,7 +179,11 @@ def main() -> int:
             return read
 
         readers: dict[str, Callable[[], int]] = {"mp4 (H.264)": read_mp4}
-        readers.update({label: reader_of(path) for label, path in logs.items()})
+        for label, path in logs.items():
+            readers[label] = reader_of(path)
+            if label == RAW_ZSTD:
+                readers[GENERAL] = lambda p=path: _read_general(p)  # type: ignore[misc]
+                sizes[GENERAL] = sizes[label]
         names = list(readers)
         wall: dict[str, list[float]] = {k: [] for k in names}
         cpu: dict[str, list[float]] = {k: [] for k in names}
@@ -112,6 +198,8 @@ def main() -> int:
                 wall[name].append(1000.0 * w / n)
                 cpu[name].append(1000.0 * c / n)
             loads.append(os.getloadavg()[0])
+
+        stages = stage_split(logs[RAW_ZSTD])
 
         # logs out: what ``--mcap`` adds per frame (JPEG, annotations, tracks JSON, zstd chunks)
         with VideoReader(clip, max_frames=args.frames) as reader:
@@ -136,7 +224,7 @@ def main() -> int:
         ok = "ok" if rc <= TARGET_RATIO else "MISSED"
         print(
             f"{name:46s} {sizes[name] / 1e6:7.1f} {w:9.2f} {rw:6.2f} {c:9.2f} {rc:6.2f}  "
-            f"{'' if name.startswith('mp4') else f'CPU ratio <= {TARGET_RATIO:.2f} {ok}'}"
+            f"{'' if name.startswith(('mp4', ' ')) else f'CPU ratio <= {TARGET_RATIO:.2f} {ok}'}"
         )
         rows.append(
             {
@@ -148,6 +236,10 @@ def main() -> int:
                 "cpu_ratio_to_mp4": rc,
             }
         )
+    for path_name, split in stages.items():
+        total = sum(split.values())
+        parts = ", ".join(f"{k} {v:.2f}" for k, v in split.items())
+        print(f"stages of {RAW_ZSTD}, {path_name}: {total:.2f} CPU ms/frame = {parts}")
     rec_ms = statistics.median(record_cpu)
     print(
         f"logs out (detect --mcap: JPEG + annotations + tracks): {rec_ms:.2f} CPU ms/frame "
@@ -165,6 +257,7 @@ def main() -> int:
                     "load_average_1min_during": loads,
                     "sources": rows,
                     "record_cpu_ms_per_frame": rec_ms,
+                    "raw_zstd_stage_cpu_ms_per_frame": stages,
                 }
             )
         )

@@ -515,3 +515,327 @@ def test_lights_on_a_raw_camera_log_equals_lights_on_the_video(
     on_log = run(logs[("ros2-bag", "raw")], tmp_path / "l", "--topic", "/camera/image")
     assert len(on_log) == N_FRAMES and on_log == on_video
     assert any(json.loads(line)["lights"] for line in on_log)  # the ambulance's blue lights are seen
+
+
+# ------------------------------------------------------------ cameras: the direct path vs mcap's own
+
+
+def _both_paths(log: Any, topic: str, **kw: Any) -> list[tuple[int, int, np.ndarray]]:
+    """The frames of ``topic`` by the direct path, checked equal (index, stamp, every byte) to the
+    frames the ``mcap`` reader and its decoders give (:meth:`LogReader.frames`)."""
+    from makeway.sense.logs import LogReader
+
+    if log.kind == "mcap":
+        assert log.reads_directly(topic)
+    else:
+        assert log._parses_in_place(topic)
+    fast = list(log.frames(topic, **kw))
+    if log.kind == "mcap":
+        assert log._camera_index(topic).decoded_generally == 0  # every message was parsed in place
+    general = list(LogReader.frames(log, topic, **kw))
+    assert [(i, s) for i, s, _ in fast] == [(i, s) for i, s, _ in general]
+    for (_, _, a), (_, _, b) in zip(fast, general, strict=True):
+        assert a.shape == b.shape and a.dtype == b.dtype == np.uint8
+        np.testing.assert_array_equal(a, b)
+    assert log.stamps(topic) == LogReader.stamps(log, topic)
+    assert log.stamps(topic, 2) == LogReader.stamps(log, topic, 2)
+    return fast
+
+
+@pytest.fixture(scope="module")
+def crops(video_frames: list[np.ndarray]) -> list[np.ndarray]:
+    """Small real images: 96×64 crops of the clip's frames (where the ambulance's lights are)."""
+    return [np.ascontiguousarray(f[300:364, 600:696]) for f in video_frames]
+
+
+# frame k is logged at START_NS + ORDER[k] * 40 ms: log times out of write order inside chunks
+ORDER = [0, 2, 1, 3, 5, 4]
+PAD = 5  # bytes of padding after each row of the padded topic
+
+
+def _ros_raw(w: Ros2LogWriter, stamp: int, image: np.ndarray, encoding: str, pad: int = 0) -> Any:
+    h, w_px = image.shape[:2]
+    ch = 1 if image.ndim == 2 else image.shape[2]
+    rows = np.full((h, w_px * ch + pad), 0xA5, np.uint8)  # the padding holds bytes, not zeros
+    rows[:, : w_px * ch] = image.reshape(h, -1)
+    return w.msg("sensor_msgs/msg/Image", header=w.header(stamp, "cam"), height=h, width=w_px,
+                 encoding=encoding, is_bigendian=0, step=w_px * ch + pad, data=rows.reshape(-1))  # fmt: skip
+
+
+@pytest.mark.parametrize("big_endian", [False, True])
+@pytest.mark.parametrize("compression", ["zstd", "lz4", "none", "bag"])
+def test_direct_path_equals_mcap_on_ros2_images(
+    crops: list[np.ndarray], tmp_path: Path, compression: str, big_endian: bool
+) -> None:
+    """bgr8, rgb8, mono8, row padding and JPEG topics interleaved with another topic in small
+    chunks, log times out of order, one topic without header stamps: the direct path gives what
+    mcap_ros2 decodes (in a ROS 2 bag: what rosbags deserializes), every byte, in the same order."""
+    bag = compression == "bag"
+    path = tmp_path / ("bag" if bag else "ros2.mcap")
+    with Ros2LogWriter(
+        path, bag=bag, compression="zstd" if bag else compression, chunk_size=40_000, big_endian=big_endian
+    ) as w:
+        for topic, typename in [("/bgr", "sensor_msgs/msg/Image"), ("/rgb", "sensor_msgs/msg/Image"),
+                                ("/mono", "sensor_msgs/msg/Image"), ("/padded", "sensor_msgs/msg/Image"),
+                                ("/nostamp", "sensor_msgs/msg/Image"),
+                                ("/jpeg", "sensor_msgs/msg/CompressedImage"),
+                                ("/chatter", "std_msgs/msg/String")]:  # fmt: skip
+            w.channel(topic, typename)
+        for k, image in enumerate(crops):
+            t = START_NS + ORDER[k] * 40_000_000
+            w.write("/chatter", t, w.msg("std_msgs/msg/String", data=f"frame {k}"))
+            w.write("/bgr", t, _ros_raw(w, t, image, "bgr8"))
+            w.write("/rgb", t, _ros_raw(w, t, image[:, :, ::-1], "rgb8"))
+            w.write("/mono", t, _ros_raw(w, t, cv2.cvtColor(image, cv2.COLOR_BGR2GRAY), "mono8"))
+            w.write("/padded", t, _ros_raw(w, t, image, "bgr8", pad=PAD))
+            w.write("/nostamp", t, _ros_raw(w, 0, image, "bgr8"))
+            jpeg = cv2.imencode(".jpg", image)[1].reshape(-1)
+            w.write("/jpeg", t, w.msg("sensor_msgs/msg/CompressedImage", header=w.header(t), format="jpeg",
+                                      data=jpeg))  # fmt: skip
+    order = sorted(range(len(crops)), key=lambda k: ORDER[k])  # log-time order
+    with open_log(path) as log:
+        for topic in ("/bgr", "/rgb", "/padded", "/nostamp"):
+            frames = _both_paths(log, topic)
+            assert [s for _, s, _ in frames] == [START_NS + k * 40_000_000 for k in range(len(crops))]
+            for (_, _, got), k in zip(frames, order, strict=True):
+                np.testing.assert_array_equal(got, crops[k])
+        for (_, _, got), k in zip(_both_paths(log, "/mono"), order, strict=True):
+            gray = cv2.cvtColor(crops[k], cv2.COLOR_BGR2GRAY)
+            np.testing.assert_array_equal(got, cv2.cvtColor(gray, cv2.COLOR_GRAY2BGR))
+        _both_paths(log, "/jpeg")
+        _both_paths(log, "/padded", stride=2, max_frames=2)
+        if bag:  # rosbags hands out read-only bytes; its own deserializer's frames are read-only too
+            return
+        # frames are writable arrays of their own: drawing on one changes no other frame
+        first, second = (f for _, _, f in log.frames("/bgr", max_frames=2))
+        first[:] = 0
+        np.testing.assert_array_equal(second, crops[order[1]])
+
+
+def test_direct_path_equals_mcap_on_foxglove_images(crops: list[np.ndarray], tmp_path: Path) -> None:
+    from foxglove_schemas_protobuf.CompressedImage_pb2 import CompressedImage
+    from foxglove_schemas_protobuf.RawImage_pb2 import RawImage
+
+    from makeway.sense.log_writer import FoxgloveMcapWriter
+
+    path = tmp_path / "foxglove.mcap"
+    with FoxgloveMcapWriter(path, chunk_size=40_000) as w:
+        for k, image in enumerate(crops):
+            t = START_NS + ORDER[k] * 40_000_000
+            gray = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
+            padded = np.full((64, 96 * 3 + PAD), 0x5A, np.uint8)
+            padded[:, : 96 * 3] = image.reshape(64, -1)
+            raws = [
+                ("/bgr", "bgr8", image, 96 * 3),
+                ("/rgb", "rgb8", image[:, :, ::-1].copy(), 96 * 3),
+                ("/mono", "mono8", gray, 96),
+                ("/padded", "bgr8", padded, 96 * 3 + PAD),
+            ]
+            for topic, enc, data, step in raws:
+                msg = RawImage(
+                    frame_id="cam", width=96, height=64, encoding=enc, step=step, data=data.tobytes()
+                )
+                if topic != "/mono":  # /mono carries no timestamp: its frames take the log time
+                    msg.timestamp.FromNanoseconds(t + 7)
+                w.write(topic, t, msg)
+            jpeg = CompressedImage(
+                frame_id="cam", format="jpeg", data=cv2.imencode(".jpg", image)[1].tobytes()
+            )
+            jpeg.timestamp.FromNanoseconds(t)
+            w.write("/jpeg", t, jpeg)
+    order = sorted(range(len(crops)), key=lambda k: ORDER[k])
+    with open_log(path) as log:
+        for topic in ("/bgr", "/rgb", "/padded"):
+            frames = _both_paths(log, topic)
+            assert [s for _, s, _ in frames] == [START_NS + k * 40_000_000 + 7 for k in range(len(crops))]
+            for (_, _, got), k in zip(frames, order, strict=True):
+                np.testing.assert_array_equal(got, crops[k])
+        mono = _both_paths(log, "/mono")
+        assert [s for _, s, _ in mono] == [START_NS + k * 40_000_000 for k in range(len(crops))]
+        _both_paths(log, "/jpeg")
+
+
+@pytest.mark.parametrize("fmt", ["mcap-ros2", "mcap-foxglove"])
+@pytest.mark.parametrize("image", ["compressed", "raw"])
+def test_direct_path_equals_mcap_on_the_test_logs(
+    logs: dict[tuple[str, str], Path], fmt: str, image: str
+) -> None:
+    with open_log(logs[(fmt, image)]) as log:
+        assert len(_both_paths(log, "/camera/image")) == N_FRAMES
+
+
+def test_an_unindexed_mcap_is_read_by_mcap_itself(crops: list[np.ndarray], tmp_path: Path) -> None:
+    """A file written without chunks has no chunk index: the ``mcap`` reader reads it."""
+    from mcap.writer import Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    store = get_typestore(Stores.ROS2_HUMBLE)
+    path = tmp_path / "plain.mcap"
+    with path.open("wb") as f:
+        writer = Writer(f, use_chunking=False)
+        writer.start(profile="ros2", library="test")
+        text, _ = store.generate_msgdef("sensor_msgs/msg/Image", ros_version=2)
+        sid = writer.register_schema("sensor_msgs/msg/Image", "ros2msg", text.encode())
+        cid = writer.register_channel("/bgr", "cdr", sid)
+        for k, image in enumerate(crops):
+            t = START_NS + k * 40_000_000
+            sec, nsec = divmod(t, 1_000_000_000)
+            header = store.types["std_msgs/msg/Header"](
+                stamp=store.types["builtin_interfaces/msg/Time"](sec=sec, nanosec=nsec), frame_id="cam"
+            )
+            msg = store.types["sensor_msgs/msg/Image"](
+                header=header, height=64, width=96, encoding="bgr8", is_bigendian=0, step=288,
+                data=image.reshape(-1),
+            )  # fmt: skip
+            writer.add_message(cid, t, bytes(store.serialize_cdr(msg, "sensor_msgs/msg/Image")), t)
+        writer.finish()
+    with open_log(path) as log:
+        assert not log.reads_directly("/bgr")
+        frames = list(log.frames("/bgr"))
+    for (_, _, got), want in zip(frames, crops, strict=True):
+        np.testing.assert_array_equal(got, want)
+
+
+def _rewrite(src: Path, dst: Path, flag: int | None = None, **writer_options: Any) -> None:
+    """Copy the MCAP ``src`` to ``dst`` with the ``mcap`` writer's ``writer_options``, each message's
+    encapsulation kind byte set to ``flag`` (``None``: as it is)."""
+    from mcap.reader import make_reader
+    from mcap.writer import Writer
+
+    with src.open("rb") as f, dst.open("wb") as out:
+        writer = Writer(out, **writer_options)
+        writer.start(profile="ros2", library="test")
+        ids: dict[int, int] = {}
+        for schema, channel, message in make_reader(f).iter_messages():
+            if channel.id not in ids:
+                sid = writer.register_schema(schema.name, schema.encoding, schema.data)
+                ids[channel.id] = writer.register_channel(channel.topic, channel.message_encoding, sid)
+            data = bytearray(message.data)
+            if flag is not None:
+                data[1] = flag
+            writer.add_message(ids[channel.id], message.log_time, bytes(data), message.publish_time)
+        writer.finish()
+
+
+def test_a_message_the_direct_path_does_not_parse_goes_to_mcap_ros2(
+    crops: list[np.ndarray], tmp_path: Path
+) -> None:
+    """Messages flagged as a CDR parameter list (encapsulation kind 3), which mcap_ros2 reads as
+    plain little-endian CDR and the in-place parser leaves alone, come out as mcap_ros2 decodes them;
+    a file without statistics in its summary is still read directly."""
+    src = tmp_path / "src.mcap"
+    with Ros2LogWriter(src) as w:
+        w.channel("/bgr", "sensor_msgs/msg/Image")
+        for k, image in enumerate(crops):
+            t = START_NS + k * 40_000_000
+            w.write("/bgr", t, _ros_raw(w, t, image, "bgr8"))
+    nostats = tmp_path / "nostats.mcap"
+    _rewrite(src, nostats, use_statistics=False)
+    with open_log(nostats) as log:
+        assert log.topics()["/bgr"].count == len(crops)
+        _both_paths(log, "/bgr")
+    path = tmp_path / "pl.mcap"
+    _rewrite(src, path, flag=3)
+    with open_log(path) as log:
+        frames = list(log.frames("/bgr"))
+        assert log.reads_directly("/bgr") and log._camera_index("/bgr").decoded_generally == len(crops)
+        assert log.stamps("/bgr") == [START_NS + k * 40_000_000 for k in range(len(crops))]
+    for (_, _, got), want in zip(frames, crops, strict=True):
+        np.testing.assert_array_equal(got, want)
+
+
+def _chunk_offsets(path: Path) -> list[tuple[int, int]]:
+    from mcap.reader import make_reader
+
+    with path.open("rb") as f:
+        summary = make_reader(f).get_summary()
+    assert summary is not None
+    return [(c.chunk_start_offset, c.chunk_length) for c in summary.chunk_indexes]
+
+
+def test_a_damaged_chunk_is_one_line(logs: dict[tuple[str, str], Path], tmp_path: Path) -> None:
+    """Zeros over the middle of the third frame's zstd chunk (the summary intact, so the log opens):
+    reading the frames stops at it with one line naming the log; nothing is written."""
+    src = logs[("mcap-ros2", "raw")]
+    data = bytearray(src.read_bytes())
+    start, length = _chunk_offsets(src)[2]
+    mid = start + length // 2
+    data[mid : mid + 65536] = bytes(65536)
+    bad = tmp_path / "bad.mcap"
+    bad.write_bytes(bytes(data))
+    with open_log(bad) as log:
+        assert log.reads_directly("/camera/image")
+        with pytest.raises(InputError, match="truncated or damaged") as err:
+            list(log.frames("/camera/image"))
+    assert "\n" not in str(err.value) and str(bad) in str(err.value)
+    r = runner.invoke(app, ["detect", str(bad), "-o", str(tmp_path / "out"), "--no-video", "-q"])
+    _one_error_line(r, str(bad), "truncated or damaged")
+    assert not (tmp_path / "out").exists()
+    # a chunk whose records do not match the message index (the index points into the pixels)
+    data = bytearray(src.read_bytes())
+    start, _ = _chunk_offsets(src)[0]
+    data[start] = 0x07  # not a chunk opcode
+    bad.write_bytes(bytes(data))
+    with open_log(bad) as log, pytest.raises(InputError, match="not a chunk record"):
+        list(log.frames("/camera/image"))
+
+
+@pytest.mark.parametrize("compression", ["zstd", "lz4", "none"])
+def test_corrupted_logs_read_or_fail_in_one_line(
+    crops: list[np.ndarray], tmp_path: Path, compression: str
+) -> None:
+    """Flipped bits, overwritten bytes and cuts anywhere in a small camera log: reading it gives
+    frames or one InputError line, never another exception."""
+    from makeway.sense.logs import LogFrameReader
+
+    path = tmp_path / "small.mcap"
+    with Ros2LogWriter(path, compression=compression, chunk_size=20_000) as w:
+        w.channel("/cam", "sensor_msgs/msg/Image")
+        w.channel("/chatter", "std_msgs/msg/String")
+        for k, image in enumerate(crops):
+            t = START_NS + k * 40_000_000
+            w.write("/chatter", t, w.msg("std_msgs/msg/String", data="x" * k))
+            w.write("/cam", t, _ros_raw(w, t, image[:32, :48], "bgr8"))
+    data = path.read_bytes()
+    rng = np.random.default_rng(28)
+    bad = tmp_path / "bad.mcap"
+    failed = 0
+    for trial in range(45):
+        d = bytearray(data)
+        if trial % 3 == 0:
+            i = int(rng.integers(0, len(d)))
+            d[i] ^= 1 << int(rng.integers(0, 8))
+        elif trial % 3 == 1:
+            i = int(rng.integers(0, len(d) - 8))
+            d[i : i + 8] = rng.integers(0, 256, 8, dtype=np.uint8).tobytes()
+        else:
+            d = d[: int(rng.integers(0, len(d)))]
+        bad.write_bytes(bytes(d))
+        try:
+            with LogFrameReader(bad) as reader:
+                for _ in reader:
+                    pass
+        except InputError as err:
+            assert "\n" not in str(err) and str(bad) in str(err)
+            failed += 1
+    assert 0 < failed < 45
+
+
+def test_chunks_that_overlap_in_time_come_out_in_log_time_order(
+    crops: list[np.ndarray], tmp_path: Path
+) -> None:
+    """Two frames a chunk, logged 0 3 | 1 4 | 2 5: every chunk overlaps the others in time; the
+    frames come out in log-time order, as the mcap reader merges them."""
+    path = tmp_path / "overlap.mcap"
+    logged = [0, 3, 1, 4, 2, 5]
+    with Ros2LogWriter(path, chunk_size=30_000) as w:
+        w.channel("/bgr", "sensor_msgs/msg/Image")
+        for k, image in enumerate(crops):
+            t = START_NS + logged[k] * 40_000_000
+            w.write("/bgr", t, _ros_raw(w, t, image, "bgr8"))
+    assert len(_chunk_offsets(path)) == 3
+    with open_log(path) as log:
+        frames = _both_paths(log, "/bgr")
+        _both_paths(log, "/bgr", stride=2)
+    for (_, _, got), k in zip(frames, np.argsort(logged), strict=True):
+        np.testing.assert_array_equal(got, crops[k])

@@ -53,7 +53,7 @@ LOG_FORMATS = ("mcap-ros2", "mcap-foxglove", "ros2-bag", "ros2-bag-mcap")
 CHUNK_COMPRESSIONS = ("zstd", "lz4", "none")
 
 
-def _mcap_writer(file: Any, compression: str) -> Any:
+def _mcap_writer(file: Any, compression: str, chunk_size: int = 1024 * 1024) -> Any:
     from mcap.writer import CompressionType
     from mcap.writer import Writer as McapWriter
 
@@ -61,7 +61,7 @@ def _mcap_writer(file: Any, compression: str) -> Any:
         raise ValueError(
             f"unknown chunk compression {compression!r}; choose from: {', '.join(CHUNK_COMPRESSIONS)}"
         )
-    return McapWriter(file, compression=CompressionType[compression.upper()])
+    return McapWriter(file, compression=CompressionType[compression.upper()], chunk_size=chunk_size)
 
 
 def _temp_beside(target: Path, folder: bool) -> Path:
@@ -130,11 +130,20 @@ class Ros2LogWriter(_AtomicLog):
     Messages are built with :meth:`msg` (the type store's classes) and written with :meth:`write`;
     :meth:`channel` registers a topic first. Types beyond the standard ROS 2 (Humble) set are
     registered from their ``.msg`` text with :meth:`register` (``makeway_msgs/msg/RawAudio`` is
-    registered already). ``compression`` is the MCAP chunk compression (:data:`CHUNK_COMPRESSIONS`).
+    registered already). ``compression`` is the MCAP chunk compression (:data:`CHUNK_COMPRESSIONS`),
+    ``chunk_size`` the uncompressed bytes after which a chunk is closed (the ``mcap`` writer's
+    default: 1 MiB); ``big_endian`` writes big-endian CDR (as recorders on big-endian machines do).
     """
 
     def __init__(
-        self, path: str | Path, *, bag: bool = False, compression: str = "zstd", storage: str = "sqlite3"
+        self,
+        path: str | Path,
+        *,
+        bag: bool = False,
+        compression: str = "zstd",
+        storage: str = "sqlite3",
+        chunk_size: int = 1024 * 1024,
+        big_endian: bool = False,
     ) -> None:
         from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
@@ -142,6 +151,7 @@ class Ros2LogWriter(_AtomicLog):
             raise ValueError(f"unknown bag storage {storage!r}; choose from: sqlite3, mcap")
         self.path = Path(path)
         self.bag = bag
+        self.big_endian = big_endian
         self.store = get_typestore(Stores.ROS2_HUMBLE)
         self.store.register(get_types_from_msg(ROS_RAW_AUDIO_MSGDEF, "makeway_msgs/msg/RawAudio"))
         self._tmp = _temp_beside(self.path, folder=bag)
@@ -155,7 +165,7 @@ class Ros2LogWriter(_AtomicLog):
             self._bag.open()
         else:
             self._file = self._tmp.open("wb")
-            self._mcap = _mcap_writer(self._file, compression)
+            self._mcap = _mcap_writer(self._file, compression, chunk_size)
             self._mcap.start(profile="ros2", library="makeway")
 
     def register(self, msgdef: str, typename: str) -> None:
@@ -189,7 +199,7 @@ class Ros2LogWriter(_AtomicLog):
     def write(self, topic: str, log_time_ns: int, message: Any) -> None:
         """Write ``message`` on ``topic`` (registered with :meth:`channel`) at ``log_time_ns``."""
         handle, typename = self._channels[topic]
-        data = bytes(self.store.serialize_cdr(message, typename))
+        data = bytes(self.store.serialize_cdr(message, typename, little_endian=not self.big_endian))
         if self.bag:
             self._bag.write(handle, int(log_time_ns), data)
         else:
@@ -247,14 +257,15 @@ class FoxgloveMcapWriter(_AtomicLog):
     :meth:`write` takes a protobuf message (its schema registered on first use) and
     :meth:`write_json` a JSON-ready dict (its schema given with :meth:`json_channel`). Timestamps in
     the messages themselves are set by the caller; ``log_time_ns`` orders the file. ``compression``
-    is the chunk compression (:data:`CHUNK_COMPRESSIONS`).
+    is the chunk compression (:data:`CHUNK_COMPRESSIONS`), ``chunk_size`` the uncompressed bytes
+    after which a chunk is closed.
     """
 
-    def __init__(self, path: str | Path, *, compression: str = "zstd") -> None:
+    def __init__(self, path: str | Path, *, compression: str = "zstd", chunk_size: int = 1024 * 1024) -> None:
         self.path = Path(path)
         self._tmp = _temp_beside(self.path, folder=False)
         self._file = self._tmp.open("wb")
-        self._mcap = _mcap_writer(self._file, compression)
+        self._mcap = _mcap_writer(self._file, compression, chunk_size)
         self._mcap.start(profile="", library="makeway")
         self._schemas: dict[str, int] = {}
         self._channels: dict[str, int] = {}

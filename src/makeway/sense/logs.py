@@ -29,9 +29,13 @@ What is read (ROS 2 types by their ``pkg/msg/Type`` names, Foxglove protobuf sch
 * pose: ``nav_msgs/msg/Odometry``, ``geometry_msgs/msg/PoseStamped``, ``foxglove.PoseInFrame``;
   the planar ``x, y`` (m) and yaw (rad, counter-clockwise about z) in the message's frame.
 
-MCAP messages are decoded with ``mcap_ros2`` (CDR), with protobuf message classes built from the
-schema's own ``FileDescriptorSet`` (as Foxglove writes it) and with ``json``; bag folders (SQLite or
-MCAP storage) with ``rosbags``. A file that is not a log, a truncated or damaged log, a missing
+Camera topics of indexed MCAP files are read by the direct path of
+:mod:`makeway.sense.mcap_camera` (only the topic's chunks, decompressed once, the image message
+parsed in place, the pixels a view of the chunk: a raw frame costs about one decompression).
+Other MCAP messages, and camera messages the direct path does not take, are decoded with
+``mcap_ros2`` (CDR), with protobuf message classes built from the schema's own
+``FileDescriptorSet`` (as Foxglove writes it) and with ``json``; bag folders (SQLite or MCAP
+storage) with ``rosbags``. A file that is not a log, a truncated or damaged log, a missing
 topic (the message lists the topics there are), a topic of the wrong kind and an unsupported
 encoding are each one :class:`~makeway.errors.InputError` naming the log.
 """
@@ -180,6 +184,15 @@ def _stamp_ns(msg: Any, log_time_ns: int) -> int:
         ts = getattr(msg, "timestamp", None)
         ns = int(ts.seconds) * 1_000_000_000 + int(ts.nanos) if ts is not None else 0
     return ns if ns > 0 else log_time_ns
+
+
+def _own_stamp(msg: Any, log_time_ns: int) -> int:
+    """:func:`_stamp_ns` of a message parsed in place (:class:`~makeway.sense.mcap_camera.ImageMessage`)
+    or decoded the general way."""
+    stamp = getattr(msg, "stamp_ns", None)
+    if stamp is None:
+        return _stamp_ns(msg, log_time_ns)
+    return int(stamp) if stamp > 0 else log_time_ns
 
 
 def _bytes(data: Any) -> np.ndarray:
@@ -522,6 +535,8 @@ class McapLog(LogReader):
         from mcap_ros2.decoder import DecoderFactory
 
         self._file = path.open("rb")
+        self._summary: Any = None
+        self._camera_indexes: dict[str, Any] = {}
         self._decoders: list[McapDecoderFactory] = [DecoderFactory(), _ProtobufDecoders(), _JsonDecoders()]
         try:
             reader = make_reader(self._file, decoder_factories=self._decoders)
@@ -543,6 +558,7 @@ class McapLog(LogReader):
                         schemas[schema.id] = schema
             else:
                 channels, schemas = summary.channels, summary.schemas
+            self._summary = summary  # None for a file without one: no direct camera path
         except InputError:
             self._file.close()
             raise
@@ -559,6 +575,79 @@ class McapLog(LogReader):
             self._topics[channel.topic] = TopicInfo(
                 channel.topic, name, channel.message_encoding, counts.get(cid, 0), _kind(name, channel.topic)
             )
+
+    # ------------------------------------------------ cameras: the direct path (sense.mcap_camera)
+
+    def _camera_index(self, topic: str) -> Any:
+        """The direct reader of camera ``topic`` (:func:`makeway.sense.mcap_camera.camera_index`),
+        or ``None`` where the general reader must do."""
+        if topic not in self._camera_indexes:
+            from makeway.sense.mcap_camera import camera_index
+
+            info = self._topics[topic]
+            self._camera_indexes[topic] = camera_index(
+                self.path, self._file, self._summary, topic, info.schema, self._decoder_of(topic)
+            )
+        return self._camera_indexes[topic]
+
+    def reads_directly(self, topic: str) -> bool:
+        """Whether the camera ``topic`` is read by the direct path (an indexed file, zstd, lz4 or
+        uncompressed chunks, a ROS 2 or Foxglove image schema); else the ``mcap`` reader decodes
+        it. Both give the same frames."""
+        return self.topic(topic, "camera") is not None and self._camera_index(topic) is not None
+
+    def _decoder_of(self, topic: str) -> Any:
+        """The general decoder of ``topic``'s messages (``bytes`` → message), made on first use."""
+        made: list[Any] = []
+
+        def decode(data: bytes) -> Any:
+            if not made:
+                summary = self._summary
+                channel = next(c for c in summary.channels.values() if c.topic == topic)
+                schema = summary.schemas.get(channel.schema_id)
+                for factory in self._decoders:
+                    decoder = factory.decoder_for(channel.message_encoding, schema)
+                    if decoder is not None:
+                        made.append(decoder)
+                        break
+                else:
+                    raise ValueError(f"no decoder for {channel.message_encoding} messages")
+            return made[0](data)
+
+        return decode
+
+    def frames(
+        self, topic: str, *, stride: int = 1, max_frames: int | None = None
+    ) -> Iterator[tuple[int, int, np.ndarray]]:
+        """As :meth:`LogReader.frames`, by the direct path where the file allows it
+        (:meth:`reads_directly`): only the chunks holding the selected messages are read, raw
+        images are views of the decompressed chunk (writable; one frame keeps its chunk alive)."""
+        info = self.topic(topic, "camera")
+        index = self._camera_index(topic)
+        if index is None:
+            yield from super().frames(topic, stride=stride, max_frames=max_frames)
+            return
+        n = len(index)
+        if max_frames is not None:
+            n = min(n, max_frames * stride)
+        for k, log_ns, msg in index.messages(iter(range(0, n, stride))):
+            yield k, _own_stamp(msg, log_ns), self._image(msg, info.schema, topic, k)
+
+    def stamps(self, topic: str, limit: int | None = None) -> list[int]:
+        """As :meth:`LogReader.stamps`; a camera topic read directly decompresses each chunk only
+        up to the stamp."""
+        info = self._topics.get(topic)
+        index = self._camera_index(topic) if info is not None and info.kind == "camera" else None
+        if index is None:
+            return super().stamps(topic, limit)
+        out: list[int] = []
+        for k, (log_ns, own) in enumerate(index.stamps(limit)):
+            if own is None:  # not where the in-place parser looks: decode the message whole
+                _, _, msg = next(index.messages(iter([k])))
+                out.append(_own_stamp(msg, log_ns))
+            else:
+                out.append(own if own > 0 else log_ns)
+        return out
 
     def _scan(self) -> Iterator[tuple[Any, Any, Any]]:
         from mcap.reader import NonSeekingReader  # reads every record in order, so it checks them all
@@ -610,16 +699,76 @@ class BagLog(LogReader):
                 name, schema, str(encoding), int(info.msgcount), _kind(schema, name)
             )
 
-    def _messages(self, topics: Iterable[str]) -> Iterator[tuple[str, int, Any]]:
+    def _raw_messages(self, topics: Iterable[str]) -> Iterator[tuple[Any, int, Any]]:
+        """``(connection, log_time_ns, serialized bytes)`` for ``topics``, in log-time order."""
         wanted = set(topics)
         conns = [c for c in self._reader.connections if c.topic in wanted]
         try:
             for conn, stamp, raw in self._reader.messages(connections=conns):
-                yield conn.topic, int(stamp), self._reader.deserialize(raw, conn.msgtype)
+                yield conn, int(stamp), raw
         except InputError:
             raise
         except Exception as exc:
             raise InputError(self.path, f"is truncated or damaged ({_first_line(exc)})") from None
+
+    def _deserialize(self, raw: Any, conn: Any) -> Any:
+        try:
+            return self._reader.deserialize(raw, conn.msgtype)
+        except Exception as exc:
+            raise InputError(self.path, f"is truncated or damaged ({_first_line(exc)})") from None
+
+    def _messages(self, topics: Iterable[str]) -> Iterator[tuple[str, int, Any]]:
+        for conn, stamp, raw in self._raw_messages(topics):
+            yield conn.topic, stamp, self._deserialize(raw, conn)
+
+    def _parses_in_place(self, topic: str) -> bool:
+        info = self._topics.get(topic)
+        return (
+            info is not None
+            and info.encoding == "cdr"
+            and info.schema in ("sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage")
+        )
+
+    def frames(
+        self, topic: str, *, stride: int = 1, max_frames: int | None = None
+    ) -> Iterator[tuple[int, int, np.ndarray]]:
+        """As :meth:`LogReader.frames`; ROS 2 image messages are parsed in place
+        (:func:`makeway.sense.mcap_camera.parse_ros_image`) and the skipped ones not at all."""
+        info = self.topic(topic, "camera")
+        if not self._parses_in_place(topic):
+            yield from super().frames(topic, stride=stride, max_frames=max_frames)
+            return
+        from makeway.sense.mcap_camera import parse_ros_image
+
+        compressed = info.schema.endswith("CompressedImage")
+        yielded = 0
+        for index, (conn, log_ns, raw) in enumerate(self._raw_messages([topic])):
+            if index % stride:
+                continue
+            msg: Any = parse_ros_image(raw, compressed)
+            if msg is None:
+                msg = self._deserialize(raw, conn)
+            yield index, _own_stamp(msg, log_ns), self._image(msg, info.schema, topic, index)
+            yielded += 1
+            if max_frames is not None and yielded >= max_frames:
+                return
+
+    def stamps(self, topic: str, limit: int | None = None) -> list[int]:
+        """As :meth:`LogReader.stamps`; ROS 2 image stamps are read from the CDR bytes."""
+        if not self._parses_in_place(topic):
+            return super().stamps(topic, limit)
+        from makeway.sense.mcap_camera import ros_stamp
+
+        out: list[int] = []
+        for conn, log_ns, raw in self._raw_messages([topic]):
+            own = ros_stamp(raw)
+            if own is None:
+                out.append(_stamp_ns(self._deserialize(raw, conn), log_ns))
+            else:
+                out.append(own if own > 0 else log_ns)
+            if limit is not None and len(out) >= limit:
+                break
+        return out
 
     def close(self) -> None:
         self._reader.close()
