@@ -269,3 +269,16 @@ def test_fuzz_v2x_verify_through_the_cli(keys: Path, tmp_path_factory: pytest.Te
         assert row["valid"] is (data == seed) and r.exit_code == (0 if data == seed else 1)
 
     run()
+
+
+def test_a_progress_bar_leaves_nothing_when_the_work_fails(capsys: pytest.CaptureFixture[str]) -> None:
+    """A command that fails mid-run prints its error as the only line: the bar does not stay above it."""
+    from makeway.progress import progress_bar
+
+    with pytest.raises(InputError), progress_bar("reading", 10) as advance:
+        advance(3)
+        raise InputError("clip.mp4", "ends at frame 3 of 10 (truncated)")
+    assert capsys.readouterr().err == ""
+    with progress_bar("reading", 10) as advance:
+        advance(10)
+    assert "10/10" in capsys.readouterr().err  # a bar that finishes is shown

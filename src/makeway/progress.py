@@ -37,7 +37,8 @@ def progress_bar(
     """A rich progress bar on stderr showing count, rate, elapsed and remaining time.
 
     Yields a :class:`Progress`; call it (``advance(n=1)``) per item. With ``enabled=False`` it
-    counts silently.
+    counts silently. When the work ends in an exception the bar is erased, so the error's one line
+    stands alone on stderr.
     """
     if not enabled:
         yield Progress(unit=unit)
@@ -64,4 +65,12 @@ def progress_bar(
     # on stderr: stdout stays for the JSON lines the commands print
     with RichProgress(*columns, console=Console(stderr=True)) as bar:
         task = bar.add_task(description, total=total, rate="")
-        yield Progress(bar, task, unit)
+        try:
+            yield Progress(bar, task, unit)
+        except BaseException:
+            # erase the bar when it stops, below (a terminal), or print nothing more (a log file)
+            bar.update(task, visible=False)
+            bar.live.transient = True
+            if not bar.console.is_terminal:
+                bar.console.quiet = True
+            raise
