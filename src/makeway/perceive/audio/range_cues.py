@@ -1,0 +1,352 @@
+"""Siren range cues that do not depend on how loud the siren is (issue 25, item 1).
+
+The siren networks place a siren by the level it arrives at, against a prior of the emitted level;
+real sirens differ by 20 dB and more, which is a factor 10 in distance. Two cues read the distance
+from the *shape* of what arrives instead:
+
+**Ground reflection** (:func:`reflection_delay`). The road mirrors the siren: each capsule hears
+the direct sound and, ``τ`` later, the sound reflected once off the ground,
+
+    τ(d) = (√(d² + (h_s + h_m)²) − √(d² + (h_s − h_m)²)) / c  ≈  2·h_s·h_m / (c·d)  (d ≫ h),
+
+for the horizontal distance ``d`` (m, ground plane, vehicle frame), the siren's height ``h_s`` and
+the array's height ``h_m`` (m above the road) and the speed of sound ``c``
+(:data:`makeway.physics.SPEED_OF_SOUND`). τ does not depend on loudness: about 0.68 ms at 20 m and
+0.27 ms at 50 m for ``h_s`` = 1.5 m and the reference roof array at 1.55 m. The two paths sum to a
+comb filter: the received power spectrum is the siren's times ``1 + ρ² + 2ρ·cos(2π f τ)`` (ρ: the
+road's reflection coefficient, 0.7–0.9 for asphalt, times the small spreading loss of the longer
+path), with maxima at ``f = k/τ``. The cue reads τ from that comb: the capsules' power spectra are
+averaged (they all sit at the roof's height, so they share the comb, while wind noise is independent
+per capsule) in 43 ms frames; only the time–frequency bins where the siren stands ≥ 10 dB above the
+local noise floor are kept (its harmonics, wherever the sweep has taken them), so that the gaps
+between harmonics — which would make a plain cepstrum or autocorrelation peak at the pitch period —
+never enter. Each frame's kept levels (dB) are detrended by a quadratic in log-frequency (the
+siren's own harmonic envelope), and the residuals of all frames are correlated with
+``cos(2π f τ)`` over a grid of τ in 0.1–1.5 ms: a cepstrum restricted to the siren's bins that
+also uses the comb's known phase (a positive reflection coefficient puts maxima, not notches, at
+``k/τ``). The peak's normalized correlation is the cue's confidence.
+
+A sweeping siren (wail, yelp) samples the comb at every frequency over a second; a steady two-tone
+or a fixed tone samples it only at its few harmonics, where a τ and ``τ + k/f₀`` fit alike.
+
+**Distance from τ** (:func:`distance_from_delay`, :func:`reflection_distance`): the array height
+is known (``array.yaml``: the mean ``z`` of the capsules); the siren's height is not. It enters
+as a prior range (default 1.0–2.0 m, a car-roof or grille speaker): the point estimate uses its
+middle, the interval its ends. Since ``d ≈ 2·h_s·h_m/(c·τ)`` is proportional to ``h_s``, a
+1.0–2.0 m prior alone leaves ±33 % in distance, however clean τ is.
+
+**Air-absorption spectral tilt** (:func:`spectral_tilt`): air absorbs high frequencies faster
+(ISO 9613-1 at 20 °C, 50 % RH: ≈ 0.005 dB/m at 1 kHz, 0.03 dB/m at 4 kHz, 0.1 dB/m at 8 kHz).
+The same siren bins' levels are regressed on the absorption coefficient ``α(f)`` (dB/m): the
+slope, negated, is a distance in metres if the siren's own spectrum is flat in ``α``. It is not:
+harmonic envelopes differ between sirens by tens of dB across 1–8 kHz, which in this slope is
+hundreds of metres (measured in ``benchmarks/bench_audio_range_cues.py``), against the 40 m the
+cue would have to resolve at 10–50 m.
+
+Inputs are full-scale samples ``(n, M)`` of the array (vehicle frame: x forward, y left, z up,
+origin on the ground under the rear axle; :mod:`makeway.sense.recording`), times in seconds,
+delays in seconds, distances in metres.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from scipy.ndimage import median_filter
+
+from makeway.errors import InputError
+from makeway.physics import SPEED_OF_SOUND
+from makeway.sense.recording import Recording
+
+__all__ = [
+    "BAND_HZ",
+    "FRAME_S",
+    "MIN_ARRAY_HEIGHT_M",
+    "MIN_SCORE",
+    "SIREN_HEIGHT_PRIOR_M",
+    "TAU_RANGE_S",
+    "ReflectionDelay",
+    "SirenBins",
+    "SpectralTilt",
+    "array_height_m",
+    "distance_from_delay",
+    "reflection_delay",
+    "reflection_distance",
+    "reflection_tau",
+    "siren_bins",
+    "spectral_tilt",
+    "check_array_audio",
+]
+
+BAND_HZ = (400.0, 8000.0)
+"""Frequencies the cues read (Hz): the siren's harmonics, below the 8 kHz of 16 kHz material."""
+FRAME_S = 2048 / 48_000
+"""Analysis frame (s): 43 ms, 23 Hz bins at 48 kHz; hop half a frame."""
+FLOOR_BINS_HZ = 950.0
+"""Width of the running median that estimates each frame's noise floor (Hz)."""
+SIREN_ABOVE_FLOOR_DB = 10.0
+"""A bin counts as the siren's when it stands this far above the local noise floor."""
+MIN_BINS_PER_FRAME = 8
+TAU_RANGE_S = (0.1e-3, 1.5e-3)
+"""Delays searched (s): 1.5 ms is a siren at ~9 m, 0.1 ms one at ~130 m (h_s = 1.5 m, h_m = 1.55 m)."""
+TAU_STEP_S = 2e-6
+MIN_SCORE = 0.15
+"""Normalized correlation a comb must reach to count as found (chosen on validation scenes of
+training-split ingredients, ``benchmarks/bench_audio_range_cues.py``)."""
+SIREN_HEIGHT_PRIOR_M = (1.0, 2.0)
+"""Prior range of the siren speaker's height above the road (m)."""
+MIN_ARRAY_HEIGHT_M = 0.3
+"""An array whose mean capsule height is lower than this states no usable height (z = 0 is the
+road): the reflection delay would be too short to read."""
+
+
+# ----------------------------------------------------------------------------------- geometry
+
+
+def reflection_tau(
+    distance_m: np.ndarray | float,
+    source_height_m: np.ndarray | float,
+    array_height_m: float,
+    c: float = SPEED_OF_SOUND,
+) -> np.ndarray:
+    """Delay (s) of the road-reflected path behind the direct one, for a horizontal ``distance_m``
+    between a source at ``source_height_m`` and a capsule at ``array_height_m`` (module docstring)."""
+    d = np.asarray(distance_m, dtype=np.float64)
+    hs = np.asarray(source_height_m, dtype=np.float64)
+    return (np.sqrt(d**2 + (hs + array_height_m) ** 2) - np.sqrt(d**2 + (hs - array_height_m) ** 2)) / c
+
+
+def distance_from_delay(
+    tau_s: np.ndarray | float,
+    source_height_m: np.ndarray | float,
+    array_height_m: float,
+    c: float = SPEED_OF_SOUND,
+) -> np.ndarray:
+    """The horizontal distance (m) at which the reflection arrives ``tau_s`` behind the direct
+    sound: the exact inverse of :func:`reflection_tau`. With ``Δ = c·τ``, ``a − b = 4·h_s·h_m`` and
+    ``b = (h_s − h_m)²``: ``d² = ((a − b − Δ²) / (2Δ))² − b``. NaN where no distance gives ``τ``
+    (``τ ≤ 0`` or ``c·τ ≥ 2·min(h_s, h_m)``, the delay straight below)."""
+    delta = c * np.asarray(tau_s, dtype=np.float64)
+    hs = np.asarray(source_height_m, dtype=np.float64)
+    four_hh = 4.0 * hs * array_height_m
+    b = (hs - array_height_m) ** 2
+    with np.errstate(divide="ignore", invalid="ignore"):
+        root = (four_hh - delta**2) / (2.0 * delta)
+        d2 = root**2 - b
+        ok = (delta > 0) & (delta < 2.0 * np.minimum(hs, array_height_m)) & (d2 >= 0)
+        return np.where(ok, np.sqrt(np.where(ok, d2, 0.0)), np.nan)
+
+
+def reflection_distance(
+    tau_s: float,
+    array_height_m: float,
+    height_prior_m: tuple[float, float] = SIREN_HEIGHT_PRIOR_M,
+) -> tuple[float, float, float]:
+    """``(distance, low, high)`` in metres from a reflection delay: the distance for a siren at the
+    middle of ``height_prior_m`` and the two distances for its ends (module docstring)."""
+    lo, hi = height_prior_m
+    hs = np.array([0.5 * (lo + hi), lo, hi])
+    d = distance_from_delay(tau_s, hs, array_height_m)
+    return float(d[0]), float(d[1]), float(d[2])
+
+
+def array_height_m(mics: np.ndarray | None, path: str | Path) -> float:
+    """The array's height above the road (m): the mean ``z`` of ``mics (M, 3)`` (vehicle frame,
+    ``array.yaml``). :class:`InputError` naming ``path`` when the array gives none."""
+    if mics is None or np.asarray(mics).ndim != 2 or np.asarray(mics).shape[1] != 3 or not len(mics):
+        raise InputError(path, "states no microphone positions [x, y, z]: the array height is unknown")
+    z = np.asarray(mics, dtype=np.float64)[:, 2]
+    h = float(np.mean(z))
+    if not math.isfinite(h) or h < MIN_ARRAY_HEIGHT_M:
+        raise InputError(
+            path,
+            f"states no array height: the capsules' mean z is {h:.2f} m (z is metres above the road; "
+            f"the ground-reflection cue needs >= {MIN_ARRAY_HEIGHT_M} m)",
+        )
+    return h
+
+
+def check_array_audio(rec: Recording) -> float:
+    """Check that ``rec`` is an array recording the range cues can read; returns its height (m).
+
+    A mono recording is refused: it comes with no ``array.yaml``, so neither the capsule height
+    the reflection delay needs nor capsules to average the wind noise over."""
+    path = rec.path or "recording"
+    if rec.audio.ndim != 2 or rec.audio.shape[1] < 2:
+        raise InputError(
+            path, "is mono: the range cues need the microphone array and its height (array.yaml)"
+        )
+    return array_height_m(rec.mics, path)
+
+
+# ---------------------------------------------------------------------------------- siren bins
+
+
+@dataclass(frozen=True)
+class SirenBins:
+    """The time–frequency bins where a siren stands out, pooled over frames: ``freq_hz``, their
+    level ``level_db`` (dB re full scale², capsules' mean power), ``frame`` index, and ``residual_db``
+    (the level minus its frame's quadratic trend in log-frequency); ``frames`` the frames analysed."""
+
+    freq_hz: np.ndarray
+    level_db: np.ndarray
+    frame: np.ndarray
+    residual_db: np.ndarray
+    frames: int
+
+    def __len__(self) -> int:
+        return len(self.freq_hz)
+
+
+def siren_bins(
+    audio: np.ndarray,
+    sample_rate: int,
+    band_hz: tuple[float, float] = BAND_HZ,
+    above_floor_db: float = SIREN_ABOVE_FLOOR_DB,
+) -> SirenBins:
+    """The bins of ``audio (n, M)`` (full scale, the capsules of one array) that belong to a siren
+    (module docstring): ≥ ``above_floor_db`` over a running median across frequency, in ``band_hz``,
+    in frames with at least :data:`MIN_BINS_PER_FRAME` such bins."""
+    x = np.asarray(audio, dtype=np.float64)
+    if x.ndim == 1:
+        x = x[:, None]
+    frame = max(256, round(FRAME_S * sample_rate))
+    hop = frame // 2
+    if x.shape[0] < frame:
+        empty = np.zeros(0)
+        return SirenBins(empty, empty, np.zeros(0, dtype=int), empty, 0)
+    window = np.hanning(frame)
+    n_frames = 1 + (x.shape[0] - frame) // hop
+    idx = np.arange(frame)[None, :] + hop * np.arange(n_frames)[:, None]
+    power = np.zeros((n_frames, frame // 2 + 1))
+    for m in range(x.shape[1]):
+        power += np.abs(np.fft.rfft(x[idx, m] * window, axis=1)) ** 2
+    power /= x.shape[1]
+    f = np.fft.rfftfreq(frame, 1.0 / sample_rate)
+    sel = (f >= band_hz[0]) & (f <= min(band_hz[1], 0.45 * sample_rate))
+    f = f[sel]
+    db = 10.0 * np.log10(np.maximum(power[:, sel], 1e-20))
+    width = max(5, int(round(FLOOR_BINS_HZ / (sample_rate / frame))) | 1)
+    floor = median_filter(db, size=(1, width), mode="nearest")
+    mask = db >= floor + above_floor_db
+    freqs: list[np.ndarray] = []
+    levels: list[np.ndarray] = []
+    frames: list[np.ndarray] = []
+    resid: list[np.ndarray] = []
+    logf = np.log(f)
+    for k in range(n_frames):
+        m = mask[k]
+        if int(m.sum()) < MIN_BINS_PER_FRAME:
+            continue
+        lf, lv = logf[m], db[k, m]
+        if lf.max() - lf.min() < math.log(2.0):  # less than an octave: no trend to remove
+            continue
+        trend = np.polyval(np.polyfit(lf - lf.mean(), lv, 2), lf - lf.mean())
+        freqs.append(f[m])
+        levels.append(lv)
+        frames.append(np.full(int(m.sum()), k))
+        resid.append(lv - trend)
+    if not freqs:
+        empty = np.zeros(0)
+        return SirenBins(empty, empty, np.zeros(0, dtype=int), empty, n_frames)
+    return SirenBins(
+        np.concatenate(freqs), np.concatenate(levels), np.concatenate(frames), np.concatenate(resid), n_frames
+    )
+
+
+# ---------------------------------------------------------------------------------- reflection
+
+
+@dataclass(frozen=True)
+class ReflectionDelay:
+    """A ground-reflection delay read from the array: ``tau_s`` (s; NaN when none was found),
+    ``score`` (the comb's normalized correlation at the peak, −1…1), ``found`` (score ≥ the
+    minimum) and ``bins`` (siren bins it rests on)."""
+
+    tau_s: float
+    score: float
+    found: bool
+    bins: int
+
+
+def reflection_delay(
+    audio: np.ndarray,
+    sample_rate: int,
+    *,
+    tau_range_s: tuple[float, float] = TAU_RANGE_S,
+    min_score: float = MIN_SCORE,
+    band_hz: tuple[float, float] = BAND_HZ,
+) -> ReflectionDelay:
+    """The ground-reflection delay in ``audio (n, M)`` (1–2 s of the array; module docstring)."""
+    bins = siren_bins(audio, sample_rate, band_hz)
+    if len(bins) < 4 * MIN_BINS_PER_FRAME:
+        return ReflectionDelay(math.nan, 0.0, False, len(bins))
+    taus = np.arange(tau_range_s[0], tau_range_s[1] + 0.5 * TAU_STEP_S, TAU_STEP_S)
+    r = np.clip(bins.residual_db, -20.0, 20.0)
+    r = r - r.mean()
+    # cos(2π f τ) for every τ via the angle-addition recurrence (exact, one complex array per step)
+    step = np.exp(2j * np.pi * bins.freq_hz * TAU_STEP_S)
+    z = np.exp(2j * np.pi * bins.freq_hz * taus[0])
+    num = np.empty(len(taus))
+    den = np.empty(len(taus))
+    for i in range(len(taus)):
+        cz = z.real
+        cz0 = cz - cz.mean()
+        num[i] = float(r @ cz0)
+        den[i] = float(cz0 @ cz0)
+        z = z * step
+    score = num / np.sqrt(np.maximum(den, 1e-12) * float(r @ r))
+    i = int(np.argmax(score))
+    tau = float(taus[i])
+    if 0 < i < len(taus) - 1:  # parabolic refinement
+        a, b, c = score[i - 1], score[i], score[i + 1]
+        denom = a - 2 * b + c
+        if denom < 0:
+            tau += 0.5 * (a - c) / denom * TAU_STEP_S
+    best = float(score[i])
+    found = best >= min_score
+    return ReflectionDelay(tau if found else math.nan, best, found, len(bins))
+
+
+# --------------------------------------------------------------------------------- spectral tilt
+
+
+@dataclass(frozen=True)
+class SpectralTilt:
+    """The siren bins' level regressed on air absorption: ``distance_m`` = −slope (dB per dB/m,
+    i.e. metres) — the distance if the siren's own spectrum were flat in ``α(f)``; ``bins`` used."""
+
+    distance_m: float
+    bins: int
+
+
+def spectral_tilt(
+    audio: np.ndarray,
+    sample_rate: int,
+    absorption_db_per_m: Callable[[np.ndarray], np.ndarray],
+    band_hz: tuple[float, float] = BAND_HZ,
+) -> SpectralTilt:
+    """Air absorption's spectral tilt in ``audio (n, M)`` as a raw distance (module docstring):
+    ``level_db ≈ a_frame − d·α(f)``, fitted with one intercept per frame (the siren's level
+    changes from frame to frame); NaN with too few siren bins or too narrow a band.
+    ``absorption_db_per_m``: ``α(f)`` in dB/m for frequencies in Hz (the simulator's is
+    :func:`makeway.sim.acoustics.air_absorption_db_per_m`, ISO 9613-1; a car-side stage may not
+    import the simulator, so the curve is passed in)."""
+    bins = siren_bins(audio, sample_rate, band_hz)
+    if len(bins) < 4 * MIN_BINS_PER_FRAME:
+        return SpectralTilt(math.nan, len(bins))
+    alpha = np.asarray(absorption_db_per_m(bins.freq_hz), dtype=np.float64)
+    # remove each frame's mean (its intercept) from both sides
+    counts = np.bincount(bins.frame)
+    keep = counts[bins.frame] >= 2
+    fr = bins.frame[keep]
+    a = alpha[keep] - (np.bincount(fr, alpha[keep]) / np.maximum(np.bincount(fr), 1))[fr]
+    y = bins.level_db[keep] - (np.bincount(fr, bins.level_db[keep]) / np.maximum(np.bincount(fr), 1))[fr]
+    var = float(a @ a)
+    if var <= 0:
+        return SpectralTilt(math.nan, len(bins))
+    return SpectralTilt(-float(a @ y) / var, int(keep.sum()))
