@@ -52,11 +52,11 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
-from scipy.ndimage import median_filter
+from scipy.ndimage import maximum_filter, median_filter
 
 from makeway.errors import InputError
 from makeway.physics import SPEED_OF_SOUND
@@ -73,6 +73,7 @@ __all__ = [
     "SirenBins",
     "SpectralTilt",
     "array_height_m",
+    "comb_scores",
     "distance_from_delay",
     "reflection_delay",
     "reflection_distance",
@@ -88,9 +89,11 @@ FRAME_S = 2048 / 48_000
 """Analysis frame (s): 43 ms, 23 Hz bins at 48 kHz; hop half a frame."""
 FLOOR_BINS_HZ = 950.0
 """Width of the running median that estimates each frame's noise floor (Hz)."""
-SIREN_ABOVE_FLOOR_DB = 10.0
-"""A bin counts as the siren's when it stands this far above the local noise floor."""
-MIN_BINS_PER_FRAME = 8
+SIREN_ABOVE_FLOOR_DB = 6.0
+"""A spectral peak counts as the siren's when it stands this far above the local noise floor."""
+MIN_PEAKS_PER_FRAME = 4
+MIN_PEAKS = 24
+"""Fewer siren peaks than this in a stretch: no cue."""
 TAU_RANGE_S = (0.1e-3, 1.5e-3)
 """Delays searched (s): 1.5 ms is a siren at ~9 m, 0.1 ms one at ~130 m (h_s = 1.5 m, h_m = 1.55 m)."""
 TAU_STEP_S = 2e-6
@@ -208,17 +211,20 @@ def siren_bins(
     band_hz: tuple[float, float] = BAND_HZ,
     above_floor_db: float = SIREN_ABOVE_FLOOR_DB,
 ) -> SirenBins:
-    """The bins of ``audio (n, M)`` (full scale, the capsules of one array) that belong to a siren
-    (module docstring): ≥ ``above_floor_db`` over a running median across frequency, in ``band_hz``,
-    in frames with at least :data:`MIN_BINS_PER_FRAME` such bins."""
+    """The siren's harmonic peaks in ``audio (n, M)`` (full scale, the capsules of one array;
+    module docstring): per frame, the local maxima (±2 bins) of the capsules' mean power that stand
+    ≥ ``above_floor_db`` over a running median across frequency, in ``band_hz``, their frequency
+    and level refined by a parabola through the three bins around each, in frames with at least
+    :data:`MIN_PEAKS_PER_FRAME` peaks spanning an octave. The residual removes each frame's
+    straight-line trend in log-frequency (the harmonic envelope)."""
     x = np.asarray(audio, dtype=np.float64)
     if x.ndim == 1:
         x = x[:, None]
     frame = max(256, round(FRAME_S * sample_rate))
     hop = frame // 2
+    empty = SirenBins(np.zeros(0), np.zeros(0), np.zeros(0, dtype=int), np.zeros(0), 0)
     if x.shape[0] < frame:
-        empty = np.zeros(0)
-        return SirenBins(empty, empty, np.zeros(0, dtype=int), empty, 0)
+        return empty
     window = np.hanning(frame)
     n_frames = 1 + (x.shape[0] - frame) // hop
     idx = np.arange(frame)[None, :] + hop * np.arange(n_frames)[:, None]
@@ -227,32 +233,37 @@ def siren_bins(
         power += np.abs(np.fft.rfft(x[idx, m] * window, axis=1)) ** 2
     power /= x.shape[1]
     f = np.fft.rfftfreq(frame, 1.0 / sample_rate)
+    df = float(f[1])
     sel = (f >= band_hz[0]) & (f <= min(band_hz[1], 0.45 * sample_rate))
     f = f[sel]
     db = 10.0 * np.log10(np.maximum(power[:, sel], 1e-20))
-    width = max(5, int(round(FLOOR_BINS_HZ / (sample_rate / frame))) | 1)
+    width = max(5, int(round(FLOOR_BINS_HZ / df)) | 1)
     floor = median_filter(db, size=(1, width), mode="nearest")
-    mask = db >= floor + above_floor_db
+    peak = (db == maximum_filter(db, size=(1, 5), mode="nearest")) & (db >= floor + above_floor_db)
+    peak[:, 0] = peak[:, -1] = False
     freqs: list[np.ndarray] = []
     levels: list[np.ndarray] = []
     frames: list[np.ndarray] = []
     resid: list[np.ndarray] = []
-    logf = np.log(f)
     for k in range(n_frames):
-        m = mask[k]
-        if int(m.sum()) < MIN_BINS_PER_FRAME:
+        i = np.flatnonzero(peak[k])
+        if len(i) < MIN_PEAKS_PER_FRAME:
             continue
-        lf, lv = logf[m], db[k, m]
-        if lf.max() - lf.min() < math.log(2.0):  # less than an octave: no trend to remove
+        a, b, c = db[k, i - 1], db[k, i], db[k, i + 1]
+        curv = a - 2.0 * b + c
+        p = np.where(curv < 0, 0.5 * (a - c) / np.where(curv < 0, curv, -1.0), 0.0)
+        lv = b - 0.25 * (a - c) * p
+        fq = f[i] + p * df
+        lf = np.log(fq)
+        if lf.max() - lf.min() < math.log(2.0):  # less than an octave: no envelope to remove
             continue
-        trend = np.polyval(np.polyfit(lf - lf.mean(), lv, 2), lf - lf.mean())
-        freqs.append(f[m])
+        trend = np.polyval(np.polyfit(lf - lf.mean(), lv, 1), lf - lf.mean())
+        freqs.append(fq)
         levels.append(lv)
-        frames.append(np.full(int(m.sum()), k))
+        frames.append(np.full(len(i), k))
         resid.append(lv - trend)
     if not freqs:
-        empty = np.zeros(0)
-        return SirenBins(empty, empty, np.zeros(0, dtype=int), empty, n_frames)
+        return replace(empty, frames=n_frames)
     return SirenBins(
         np.concatenate(freqs), np.concatenate(levels), np.concatenate(frames), np.concatenate(resid), n_frames
     )
@@ -264,13 +275,38 @@ def siren_bins(
 @dataclass(frozen=True)
 class ReflectionDelay:
     """A ground-reflection delay read from the array: ``tau_s`` (s; NaN when none was found),
-    ``score`` (the comb's normalized correlation at the peak, −1…1), ``found`` (score ≥ the
-    minimum) and ``bins`` (siren bins it rests on)."""
+    ``score`` (the comb's normalized correlation at the best delay, −1…1), ``found`` (score ≥ the
+    minimum), ``bins`` (siren peaks it rests on) and ``candidates``: the local maxima of the
+    correlation over the delays searched that reach half the best score, ``(tau_s, score)``, best
+    first — a steady-pitch siren samples the comb only at its harmonics, so ``τ`` and
+    ``k/f₀ ± τ`` can fit alike, and another cue (the level) may choose among them."""
 
     tau_s: float
     score: float
     found: bool
     bins: int
+    candidates: tuple[tuple[float, float], ...] = ()
+
+
+def comb_scores(bins: SirenBins, taus: np.ndarray) -> np.ndarray:
+    """The normalized correlation of the siren peaks' residual levels with ``cos(2π f τ)`` for
+    each delay of ``taus`` (s): the comb a positive ground reflection ``τ`` late leaves (module
+    docstring)."""
+    r = np.clip(bins.residual_db, -20.0, 20.0)
+    r = r - r.mean()
+    rr = float(r @ r)
+    out = np.zeros(len(taus))
+    if rr <= 0 or not len(taus):
+        return out
+    step_s = float(taus[1] - taus[0]) if len(taus) > 1 else 0.0
+    # cos(2π f τ) over an even grid of τ by complex rotation (one multiply per step)
+    step = np.exp(2j * np.pi * bins.freq_hz * step_s)
+    z = np.exp(2j * np.pi * bins.freq_hz * float(taus[0]))
+    for i in range(len(taus)):
+        cz = z.real - z.real.mean()
+        out[i] = float(r @ cz) / math.sqrt(max(float(cz @ cz), 1e-12) * rr)
+        z = z * step
+    return out
 
 
 def reflection_delay(
@@ -283,33 +319,27 @@ def reflection_delay(
 ) -> ReflectionDelay:
     """The ground-reflection delay in ``audio (n, M)`` (1–2 s of the array; module docstring)."""
     bins = siren_bins(audio, sample_rate, band_hz)
-    if len(bins) < 4 * MIN_BINS_PER_FRAME:
+    if len(bins) < MIN_PEAKS:
         return ReflectionDelay(math.nan, 0.0, False, len(bins))
     taus = np.arange(tau_range_s[0], tau_range_s[1] + 0.5 * TAU_STEP_S, TAU_STEP_S)
-    r = np.clip(bins.residual_db, -20.0, 20.0)
-    r = r - r.mean()
-    # cos(2π f τ) for every τ via the angle-addition recurrence (exact, one complex array per step)
-    step = np.exp(2j * np.pi * bins.freq_hz * TAU_STEP_S)
-    z = np.exp(2j * np.pi * bins.freq_hz * taus[0])
-    num = np.empty(len(taus))
-    den = np.empty(len(taus))
-    for i in range(len(taus)):
-        cz = z.real
-        cz0 = cz - cz.mean()
-        num[i] = float(r @ cz0)
-        den[i] = float(cz0 @ cz0)
-        z = z * step
-    score = num / np.sqrt(np.maximum(den, 1e-12) * float(r @ r))
-    i = int(np.argmax(score))
-    tau = float(taus[i])
-    if 0 < i < len(taus) - 1:  # parabolic refinement
-        a, b, c = score[i - 1], score[i], score[i + 1]
-        denom = a - 2 * b + c
-        if denom < 0:
-            tau += 0.5 * (a - c) / denom * TAU_STEP_S
-    best = float(score[i])
+    score = comb_scores(bins, taus)
+    best = float(score.max())
+    inner = (score[1:-1] >= score[:-2]) & (score[1:-1] >= score[2:]) & (score[1:-1] >= 0.5 * best)
+    peaks = [int(i) + 1 for i in np.flatnonzero(inner)]
+    for edge in (0, len(score) - 1):
+        if score[edge] == best:
+            peaks.append(edge)
+    cands: list[tuple[float, float]] = []
+    for i in sorted(peaks, key=lambda j: -score[j])[:4]:
+        tau = float(taus[i])
+        if 0 < i < len(taus) - 1:  # parabolic refinement
+            a, b, c = score[i - 1], score[i], score[i + 1]
+            curv = a - 2 * b + c
+            if curv < 0:
+                tau += 0.5 * (a - c) / curv * TAU_STEP_S
+        cands.append((tau, float(score[i])))
     found = best >= min_score
-    return ReflectionDelay(tau if found else math.nan, best, found, len(bins))
+    return ReflectionDelay(cands[0][0] if found else math.nan, best, found, len(bins), tuple(cands))
 
 
 # --------------------------------------------------------------------------------- spectral tilt
@@ -337,7 +367,7 @@ def spectral_tilt(
     :func:`makeway.sim.acoustics.air_absorption_db_per_m`, ISO 9613-1; a car-side stage may not
     import the simulator, so the curve is passed in)."""
     bins = siren_bins(audio, sample_rate, band_hz)
-    if len(bins) < 4 * MIN_BINS_PER_FRAME:
+    if len(bins) < MIN_PEAKS:
         return SpectralTilt(math.nan, len(bins))
     alpha = np.asarray(absorption_db_per_m(bins.freq_hz), dtype=np.float64)
     # remove each frame's mean (its intercept) from both sides
