@@ -72,6 +72,8 @@ HELD_OUT_SEEDS = (2026, 2027, 2030, 2031)
 FIT_SEEDS = (101, 102)
 VAL_SEEDS = (77, 78)
 LEVELS_DB = (110.0, 135.0)
+STRONG_SCORE = 0.5
+"""A comb this clear (normalized correlation) is reported apart: how often, and how often right."""
 
 
 def stretches(folder: Path, model: SirenModel, segment_s: float) -> list[dict[str, Any]]:
@@ -170,7 +172,8 @@ def fit_combination(rows: list[dict[str, Any]]) -> dict[str, float]:
     """Grid search of :func:`combine`'s parameters for the lowest median + mean error on ``rows``."""
     d = np.array([r["d"] for r in rows])
     best: tuple[float, dict[str, float]] = (math.inf, {})
-    for s, g, w in itertools.product((0.2, 0.3, 0.4, 0.5, 0.6), (0.15, 0.3, 0.5, 0.7), (0.25, 0.5, 0.75, 1.0)):
+    grid = ((0.2, 0.3, 0.4, 0.5, 0.6), (0.15, 0.3, 0.5, 0.7, 1.0, 1.5), (0.25, 0.5, 0.75, 1.0))
+    for s, g, w in itertools.product(*grid):
         p = {"min_score": s, "max_log": g, "weight": w}
         err = np.abs(combine(rows, p) - d)
         cost = float(np.median(err) + np.mean(err))
@@ -193,8 +196,11 @@ def breakdown(rows: list[dict[str, Any]], tilt_offset: float, params: dict[str, 
         [r["found"] and abs(r["tau"] / r["tau_true"] - 1) < 0.1 for r in rows], dtype=bool
     )
     found = np.array([r["found"] for r in rows], dtype=bool)
+    strong = np.array([r["score"] >= STRONG_SCORE for r in rows], dtype=bool)
     return {
         "n": len(rows),
+        "strong_comb": round(float(strong.mean()), 3) if len(rows) else None,
+        "strong_tau_within_10pc": round(float(tau_ok[strong].mean()), 3) if strong.any() else None,
         "reflection_found": round(float(found.mean()), 3) if len(rows) else None,
         "reflection_tau_within_10pc": round(float(tau_ok.mean()), 3) if len(rows) else None,
         "reflection": _stats(np.abs(reflection_distance_of(rows) - d)),
@@ -235,11 +241,17 @@ def print_rows(title: str, rows: dict[str, dict[str, Any]]) -> None:
     cols = ("reflection", "reflection_true_height", "tilt", "networks", "level_and_reflection")
     names = ("reflection", "refl.true h", "tilt", "networks", "level+refl.")
     print(f"\n{title}")
-    print(f"{'level, dB':12s}{'n':>5s}{'found':>7s}{'τ±10%':>7s}" + "".join(f"{c:>14s}" for c in names))
+    def pc(v: float | None) -> str:
+        return "–" if v is None else f"{100 * v:.0f}%"
+
+    head = f"{'level, dB':12s}{'n':>5s}{'found':>7s}{'τ±10%':>7s}{'strong':>8s}{'τ±10%':>7s}"
+    print(head + "".join(f"{c:>14s}" for c in names))
     for name, r in rows.items():
-        found = "–" if r["reflection_found"] is None else f"{100 * r['reflection_found']:.0f}%"
-        ok = "–" if r["reflection_tau_within_10pc"] is None else f"{100 * r['reflection_tau_within_10pc']:.0f}%"
-        print(f"{name:12s}{r['n']:>5d}{found:>7s}{ok:>7s}" + "".join(" " + fmt(r[c]) for c in cols))
+        print(
+            f"{name:12s}{r['n']:>5d}{pc(r['reflection_found']):>7s}{pc(r['reflection_tau_within_10pc']):>7s}"
+            f"{pc(r['strong_comb']):>8s}{pc(r['strong_tau_within_10pc']):>7s}"
+            + "".join(" " + fmt(r[c]) for c in cols)
+        )
 
 
 def simulated(out: Path, n: int, seeds: tuple[int, ...], split: str) -> list[Path]:
