@@ -64,7 +64,7 @@ from makeway.sim.acoustics import air_absorption_db_per_m
 from makeway.sim.audio_scenarios import held_out_folders
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from bench_audio_range_levels import BANDS_DB, TARGET, siren_kind, siren_table  # noqa: E402
+from bench_audio_range_levels import BANDS_DB, TARGET, siren_kind, siren_table
 
 RANGE_M = (10.0, 50.0)
 HOP_S = 0.5
@@ -87,7 +87,9 @@ def stretches(folder: Path, model: SirenModel, segment_s: float) -> list[dict[st
     labels = label_recording(rec)
     windows = window_batch(rec, labels)
     fs = rec.full_scale_db_spl
-    net = np.concatenate([model.predict(windows[i : i + 64], fs).distance for i in range(0, len(windows), 64)])
+    net = np.concatenate(
+        [model.predict(windows[i : i + 64], fs).distance for i in range(0, len(windows), 64)]
+    )
     w_start = labels.start / sr
     w_end = w_start + labels.window / sr
     out: list[dict[str, Any]] = []
@@ -192,9 +194,7 @@ def _stats(err: np.ndarray) -> dict[str, float | None]:
 def breakdown(rows: list[dict[str, Any]], tilt_offset: float, params: dict[str, float]) -> dict[str, Any]:
     """Every cue's figures over ``rows`` (module docstring)."""
     d = np.array([r["d"] for r in rows])
-    tau_ok = np.array(
-        [r["found"] and abs(r["tau"] / r["tau_true"] - 1) < 0.1 for r in rows], dtype=bool
-    )
+    tau_ok = np.array([r["found"] and abs(r["tau"] / r["tau_true"] - 1) < 0.1 for r in rows], dtype=bool)
     found = np.array([r["found"] for r in rows], dtype=bool)
     strong = np.array([r["score"] >= STRONG_SCORE for r in rows], dtype=bool)
     return {
@@ -214,7 +214,11 @@ def breakdown(rows: list[dict[str, Any]], tilt_offset: float, params: dict[str, 
 def by_band(rows: list[dict[str, Any]], tilt_offset: float, params: dict[str, float]) -> dict[str, Any]:
     out = {"all": breakdown(rows, tilt_offset, params)}
     for lo, hi in BANDS_DB:
-        sel = [r for r in rows if lo <= r["level"] and (r["level"] < hi or (hi == BANDS_DB[-1][1] and r["level"] <= hi))]
+        sel = [
+            r
+            for r in rows
+            if lo <= r["level"] and (r["level"] < hi or (hi == BANDS_DB[-1][1] and r["level"] <= hi))
+        ]
         out[f"{lo:g}-{hi:g}"] = breakdown(sel, tilt_offset, params)
     return out
 
@@ -230,7 +234,12 @@ def tilt_by_kind(rows: list[dict[str, Any]]) -> dict[str, Any]:
     allv = np.array([r["tilt_raw"] for r in near])
     if len(allv):
         q = np.percentile(allv, [10, 50, 90])
-        out["all"] = {"n": len(allv), "p10_m": round(q[0], 1), "median_m": round(q[1], 1), "p90_m": round(q[2], 1)}
+        out["all"] = {
+            "n": len(allv),
+            "p10_m": round(q[0], 1),
+            "median_m": round(q[1], 1),
+            "p90_m": round(q[2], 1),
+        }
     return out
 
 
@@ -241,6 +250,7 @@ def print_rows(title: str, rows: dict[str, dict[str, Any]]) -> None:
     cols = ("reflection", "reflection_true_height", "tilt", "networks", "level_and_reflection")
     names = ("reflection", "refl.true h", "tilt", "networks", "level+refl.")
     print(f"\n{title}")
+
     def pc(v: float | None) -> str:
         return "–" if v is None else f"{100 * v:.0f}%"
 
@@ -272,14 +282,18 @@ def main() -> int:
     with tempfile.TemporaryDirectory() as tmp:
         try:
 
-            def folders(given: list[Path] | None, seeds: tuple[int, ...], split: str, name: str) -> list[Path]:
+            def folders(
+                given: list[Path] | None, seeds: tuple[int, ...], split: str, name: str
+            ) -> list[Path]:
                 if given:
                     return [f for d in given for f in recording_folders(d)]
                 return simulated(Path(tmp) / name, args.n, seeds, split)
 
             fit = collect(folders(args.fit, FIT_SEEDS, "train", "fit"), model, args.segment, "fit")
             val = collect(folders(args.val, VAL_SEEDS, "train", "val"), model, args.segment, "validation")
-            test = collect(folders(args.data, HELD_OUT_SEEDS, "test", "test"), model, args.segment, "held-out")
+            test = collect(
+                folders(args.data, HELD_OUT_SEEDS, "test", "test"), model, args.segment, "held-out"
+            )
         except InputError as exc:
             raise SystemExit(str(exc)) from None
     if not (fit and val and test):

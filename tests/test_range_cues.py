@@ -42,7 +42,9 @@ def test_delay_geometry_round_trip() -> None:
     assert float(reflection_tau(20.0, 1.5, 1.6)) == pytest.approx(0.7e-3, rel=0.05)
     assert float(reflection_tau(50.0, 1.5, 1.6)) == pytest.approx(0.28e-3, rel=0.05)
     # far field: τ ≈ 2·h_s·h_m / (c·d)
-    assert float(reflection_tau(300.0, 1.5, 1.55)) == pytest.approx(2 * 1.5 * 1.55 / (SPEED_OF_SOUND * 300), rel=1e-3)
+    assert float(reflection_tau(300.0, 1.5, 1.55)) == pytest.approx(
+        2 * 1.5 * 1.55 / (SPEED_OF_SOUND * 300), rel=1e-3
+    )
     # no distance gives a delay beyond the one straight below, nor a non-positive one
     assert np.isnan(distance_from_delay(2.5 * 1.5 / SPEED_OF_SOUND, 1.5, 1.55))
     assert np.isnan(distance_from_delay(0.0, 1.5, 1.55))

@@ -73,6 +73,7 @@ __all__ = [
     "SirenBins",
     "SpectralTilt",
     "array_height_m",
+    "check_array_audio",
     "comb_scores",
     "distance_from_delay",
     "reflection_delay",
@@ -80,7 +81,6 @@ __all__ = [
     "reflection_tau",
     "siren_bins",
     "spectral_tilt",
-    "check_array_audio",
 ]
 
 BAND_HZ = (400.0, 8000.0)
