@@ -15,19 +15,23 @@ the array's height ``h_m`` (m above the road) and the speed of sound ``c``
 0.27 ms at 50 m for ``h_s`` = 1.5 m and the reference roof array at 1.55 m. The two paths sum to a
 comb filter: the received power spectrum is the siren's times ``1 + ρ² + 2ρ·cos(2π f τ)`` (ρ: the
 road's reflection coefficient, 0.7–0.9 for asphalt, times the small spreading loss of the longer
-path), with maxima at ``f = k/τ``. The cue reads τ from that comb: the capsules' power spectra are
-averaged (they all sit at the roof's height, so they share the comb, while wind noise is independent
-per capsule) in 43 ms frames; only the time–frequency bins where the siren stands ≥ 10 dB above the
-local noise floor are kept (its harmonics, wherever the sweep has taken them), so that the gaps
-between harmonics — which would make a plain cepstrum or autocorrelation peak at the pitch period —
-never enter. Each frame's kept levels (dB) are detrended by a quadratic in log-frequency (the
-siren's own harmonic envelope), and the residuals of all frames are correlated with
-``cos(2π f τ)`` over a grid of τ in 0.1–1.5 ms: a cepstrum restricted to the siren's bins that
-also uses the comb's known phase (a positive reflection coefficient puts maxima, not notches, at
-``k/τ``). The peak's normalized correlation is the cue's confidence.
+path), with maxima at ``f = k/τ``. The cue reads τ from that comb (:func:`siren_bins`,
+:func:`comb_scores`): the capsules' power spectra are averaged (they all sit at the roof's height,
+so they share the comb, while wind noise is independent per capsule) in 43 ms frames; in each frame
+only the siren's harmonic peaks are kept — local maxima standing ≥ 6 dB over the local noise floor,
+level and frequency refined by a parabola — so that the gaps between harmonics, which would make a
+plain cepstrum or autocorrelation peak at the pitch period, never enter. Each frame's peak levels
+(dB) lose their straight-line trend in log-frequency (the siren's own harmonic envelope), and the
+residuals of all frames are correlated with ``cos(2π f τ)`` over a grid of τ in 0.1–1.5 ms: a
+cepstrum restricted to the siren's harmonics that also uses the comb's known phase (a positive
+reflection coefficient puts maxima, not notches, at ``k/τ``). The best delay's normalized
+correlation (``score``) says how clear the comb is.
 
-A sweeping siren (wail, yelp) samples the comb at every frequency over a second; a steady two-tone
-or a fixed tone samples it only at its few harmonics, where a τ and ``τ + k/f₀`` fit alike.
+Within one frame the harmonics sample the comb only every ``f₀``, so ``τ`` and ``k/f₀ ± τ`` fit
+alike; a sweeping siren (wail, yelp) moves ``f₀`` across the stretch and the true delay wins, a
+steady two-tone or fixed tone leaves such aliases standing. :class:`ReflectionDelay` therefore keeps
+the local maxima that reach half the best score as ``candidates``, for another cue to choose among.
+A moving siren also changes τ within the stretch (20 m/s at 20 m: τ changes by half in a second).
 
 **Distance from τ** (:func:`distance_from_delay`, :func:`reflection_distance`): the array height
 is known (``array.yaml``: the mean ``z`` of the capsules); the siren's height is not. It enters
@@ -41,7 +45,9 @@ The same siren bins' levels are regressed on the absorption coefficient ``α(f)`
 slope, negated, is a distance in metres if the siren's own spectrum is flat in ``α``. It is not:
 harmonic envelopes differ between sirens by tens of dB across 1–8 kHz, which in this slope is
 hundreds of metres (measured in ``benchmarks/bench_audio_range_cues.py``), against the 40 m the
-cue would have to resolve at 10–50 m.
+cue would have to resolve at 10–50 m; and the ground-reflection comb, whose shape changes with
+distance, projects onto ``α(f)`` by tens of metres more. With no reflection the slope does follow
+the distance for one and the same siren (``tests/test_range_cues.py``).
 
 Inputs are full-scale samples ``(n, M)`` of the array (vehicle frame: x forward, y left, z up,
 origin on the ground under the rear axle; :mod:`makeway.sense.recording`), times in seconds,
@@ -98,8 +104,11 @@ TAU_RANGE_S = (0.1e-3, 1.5e-3)
 """Delays searched (s): 1.5 ms is a siren at ~9 m, 0.1 ms one at ~130 m (h_s = 1.5 m, h_m = 1.55 m)."""
 TAU_STEP_S = 2e-6
 MIN_SCORE = 0.15
-"""Normalized correlation a comb must reach to count as found (chosen on validation scenes of
-training-split ingredients, ``benchmarks/bench_audio_range_cues.py``)."""
+"""Normalized correlation below which no comb is reported. Only a floor: 99 % of the siren stretches
+at 10–50 m pass it, and so do 75 % of 1 s stretches of street scenes with no siren (their own
+low sources leave combs too; median score 0.41 on validation scenes), so the cue means something
+only where the detector has found a siren, and ``score`` does not tell a right delay from an alias
+(``benchmarks/bench_audio_range_cues.py``)."""
 SIREN_HEIGHT_PRIOR_M = (1.0, 2.0)
 """Prior range of the siren speaker's height above the road (m)."""
 MIN_ARRAY_HEIGHT_M = 0.3
