@@ -121,3 +121,26 @@ def test_bad_input(tmp_path: Path) -> None:
     assert str(tmp_path / "no_height") in str(err.value)
     good = read_recording(_write(tmp_path / "good", reference_mics()))
     assert check_array_audio(good) == pytest.approx(1.55)
+
+
+def test_scene_generator_level_range() -> None:
+    from makeway.sim.audio_scenarios import SIREN_LEVEL_DB_1M, simulate_recording
+
+    def level(**kw: object) -> float:
+        rec = simulate_recording(
+            "crossing",
+            1.0,
+            11,
+            siren="synth",
+            noise="generated",
+            distractors=False,
+            **kw,  # type: ignore[arg-type]
+        )
+        return float(rec.meta["sirens"][0]["level_db_1m"])
+
+    default = level()
+    assert SIREN_LEVEL_DB_1M[0] <= default <= SIREN_LEVEL_DB_1M[1]
+    assert level(siren_level_db=SIREN_LEVEL_DB_1M) == default  # the default draws are unchanged
+    assert 130.0 <= level(siren_level_db=(130.0, 135.0)) <= 135.0
+    with pytest.raises(ValueError, match="siren_level_db"):
+        level(siren_level_db=(135.0, 110.0))
