@@ -246,9 +246,9 @@ def tilt_by_kind(rows: list[dict[str, Any]]) -> dict[str, Any]:
         q = np.percentile(allv, [10, 50, 90])
         out["all"] = {
             "n": len(allv),
-            "p10_m": round(q[0], 1),
-            "median_m": round(q[1], 1),
-            "p90_m": round(q[2], 1),
+            "p10_m": round(float(q[0]), 1),
+            "median_m": round(float(q[1]), 1),
+            "p90_m": round(float(q[2]), 1),
         }
     return out
 
