@@ -25,7 +25,10 @@ its centre. On each stretch:
   networks' (a steady-pitch siren leaves several delays that fit), taken when its comb score and
   its agreement with the networks pass thresholds fitted on the training-split stretches, blended
   with the networks' distance in log by a weight fitted there too; the networks' distance otherwise.
-  Judged on the held-out stretches only; the validation stretches check the fit.
+  Judged on the held-out stretches only; the validation stretches check the fit;
+* **track-scaled** (item 4, no fitting): the networks' distance times one factor per siren track,
+  the running median (causal) of the reflection's distance over the networks' along the track so
+  far — the networks' error is mostly one factor per siren (its unknown emitted level).
 
 Prints, per 5 dB band of the nearest siren's emitted level (and for synthesized and real sirens
 apart), n, the delay's shares and the distance errors (median / mean, m) of each, beside the
@@ -109,6 +112,8 @@ def stretches(folder: Path, model: SirenModel, segment_s: float) -> list[dict[st
         hs = float(table[k]["height_m"])
         out.append(
             {
+                "siren": f"{folder}#{k}",
+                "t0": float(t0),
                 "d": d,
                 "level": float(table[k]["level_db_1m"]),
                 "kind": siren_kind(table[k]),
@@ -173,6 +178,26 @@ def combine(rows: list[dict[str, Any]], params: dict[str, float]) -> np.ndarray:
     return out
 
 
+def track_scaled(rows: list[dict[str, Any]]) -> np.ndarray:
+    """The networks' distance rescaled per siren track by the reflection: for each stretch, the
+    median over this siren's stretches so far (causal, this one included) of
+    ``log(d_reflection / d_networks)`` scales ``d_networks``. The networks' error is mostly one
+    factor per siren (its unknown emitted level), which the reflection, level-blind but noisy,
+    can estimate over a track; the distance stays the networks' in shape."""
+    mid = 0.5 * sum(SIREN_HEIGHT_PRIOR_M)
+    logs: dict[str, list[float]] = {}
+    out = np.empty(len(rows))
+    order = sorted(range(len(rows)), key=lambda i: (rows[i]["siren"], rows[i]["t0"]))
+    for i in order:
+        r = rows[i]
+        seen = logs.setdefault(r["siren"], [])
+        dr = float(distance_from_delay(r["tau"], mid, r["h_array"])) if r["found"] else math.nan
+        if math.isfinite(dr) and dr > 0 and math.isfinite(r["d_net"]) and r["d_net"] > 0:
+            seen.append(math.log(dr / r["d_net"]))
+        out[i] = r["d_net"] * math.exp(float(np.median(seen))) if seen else r["d_net"]
+    return out
+
+
 def fit_combination(rows: list[dict[str, Any]]) -> dict[str, float]:
     """Grid search of :func:`combine`'s parameters for the lowest median + mean error on ``rows``."""
     d = np.array([r["d"] for r in rows])
@@ -215,6 +240,7 @@ def breakdown(rows: list[dict[str, Any]], tilt_offset: float, params: dict[str, 
         "tilt": _stats(np.abs(np.array([r["tilt_raw"] for r in rows]) - tilt_offset - d)),
         "networks": _stats(np.abs(np.array([r["d_net"] for r in rows]) - d)),
         "level_and_reflection": _stats(np.abs(combine(rows, params) - d)) if rows else _stats(np.zeros(0)),
+        "track_scaled": _stats(np.abs(track_scaled(rows) - d)) if rows else _stats(np.zeros(0)),
     }
 
 
@@ -257,8 +283,15 @@ def print_rows(title: str, rows: dict[str, dict[str, Any]]) -> None:
     def fmt(s: dict[str, float | None]) -> str:
         return f"{'–':>13s}" if s["median_m"] is None else f"{s['median_m']:>6.1f}/{s['mean_m']:<5.1f}m"
 
-    cols = ("reflection", "reflection_true_height", "tilt", "networks", "level_and_reflection")
-    names = ("reflection", "refl.true h", "tilt", "networks", "level+refl.")
+    cols = (
+        "reflection",
+        "reflection_true_height",
+        "tilt",
+        "networks",
+        "level_and_reflection",
+        "track_scaled",
+    )
+    names = ("reflection", "refl.true h", "tilt", "networks", "level+refl.", "track-scaled")
     print(f"\n{title}")
 
     def pc(v: float | None) -> str:
