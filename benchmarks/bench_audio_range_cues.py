@@ -56,6 +56,7 @@ from makeway.eval.siren_labels import label_recording, relative_position
 from makeway.jsonable import to_jsonable
 from makeway.perceive.audio.features import window_batch
 from makeway.perceive.audio.range_cues import (
+    SIREN_ABOVE_FLOOR_DB,
     SIREN_HEIGHT_PRIOR_M,
     check_array_audio,
     distance_from_delay,
@@ -82,7 +83,9 @@ STRONG_SCORE = 0.5
 """A comb this clear (normalized correlation) is reported apart: how often, and how often right."""
 
 
-def stretches(folder: Path, model: SirenModel, segment_s: float) -> list[dict[str, Any]]:
+def stretches(
+    folder: Path, model: SirenModel, segment_s: float, above_floor_db: float = SIREN_ABOVE_FLOOR_DB
+) -> list[dict[str, Any]]:
     """Every stretch of one recording whose nearest siren lies at 10–50 m, with the cues read."""
     rec = read_recording(folder)
     if not rec.sources:
@@ -107,7 +110,7 @@ def stretches(folder: Path, model: SirenModel, segment_s: float) -> list[dict[st
         if not RANGE_M[0] <= d <= RANGE_M[1]:
             continue
         seg = rec.audio[round(t0 * sr) : round((t0 + segment_s) * sr)]
-        refl = reflection_delay(seg, sr)
+        refl = reflection_delay(seg, sr, above_floor_db=above_floor_db)
         inside = (w_start >= t0 - 1e-9) & (w_end <= t0 + segment_s + 1e-9)
         hs = float(table[k]["height_m"])
         out.append(
@@ -131,11 +134,13 @@ def stretches(folder: Path, model: SirenModel, segment_s: float) -> list[dict[st
     return out
 
 
-def collect(folders: list[Path], model: SirenModel, segment_s: float, what: str) -> list[dict[str, Any]]:
+def collect(
+    folders: list[Path], model: SirenModel, segment_s: float, what: str, above_floor_db: float
+) -> list[dict[str, Any]]:
     rows: list[dict[str, Any]] = []
     with progress_bar(what, len(folders), unit="rec") as advance:
         for f in folders:
-            rows += stretches(f, model, segment_s)
+            rows += stretches(f, model, segment_s, above_floor_db)
             advance(1)
     return rows
 
@@ -319,6 +324,12 @@ def main() -> int:
     ap.add_argument("--val", type=Path, action="append", default=None, help="validation recordings")
     ap.add_argument("--n", type=int, default=25, help="recordings per seed to simulate")
     ap.add_argument("--segment", type=float, default=1.0, help="stretch length, s")
+    ap.add_argument(
+        "--above-floor",
+        type=float,
+        default=SIREN_ABOVE_FLOOR_DB,
+        help="dB a harmonic peak must stand over the noise floor (choose on validation)",
+    )
     ap.add_argument("--json", type=Path, default=None, help="also write the results to this JSON file")
     args = ap.parse_args()
     model = SirenModel(threads=2)
@@ -333,10 +344,22 @@ def main() -> int:
                     return [f for d in given for f in recording_folders(d)]
                 return simulated(Path(tmp) / name, args.n, seeds, split)
 
-            fit = collect(folders(args.fit, FIT_SEEDS, "train", "fit"), model, args.segment, "fit")
-            val = collect(folders(args.val, VAL_SEEDS, "train", "val"), model, args.segment, "validation")
+            fit = collect(
+                folders(args.fit, FIT_SEEDS, "train", "fit"), model, args.segment, "fit", args.above_floor
+            )
+            val = collect(
+                folders(args.val, VAL_SEEDS, "train", "val"),
+                model,
+                args.segment,
+                "validation",
+                args.above_floor,
+            )
             test = collect(
-                folders(args.data, HELD_OUT_SEEDS, "test", "test"), model, args.segment, "held-out"
+                folders(args.data, HELD_OUT_SEEDS, "test", "test"),
+                model,
+                args.segment,
+                "held-out",
+                args.above_floor,
             )
         except InputError as exc:
             raise SystemExit(str(exc)) from None
