@@ -289,6 +289,7 @@ def simulate_recording(
     street_dba: tuple[float, float] = STREET_NOISE_DBA,
     siren_pitch: tuple[float, float] | None = None,
     full_scale_db_spl: float = FULL_SCALE_DB_SPL,
+    siren_level_db: tuple[float, float] = SIREN_LEVEL_DB_1M,
 ) -> Recording:
     """Simulate one recording of the reference array (not written; see :func:`generate_recordings`).
 
@@ -317,6 +318,9 @@ def simulate_recording(
         full_scale_db_spl: the simulated array's calibration, the dB SPL that a digital RMS of
             1.0 stands for (default 135, the networks' scale); stated in the recording. A lower
             value is a more sensitive array: the same scene comes out louder.
+        siren_level_db: ``(low, high)`` range the emitted siren level is drawn from, uniformly
+            (dB SPL at 1 m; default :data:`SIREN_LEVEL_DB_1M`, the networks' training prior). Real
+            sirens span about 110–135 dB: ``(110, 135)`` tests ranging beyond the prior (issue 25).
     """
     rng = np.random.default_rng(seed)
     vary_rng = np.random.default_rng([int(seed) & 0xFFFFFFFF, 0x517E]) if siren_pitch else None
@@ -377,7 +381,7 @@ def simulate_recording(
                 f_high_hz=round(sp.f_high, 1),
                 period_s=round(sp.period_s, 3),
             )
-        ps, drawn = siren_point_source(sig, ev, rng)
+        ps, drawn = siren_point_source(sig, ev, rng, level_db=siren_level_db)
         info.update(drawn)
         sources.append(ps)
         siren_meta.append(info)
@@ -418,13 +422,21 @@ def simulate_recording(
 
 
 def siren_point_source(
-    signal: np.ndarray, trajectory: Trajectory, rng: np.random.Generator
+    signal: np.ndarray,
+    trajectory: Trajectory,
+    rng: np.random.Generator,
+    *,
+    level_db: tuple[float, float] = SIREN_LEVEL_DB_1M,
 ) -> tuple[PointSource, dict[str, float]]:
     """A siren as a :class:`~makeway.sim.acoustics.PointSource`: ``signal`` (unit RMS, its first
-    sample emitted :data:`PRE_ROLL_S` before t = 0) played at a level drawn from
-    :data:`SIREN_LEVEL_DB_1M`, from a speaker height, ground reflection and rear attenuation drawn
-    from their ranges (module docstring). Returns the source and the drawn values."""
-    level = float(rng.uniform(*SIREN_LEVEL_DB_1M))
+    sample emitted :data:`PRE_ROLL_S` before t = 0) played at a level drawn uniformly from
+    ``level_db`` (dB SPL at 1 m; default :data:`SIREN_LEVEL_DB_1M`), from a speaker height, ground
+    reflection and rear attenuation drawn from their ranges (module docstring). Returns the source
+    and the drawn values."""
+    lo, hi = (float(v) for v in level_db)
+    if not lo <= hi:
+        raise ValueError(f"siren_level_db must be (low, high) with low <= high, not {level_db!r}")
+    level = float(rng.uniform(lo, hi))
     ps = PointSource(
         signal=np.asarray(signal, dtype=np.float32) * np.float32(db_spl_to_pa(level)),
         t0=-PRE_ROLL_S,
@@ -566,13 +578,20 @@ def source_pools(
 
 
 def generate_held_out(
-    out_dir: str | Path, n: int, seeds: Sequence[int], duration_s: float = 8.0, split: str = "test"
+    out_dir: str | Path,
+    n: int,
+    seeds: Sequence[int],
+    duration_s: float = 8.0,
+    split: str = "test",
+    *,
+    siren_level_db: tuple[float, float] = SIREN_LEVEL_DB_1M,
 ) -> list[Path]:
     """The held-out sets of the audio benchmarks: ``n`` recordings per seed, into
     ``out_dir/seed_<seed>``, made of the test-split ingredients only (:func:`source_pools`), as
     ``makeway audio simulate --n N --duration D --seed S --split test`` makes them
     (``split="train"``: validation sets of training-split ingredients, for choices made before a
-    held-out set is looked at)."""
+    held-out set is looked at). ``siren_level_db``: the emitted levels' range
+    (:func:`simulate_recording`)."""
     sirens, noise = source_pools(split)
     folders: list[Path] = []
     for seed in seeds:
@@ -583,6 +602,7 @@ def generate_held_out(
             seed=seed,
             siren_pool=sirens,
             noise_pool=noise,
+            siren_level_db=siren_level_db,
         )
     return folders
 
@@ -594,13 +614,16 @@ def held_out_folders(
     seeds: Sequence[int],
     duration_s: float = 8.0,
     split: str = "test",
+    *,
+    siren_level_db: tuple[float, float] = SIREN_LEVEL_DB_1M,
 ) -> list[Path]:
     """The recordings an audio benchmark runs on: those in the ``data`` folders
     (:func:`~makeway.sense.recording.recording_folders`), or, when none are given, the held-out
-    sets simulated into ``out_dir`` (:func:`generate_held_out`, of ``split``'s ingredients)."""
+    sets simulated into ``out_dir`` (:func:`generate_held_out`, of ``split``'s ingredients, emitted
+    levels drawn from ``siren_level_db``)."""
     if data:
         return [f for d in data for f in recording_folders(d)]
-    return generate_held_out(out_dir, n, seeds, duration_s, split)
+    return generate_held_out(out_dir, n, seeds, duration_s, split, siren_level_db=siren_level_db)
 
 
 def generate_recordings(
@@ -623,6 +646,7 @@ def generate_recordings(
     street_dba: tuple[float, float] = STREET_NOISE_DBA,
     siren_pitch: tuple[float, float] | None = None,
     full_scale_db_spl: float = FULL_SCALE_DB_SPL,
+    siren_level_db: tuple[float, float] = SIREN_LEVEL_DB_1M,
 ) -> list[Path]:
     """Simulate ``n`` recordings into ``out_dir/rec_00000`` … (each written all-or-nothing).
 
@@ -630,7 +654,8 @@ def generate_recordings(
     EVs. Recording ``i`` uses a seed derived from ``(seed, i)``, so any one can be re-made alone.
     ``distractors``: non-siren street sounds in a share of the recordings (module docstring);
     ``street_dba``: the street noise's level range; ``siren_pitch``: pitch variety for training sets;
-    ``full_scale_db_spl``: the array's calibration (all: see :func:`simulate_recording`).
+    ``full_scale_db_spl``: the array's calibration; ``siren_level_db``: the emitted levels' range
+    (all: see :func:`simulate_recording`).
     """
     from makeway.progress import progress_bar
 
@@ -666,6 +691,7 @@ def generate_recordings(
                 street_dba=street_dba,
                 siren_pitch=siren_pitch,
                 full_scale_db_spl=full_scale_db_spl,
+                siren_level_db=siren_level_db,
             )
             written.append(write_recording(out / f"rec_{i:05d}", rec))
             advance(1)
