@@ -8,7 +8,7 @@ OUT    ?= reports/demo
 
 .PHONY: venv demo test lint typecheck bench bench-sort bench-video bench-crops bench-detection bench-pull-over \
 	bench-siren-loop bench-audio bench-rig bench-v2x bench-fusion bench-roadside bench-lights bench-active-rule \
-	bench-rsu bench-fusion-ablation bench-mcap bench-engine bench-robust bench-faults bench-overload fuzz clean
+	bench-rsu bench-fusion-ablation bench-mcap bench-engine bench-robust bench-faults bench-overload bench-range fuzz clean
 
 # `make demo` installs the runtime only; `make test` and the benchmarks add the dev extra (linters,
 # scikit-learn, XGBoost, torch for the training tests).
@@ -129,13 +129,18 @@ bench-faults: venv
 bench-overload: venv
 	$(BIN)/python benchmarks/bench_overload.py
 
+# siren recall and distance per 5 dB band of emitted level; level-independent range cues alone and combined
+bench-range: venv
+	$(BIN)/python benchmarks/bench_audio_range_levels.py --n 25
+	$(BIN)/python benchmarks/bench_audio_range_cues.py --n 25
+
 # the long fuzz run over every reader (about half an hour); the test suite runs a small fixed budget
 fuzz: venv
 	$(BIN)/python benchmarks/bench_fuzz.py --profile long
 
 bench: bench-sort bench-video bench-crops bench-detection bench-pull-over bench-siren-loop bench-audio bench-rig \
 	bench-v2x bench-fusion bench-roadside bench-lights bench-active-rule bench-rsu \
-	bench-fusion-ablation bench-mcap bench-engine bench-robust bench-faults bench-overload
+	bench-fusion-ablation bench-mcap bench-engine bench-robust bench-faults bench-overload bench-range
 
 clean:
 	rm -rf $(VENV) reports .pytest_cache .mypy_cache .ruff_cache
