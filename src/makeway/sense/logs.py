@@ -377,12 +377,18 @@ class LogReader:
         return audio
 
     def _read_array(self, topic: str, audio: LogAudio) -> None:
+        problem = f"array description on {topic}"
         for _, _, msg in self._messages([topic]):
-            spec = msg if isinstance(msg, dict) else yaml.safe_load(str(msg.data))
+            # a ROS std_msgs/String holds YAML text; a JSON channel decodes to any JSON value
+            spec = getattr(msg, "data", msg) if not isinstance(msg, dict) else msg
+            if isinstance(spec, str):
+                try:
+                    spec = yaml.safe_load(spec)
+                except yaml.YAMLError as exc:
+                    raise InputError(self.path, f"{problem} is not YAML ({_first_line(exc)})") from None
             break
         else:
             return
-        problem = f"array description on {topic}"
         if not isinstance(spec, dict) or "mics" not in spec:
             raise InputError(self.path, f"{problem} has no 'mics' list")
         try:
@@ -398,12 +404,16 @@ class LogReader:
                 f"{audio.samples.shape[1]} channel(s)",
             )
         rate = spec.get("sample_rate", audio.sample_rate)
-        if int(rate) != audio.sample_rate:
+        if isinstance(rate, bool) or not isinstance(rate, int | float) or rate != audio.sample_rate:
             raise InputError(
-                self.path, f"{problem} says sample_rate {rate}, the audio is {audio.sample_rate} Hz"
+                self.path, f"{problem} says sample_rate {rate!r}, the audio is {audio.sample_rate} Hz"
             )
-        audio.mics = mics
         full = spec.get("full_scale_db_spl")
+        if full is not None and (
+            isinstance(full, bool) or not isinstance(full, int | float) or not math.isfinite(full)
+        ):
+            raise InputError(self.path, f"{problem}: full_scale_db_spl {full!r} is not a number (dB SPL)")
+        audio.mics = mics
         audio.full_scale_db_spl = None if full is None else float(full)
 
     # ------------------------------------------------------------------------------------ poses
