@@ -76,8 +76,9 @@ class SirenListener:
     With ``health`` (the default) every window's capsules are checked first
     (:func:`~makeway.perceive.health.audio_health`: dead, clipped or uncorrelated; and, over the
     windows so far, two capsules swapped: :class:`~makeway.perceive.health.SwapCheck`, undone by
-    re-ordering when the array's symmetry allows) and a distrusted one is rebuilt from its neighbours (:func:`~makeway.perceive.health.repair_window`) before
-    anything else reads the window; the observation's ``health`` says which.
+    re-ordering when the array's symmetry allows) and a distrusted one is rebuilt from its
+    neighbours (:func:`~makeway.perceive.health.repair_window`) before anything else reads the
+    window; the observation's ``health`` says which.
     """
 
     def __init__(
