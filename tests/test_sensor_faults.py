@@ -307,3 +307,33 @@ def test_vision_pipeline_holds_its_tracks_while_the_camera_is_frozen(
         assert f.tracks == held.tracks and f.health is not None and f.health.reasons == ("frozen",)
         assert f.to_json()["health"]["distrusted"] == {"0": "frozen"}
     assert all(f.health is not None and f.health.ok and "health" not in f.to_json() for f in out[:first])
+
+
+def test_camera_health_reaches_the_fused_belief(frames: list[tuple[int, float, np.ndarray]]) -> None:
+    """The real vision pipeline on a real clip blacked out for 7 frames: each frame's health goes to
+    the multi-EV fusion beside a lit EV seen by the lights detector and announced over V2X; while
+    the camera is black the belief names the fault and no longer counts the light sense."""
+    from makeway.fuse.multi_ev import FusedBeliefSource
+    from makeway.messages import LightObservation, V2XObservation, VehicleState
+    from makeway.perceive.vision.detectors import DETECTORS
+    from makeway.pipeline.video import VisionPipeline
+
+    pipe = VisionPipeline(DETECTORS["yolox_nano"](None, class_agnostic=True, num_threads=1))
+    fusion = FusedBeliefSource()
+    ego = VehicleState(0.0, 0.0, 0.0, 0.0, 0.0)
+    black = (frames[8][1], frames[15][1] - frames[8][1])
+    got = []
+    for i, t, img in apply_video_fault(frames[:20], "blackout", start_s=black[0], duration_s=black[1]):
+        frame = pipe.process(img, i, t)
+        assert frame.health is not None
+        fusion.receive(frame.health)
+        fusion.receive(LightObservation(t, 0.0, range_m=30.0, range_sigma_m=3.0, probability=0.9))
+        fusion.receive(V2XObservation(t, 7, 30.0, 0.0, math.pi, 0.0, verified=True))
+        got.append((frame.health.ok, fusion.update(t, ego)))
+    assert [ok for ok, _ in got] == [True] * 8 + [False] * 7 + [True] * 5
+    for ok, belief in got:
+        assert belief.detected and set(belief.sources) == {"light", "v2x"}
+        if ok:
+            assert belief.sensor_faults == () and belief.confidence == pytest.approx(1 - 0.1 * 0.01)
+        else:
+            assert belief.sensor_faults == ("camera:0 black",) and belief.confidence == pytest.approx(0.99)
