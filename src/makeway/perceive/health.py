@@ -273,6 +273,7 @@ class SwapCheck:
         # wirings a symmetry maps onto each other: sigma ∘ h for every symmetry sigma
         symmetries = _array_symmetries(self.mics)
         index = {h: k for k, h in enumerate(self.hypotheses)}
+        self._lag_cache: dict[tuple[int, int], np.ndarray] = {}
         self._twins = [
             sorted({index[t] for s in symmetries if (t := tuple(s[v] for v in h)) in index})
             for h in self.hypotheses
@@ -290,28 +291,36 @@ class SwapCheck:
         self.margin = 0.0
         """The best swapped wiring's lead over the stated one, steered power per window."""
 
+    def _lags(self, n: int, up: int) -> np.ndarray:
+        """Per wiring, the index into the stacked pair correlations of every grid point's delay:
+        ``(wirings, grid points, pairs)``, cached per window length."""
+        key = (n, up)
+        if key not in self._lag_cache:
+            i = np.array([a for a, _ in self.pairs])
+            j = np.array([b for _, b in self.pairs])
+            out = np.empty((len(self.hypotheses), len(self._delay), len(self.pairs)), dtype=np.int64)
+            for k, h in enumerate(self.hypotheses):
+                perm = np.asarray(h)
+                lag = np.rint((self._delay[:, perm[i]] - self._delay[:, perm[j]]) * up).astype(np.int64)
+                out[k] = lag % (n * up) + np.arange(len(self.pairs)) * (n * up)
+            self._lag_cache = {key: out}
+        return self._lag_cache[key]
+
     def _scores(self, window: np.ndarray) -> np.ndarray:
         x = np.asarray(window, dtype=np.float64)
         n = x.shape[1]
-        up = 4  # the cross-correlations are evaluated at a quarter of a sample
+        up = 2  # the cross-correlations are evaluated at half a sample
         spec = np.fft.rfft(x, axis=1)
         f = np.fft.rfftfreq(n, 1.0 / self.sample_rate)
         band = (f >= SWAP_BAND_HZ[0]) & (f <= SWAP_BAND_HZ[1])
         bins = max(int(band.sum()), 1)
-        corr = {}
-        for i, j in self.pairs:
-            c = spec[i] * np.conj(spec[j])
-            c = np.where(band, c / np.maximum(np.abs(c), 1e-30), 0.0)
-            # scaled so that a perfectly coherent pair peaks at 1
-            corr[(i, j)] = np.fft.irfft(c, n=n * up) * (n * up / (2.0 * bins))
-        scores = np.empty(len(self.hypotheses))
-        for k, h in enumerate(self.hypotheses):
-            total = np.zeros(len(self._delay))
-            for i, j in self.pairs:
-                lag = np.rint((self._delay[:, h[i]] - self._delay[:, h[j]]) * up).astype(np.int64)
-                total += corr[(i, j)][lag % (n * up)]
-            scores[k] = float(total.max())
-        return scores
+        i = [a for a, _ in self.pairs]
+        j = [b for _, b in self.pairs]
+        cross = spec[i] * np.conj(spec[j])
+        cross = np.where(band, cross / np.maximum(np.abs(cross), 1e-30), 0.0)
+        # GCC-PHAT of every pair, scaled so that a perfectly coherent pair peaks at 1
+        corr = np.fft.irfft(cross, n=n * up, axis=1).ravel() * (n * up / (2.0 * bins))
+        return np.asarray(corr[self._lags(n, up)].sum(axis=2).max(axis=1))
 
     def update(self, window: np.ndarray, t_end: float | None = None, window_s: float = 0.5) -> bool:
         """Analyse ``window (channels, samples)`` ending at ``t_end`` (s), unless it overlaps the
