@@ -1,8 +1,8 @@
 """Overload (issue 29, item 3): streaming stages fed faster than they run, through the bounded
 latest-wins hand-over (``makeway.queues.live``, a ``LatestQueue`` of one item).
 
-    .venv/bin/python benchmarks/bench_overload.py [--minutes 10] [--stages siren,vision]
-        [--rates 0.5,1,2,10] [--baseline-s 20] [--json FILE]
+    .venv/bin/python benchmarks/bench_overload.py [--minutes 10] [--stages siren,vision,rsu,listener]
+        [--rates 0.5,1,2,10] [--baseline-s 20] [--listener-pending 1024] [--json FILE]
 
 For each stage, its processing time is measured first (median of 15 inputs, nothing else
 running); then a paced source hands it input at each of ``--rates`` times the rate it can
@@ -25,7 +25,17 @@ Stages (real data, real models):
   thread) on 0.5 s windows of a simulated 8-capsule recording made of a real siren clip and
   real street noise (``makeway audio listen``'s per-window step, health check included);
 * ``vision`` — :class:`makeway.pipeline.video.VisionPipeline` (YOLOX-nano, one thread → SORT →
-  crop classifier → smoother) on frames of the real clip ``fire_trucks_red_lights.mp4``.
+  crop classifier → smoother) on frames of the real clip ``fire_trucks_red_lights.mp4``;
+* ``rsu`` — the roadside unit's per-frame step (``makeway rsu run``): the vision pipeline on the
+  pole camera's clip ``intersection_cam_ambulance.mp4`` with its shipped calibration, the
+  :class:`makeway.roadside.node.RoadsideNode` road filters, and the alerts due on its clock signed;
+* ``listener`` — the car's V2X listener (``makeway v2x listen``): signed alerts sent by another
+  process over a real zenoh network on loopback into an
+  :class:`makeway.v2x.transport.AlertSubscriber` (its own bounded queue, ``--listener-pending``
+  alerts, drop-oldest), each verified (signature, certificate chain, freshness, replay). Its
+  processing time is one verification; the latency runs from the alert's arrival (zenoh's receive
+  stamp) to its verdict. The sender catches up in bursts when its clock runs ahead, as a radio
+  delivers.
 """
 
 from __future__ import annotations
@@ -394,6 +404,7 @@ def main() -> int:
                 f"{100 * r['dropped'] / max(r['inputs'], 1):7.1f}% {r['latency_p50_ms']:8.1f} "
                 f"{r['latency_p99_ms']:8.1f} {r['rss_last_mb']:8.1f} {r['rss_drift_pct']:+8.2f} "
                 f"{r['rss_spread_pct']:9.2f} {r['rss_peak_growth_pct']:+7.2f} {r['load'][0]:5.1f}"
+                + (f"  valid {100 * r['valid'] / max(r['processed'], 1):.1f} %" if "valid" in r else "")
             )
 
         for rate in rates:
