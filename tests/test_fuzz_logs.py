@@ -33,6 +33,7 @@ from hypothesis import strategies as st
 
 from fuzzing import NASTY, budget, check_reader, file_contents, mutated_bytes, mutated_yaml
 from makeway.engine.inputs import expand_inputs, parse_input
+from makeway.errors import InputError
 from makeway.sense.log_writer import FoxgloveMcapWriter, Ros2LogWriter, make_test_log
 from makeway.sense.logs import LogFrameReader, open_log, read_log_recording
 from makeway.sense.recording import write_recording
@@ -142,6 +143,32 @@ def test_fuzz_mcap_bytes(seed_logs: dict[str, Path], work: Path) -> None:
         check_reader("robotics log (MCAP bytes)", lambda: _consume(path), inside=path)
 
     run()
+
+
+def test_damaged_logs_found_by_the_long_fuzz_run(seed_logs: dict[str, Path], work: Path) -> None:
+    """Regressions: a bag whose metadata.yaml lacks a topic's message count raised ``TypeError``
+    from rosbags (its metadata is read lazily); a compressed image with no bytes made OpenCV
+    assert (``cv2.error``)."""
+    bag = work / "regress_bag"
+    shutil.copytree(seed_logs["bag_sqlite"], bag)
+    meta = yaml.safe_load((bag / "metadata.yaml").read_text(encoding="utf-8"))
+    meta["rosbag2_bagfile_information"]["topics_with_message_count"][0]["message_count"] = None
+    (bag / "metadata.yaml").write_text(yaml.safe_dump(meta), encoding="utf-8")
+    with pytest.raises(InputError, match="is not a readable ROS 2 bag"):
+        _consume(bag)
+
+    path = work / "regress_empty_jpeg.mcap"
+    with Ros2LogWriter(path, compression="none") as w:
+        w.channel("/camera/image", "sensor_msgs/msg/CompressedImage")
+        msg = w.msg(
+            "sensor_msgs/msg/CompressedImage",
+            header=w.header(START_NS),
+            format="jpeg",
+            data=np.zeros(0, np.uint8),
+        )
+        w.write("/camera/image", START_NS, msg)
+    with pytest.raises(InputError, match="message 0 on /camera/image: the jpeg image does not decode"):
+        _consume(path)
 
 
 def test_fuzz_bag_folder(seed_logs: dict[str, Path], work: Path) -> None:

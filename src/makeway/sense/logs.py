@@ -290,7 +290,11 @@ class LogReader:
                 raise InputError(
                     self.path, f"{where}: unsupported image format {msg.format!r} (jpeg, png, webp)"
                 )
-            image = cv2.imdecode(_bytes(msg.data), cv2.IMREAD_COLOR)
+            payload = _bytes(msg.data)
+            try:  # OpenCV asserts on an empty buffer instead of returning None
+                image = cv2.imdecode(payload, cv2.IMREAD_COLOR) if payload.size else None
+            except cv2.error:
+                image = None
             if image is None:
                 raise InputError(self.path, f"{where}: the {msg.format} image does not decode (damaged)")
             return image
@@ -608,17 +612,25 @@ class BagLog(LogReader):
         super().__init__(path)
         from rosbags.highlevel import AnyReader
 
+        reader = None
         try:
-            self._reader = AnyReader([path])
-            self._reader.open()
+            reader = AnyReader([path])
+            reader.open()
+            # rosbags reads parts of metadata.yaml lazily: a damaged one fails here, not at open
+            for name, info in reader.topics.items():
+                schema = _ros_name(info.msgtype or "")
+                encoding = info.connections[0].ext.serialization_format if info.connections else "cdr"  # type: ignore[union-attr]
+                self._topics[name] = TopicInfo(
+                    name, schema, str(encoding), int(info.msgcount), _kind(schema, name)
+                )
         except Exception as exc:
+            try:
+                if reader is not None:
+                    reader.close()
+            except Exception:  # it did not open: nothing to release
+                pass
             raise InputError(path, f"is not a readable ROS 2 bag ({_first_line(exc)})") from None
-        for name, info in self._reader.topics.items():
-            schema = _ros_name(info.msgtype or "")
-            encoding = info.connections[0].ext.serialization_format if info.connections else "cdr"  # type: ignore[union-attr]
-            self._topics[name] = TopicInfo(
-                name, schema, str(encoding), int(info.msgcount), _kind(schema, name)
-            )
+        self._reader = reader
 
     def _messages(self, topics: Iterable[str]) -> Iterator[tuple[str, int, Any]]:
         wanted = set(topics)
