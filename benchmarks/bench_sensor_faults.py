@@ -11,6 +11,12 @@ is hit as often), and is run twice: as it is, and with the listener's health che
 false alarms, angle and distance median errors (windows ≤ 100 m and 10–50 m), and how often the
 health check flagged the faulted capsule (and, on the clean run, any capsule: false flags). Target
 (the issue): one dead capsule of eight costs ≤ 2 points of recall and ≤ 1° of angle median error.
+Swapped capsules (recording ``i``: capsule ``i mod 8`` with the opposite capsule of its unit) are
+found by :class:`makeway.perceive.health.SwapCheck` over the windows so far: printed, how often the
+swapped capsule was flagged and how often put back by re-ordering; a front/back pair mirrors the
+scene, which the array (symmetric front to back) cannot attribute to one unit, so it is flagged but
+not re-ordered; the left/right swaps (recordings ``i mod 4`` in {1, 3}) are also run alone, with the
+clean angle error of the same recordings beside them.
 A clock skew or jitter between the audio and the ego pose log (±50 ms) does not reach the networks
 (their bearings and distances are in the vehicle frame); it moves the siren's position in the world
 frame, where fusion places it, by the ego's motion in that time: printed as the world-position
