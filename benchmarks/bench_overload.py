@@ -1,8 +1,8 @@
 """Overload (issue 29, item 3): streaming stages fed faster than they run, through the bounded
 latest-wins hand-over (``makeway.queues.live``, a ``LatestQueue`` of one item).
 
-    .venv/bin/python benchmarks/bench_overload.py [--minutes 10] [--stages siren,vision]
-        [--rates 0.5,1,2,10] [--baseline-s 20] [--json FILE]
+    .venv/bin/python benchmarks/bench_overload.py [--minutes 10] [--stages siren,vision,rsu,listener]
+        [--rates 0.5,1,2,10] [--baseline-s 20] [--listener-pending 1024] [--json FILE]
 
 For each stage, its processing time is measured first (median of 15 inputs, nothing else
 running); then a paced source hands it input at each of ``--rates`` times the rate it can
@@ -25,7 +25,17 @@ Stages (real data, real models):
   thread) on 0.5 s windows of a simulated 8-capsule recording made of a real siren clip and
   real street noise (``makeway audio listen``'s per-window step, health check included);
 * ``vision`` — :class:`makeway.pipeline.video.VisionPipeline` (YOLOX-nano, one thread → SORT →
-  crop classifier → smoother) on frames of the real clip ``fire_trucks_red_lights.mp4``.
+  crop classifier → smoother) on frames of the real clip ``fire_trucks_red_lights.mp4``;
+* ``rsu`` — the roadside unit's per-frame step (``makeway rsu run``): the vision pipeline on the
+  pole camera's clip ``intersection_cam_ambulance.mp4`` with its shipped calibration, the
+  :class:`makeway.roadside.node.RoadsideNode` road filters, and the alerts due on its clock signed;
+* ``listener`` — the car's V2X listener (``makeway v2x listen``): signed alerts sent by another
+  process over a real zenoh network on loopback into an
+  :class:`makeway.v2x.transport.AlertSubscriber` (its own bounded queue, ``--listener-pending``
+  alerts, drop-oldest), each verified (signature, certificate chain, freshness, replay). Its
+  processing time is one verification; the latency runs from the alert's arrival (zenoh's receive
+  stamp) to its verdict. The sender catches up in bursts when its clock runs ahead, as a radio
+  delivers.
 """
 
 from __future__ import annotations
@@ -138,7 +148,146 @@ def vision_stage() -> tuple[Callable[[Any], Any], list[Any]]:
     return step, frames
 
 
-STAGES = {"siren": siren_stage, "vision": vision_stage}
+def rsu_stage() -> tuple[Callable[[Any], Any], list[Any]]:
+    """The roadside unit's per-frame step (``makeway rsu run``): the vision pipeline on the pole
+    camera's frame, the node's road filters, the alerts due on its clock signed."""
+    import tempfile
+
+    from makeway.perceive.vision.detectors import DETECTORS
+    from makeway.perceive.vision.ev_classifier import DEFAULT_MODEL, EVTrackClassifier, load_crop_classifier
+    from makeway.pipeline.video import VisionPipeline
+    from makeway.roadside.node import RoadsideNode, sign_report
+    from makeway.roadside.transform import read_transform_calibration
+    from makeway.sense.rig import default_rig_path
+    from makeway.sense.video import VideoReader
+    from makeway.v2x.security import keygen
+
+    root = data_dir()
+    assert root is not None
+    with VideoReader(root / "video" / "intersection_cam_ambulance.mp4", max_frames=120) as reader:
+        frames = [image for _, _, image in reader]
+    camera = read_transform_calibration(default_rig_path().parent / "intersection_cam_ambulance.yaml")
+    identity = keygen(Path(tempfile.mkdtemp(prefix="bench-overload-")), "rsu")
+    det = DETECTORS["yolox_nano"](None, score_threshold=0.3, class_agnostic=True, num_threads=1)
+    pipe = VisionPipeline(
+        det, classifier=EVTrackClassifier(load_crop_classifier(DEFAULT_MODEL, num_threads=1))
+    )
+    node = RoadsideNode(camera)
+    sequence = [1]
+
+    def step(item: Any) -> Any:
+        k, image = item
+        frame = pipe.process(image, k, k / 30.0)
+        node.update(frame)
+        out = []
+        for report in node.due_alerts(frame.time_s):
+            out.append(sign_report(report, identity, sequence[0], time.time())[1])
+            sequence[0] += 1
+        return out
+
+    return step, frames
+
+
+STAGES = {"siren": siren_stage, "vision": vision_stage, "rsu": rsu_stage}
+
+
+# ------------------------------------------------------------------------------ the car's listener
+def _alert_pool(folder: Path, n: int) -> list[tuple[bytes, float]]:
+    """``n`` signed alerts of one EV (``(bytes, generation time)``, 10 ms apart)."""
+    from makeway.v2x.message import Alert
+    from makeway.v2x.security import keygen, sign_alert
+
+    keygen(folder, "rsu")
+    ident = keygen(folder, "ev1")
+    t0 = time.time()
+    pool = []
+    for k in range(n):
+        alert = Alert.from_physical(
+            station_id=ident.station_id,
+            generation_time_s=t0 + 0.01 * k,
+            sequence=k + 1,
+            lat_deg=48.137,
+            lon_deg=11.575,
+            heading_deg=90.0,
+            speed_mps=13.0,
+            siren=True,
+            lights=True,
+        )
+        pool.append((sign_alert(alert, ident), t0 + 0.01 * k))
+    return pool
+
+
+def _publish(
+    endpoint: str, segment: str, payloads: list[bytes], rate_hz: float, seconds: float, sent: Any
+) -> None:
+    """A sender process: ``payloads`` (looped, index prefixed) at ``rate_hz`` for ``seconds``."""
+    from makeway.v2x.transport import AlertPublisher, open_peer
+
+    session = open_peer([], [endpoint])
+    pub = AlertPublisher(session, segment)
+    pub.wait_for_subscribers(10.0)
+    t0 = time.monotonic()
+    k = 0
+    while True:
+        now = time.monotonic() - t0
+        if now >= seconds:
+            break
+        due = int(now * rate_hz) + 1  # catch up in a burst when behind, as a radio delivers
+        while k < due:
+            pub.publish(k.to_bytes(4, "little") + payloads[k % len(payloads)])
+            k += 1
+        time.sleep(min(0.002, 1.0 / rate_hz))
+        sent.value = k
+    sent.value = k
+    time.sleep(0.3)
+    pub.close()
+    session.close()
+
+
+def run_listener(
+    rate_hz: float, seconds: float, pool: list[tuple[bytes, float]], folder: Path, pending: int
+) -> dict[str, Any]:
+    """The car's V2X listener as ``makeway v2x listen`` runs it: an :class:`AlertSubscriber` (its
+    bounded queue of ``pending`` payloads) on a real zenoh network on loopback, fed by a sender
+    process at ``rate_hz``, each payload verified (:class:`Verifier`: signature, certificate,
+    freshness against the alert's own clock, replay: the cache is emptied each time the pool of
+    signed alerts starts over). Latency: from the payload's arrival (zenoh's receive stamp) to its
+    verdict."""
+    import multiprocessing as mp
+
+    from makeway.v2x.security import ReplayCache, TrustStore, Verifier
+    from makeway.v2x.transport import AlertSubscriber, free_loopback_port, open_peer, wait_listening
+
+    port = free_loopback_port()
+    endpoint = f"tcp/127.0.0.1:{port}"
+    session = open_peer([endpoint], [])
+    wait_listening(port, 10.0)
+    sub = AlertSubscriber(session, ["bench"], max_pending=pending)
+    verifier = Verifier(TrustStore.load(folder / "trust"))
+    ctx = mp.get_context("spawn")
+    sent = ctx.Value("q", 0)
+    sender = ctx.Process(
+        target=_publish, args=(endpoint, "bench", [b for b, _ in pool], rate_hz, seconds, sent), daemon=True
+    )
+    lat: list[float] = []
+    valid = 0
+    last_round = 0
+    sender.start()
+    with MemorySampler() as mem:
+        for got in sub.receive(seconds + 15.0):
+            k = int.from_bytes(got.payload[:4], "little")
+            data, gen = pool[k % len(pool)]
+            if k // len(pool) != last_round:
+                last_round = k // len(pool)
+                verifier.replay = ReplayCache()
+            valid += verifier.verify(data, gen + 0.02).valid
+            lat.append(time.time() - got.time_s)
+            if not sender.is_alive() and sub.pending == 0:  # the run is over
+                break
+    sender.join(5.0)
+    sub.close()
+    session.close()
+    return _summary(lat, mem, rate_hz, seconds, int(sent.value), sub.dropped, {"valid": valid})
 
 
 def run_rate(
@@ -154,13 +303,25 @@ def run_rate(
             dropped = res.dropped
             if res.done_s > t_end:  # an unbounded queue still holds a backlog: stop there
                 break
+    return _summary(lat, mem, rate_hz, seconds, delivered[0], dropped)
+
+
+def _summary(
+    lat: list[float],
+    mem: MemorySampler,
+    rate_hz: float,
+    seconds: float,
+    inputs: int,
+    dropped: int,
+    extra: dict[str, Any] | None = None,
+) -> dict[str, Any]:
     rss = [m for _, m in mem.samples]
     warm = rss[max(1, len(rss) // 10) :] or rss
     arr = np.asarray(lat) * 1000.0
-    return {
+    return (extra or {}) | {
         "rate_hz": rate_hz,
         "seconds": seconds,
-        "inputs": delivered[0],
+        "inputs": inputs,
         "processed": len(lat),
         "dropped": dropped,
         "latency_p50_ms": float(np.percentile(arr, 50)) if len(arr) else None,
@@ -180,6 +341,9 @@ def main() -> int:
     ap.add_argument("--stages", default="siren,vision", help=f"comma-separated: {', '.join(STAGES)}")
     ap.add_argument("--rates", default="0.5,1,2,10", help="input rates, times the processing rate")
     ap.add_argument("--baseline-s", type=float, default=20.0, help="unbounded FIFO run at 10× (0: none)")
+    ap.add_argument(
+        "--listener-pending", type=int, default=1024, help="the V2X listener's queue (AlertSubscriber)"
+    )
     ap.add_argument("--json", type=Path, default=None)
     args = ap.parse_args()
     if data_dir() is None:
@@ -188,17 +352,46 @@ def main() -> int:
     rates = [float(v) for v in args.rates.split(",") if v.strip()]
     out: dict[str, Any] = {}
     for name in [s.strip() for s in args.stages.split(",") if s.strip()]:
-        step, items = STAGES[name]()
-        times = []
-        for k in range(20):
-            t0 = time.perf_counter()
-            step((k, items[k % len(items)]))
-            times.append(time.perf_counter() - t0)
+        if name == "listener":
+            import tempfile
+
+            from makeway.v2x.security import TrustStore, Verifier
+
+            folder = Path(tempfile.mkdtemp(prefix="bench-overload-"))
+            pool = _alert_pool(folder, 2000)
+            verifier = Verifier(TrustStore.load(folder / "trust"))
+            times = []
+            for data, gen in pool[:300]:
+                t0 = time.perf_counter()
+                verifier.verify(data, gen + 0.02)
+                times.append(time.perf_counter() - t0)
+
+            def run(
+                rate_hz: float, seconds: float, maxsize: int, pool: Any = pool, folder: Path = folder
+            ) -> dict[str, Any]:
+                pending = args.listener_pending if maxsize == 1 else maxsize
+                return run_listener(rate_hz, seconds, pool, folder, pending)
+
+        else:
+            step, items = STAGES[name]()
+            times = []
+            for k in range(20):
+                t0 = time.perf_counter()
+                step((k, items[k % len(items)]))
+                times.append(time.perf_counter() - t0)
+
+            def run(
+                rate_hz: float, seconds: float, maxsize: int, step: Any = step, items: Any = items
+            ) -> dict[str, Any]:
+                return run_rate(step, items, rate_hz, seconds, maxsize)
+
         proc_s = statistics.median(times[5:])
         print(
             f"\n{name}: {1000 * proc_s:.1f} ms per input unloaded → {1 / proc_s:.1f} inputs/s "
             f"(load {os.getloadavg()[0]:.1f})"
         )
+        if name == "listener":
+            print(f"  (the listener's queue holds {args.listener_pending} alerts)")
         print(
             f"  {'rate':>6s} {'s':>5s} {'inputs':>7s} {'done':>6s} {'dropped':>8s} {'p50 ms':>8s} "
             f"{'p99 ms':>8s} {'RSS MB':>8s} {'drift %':>8s} {'spread %':>9s} {'peak %':>7s} {'load':>5s}"
@@ -211,15 +404,16 @@ def main() -> int:
                 f"{100 * r['dropped'] / max(r['inputs'], 1):7.1f}% {r['latency_p50_ms']:8.1f} "
                 f"{r['latency_p99_ms']:8.1f} {r['rss_last_mb']:8.1f} {r['rss_drift_pct']:+8.2f} "
                 f"{r['rss_spread_pct']:9.2f} {r['rss_peak_growth_pct']:+7.2f} {r['load'][0]:5.1f}"
+                + (f"  valid {100 * r['valid'] / max(r['processed'], 1):.1f} %" if "valid" in r else "")
             )
 
         for rate in rates:
             seconds = 60.0 * args.minutes if rate >= 2 else min(60.0 * args.minutes, 60.0)
-            r = run_rate(step, items, rate / proc_s, seconds)
+            r = run(rate / proc_s, seconds, 1)
             rows[f"{rate:g}x"] = r
             show(f"{rate:g}×", r)
         if args.baseline_s > 0:
-            r = run_rate(step, items, 10.0 / proc_s, args.baseline_s, maxsize=10**9)
+            r = run(10.0 / proc_s, args.baseline_s, 10**9)
             rows["10x_unbounded_fifo"] = r
             show("FIFO", r)
             print("  (FIFO: an unbounded queue at 10×, the anchor)")

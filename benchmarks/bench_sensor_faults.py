@@ -11,6 +11,12 @@ is hit as often), and is run twice: as it is, and with the listener's health che
 false alarms, angle and distance median errors (windows ≤ 100 m and 10–50 m), and how often the
 health check flagged the faulted capsule (and, on the clean run, any capsule: false flags). Target
 (the issue): one dead capsule of eight costs ≤ 2 points of recall and ≤ 1° of angle median error.
+Swapped capsules (recording ``i``: capsule ``i mod 8`` with the opposite capsule of its unit) are
+found by :class:`makeway.perceive.health.SwapCheck` over the windows so far: printed, how often the
+swapped capsule was flagged and how often put back by re-ordering; a front/back pair mirrors the
+scene, which the array (symmetric front to back) cannot attribute to one unit, so it is flagged but
+not re-ordered; the left/right swaps (recordings ``i mod 4`` in {1, 3}) are also run alone, with the
+clean angle error of the same recordings beside them.
 A clock skew or jitter between the audio and the ego pose log (±50 ms) does not reach the networks
 (their bearings and distances are in the vehicle frame); it moves the siren's position in the world
 frame, where fusion places it, by the ego's motion in that time: printed as the world-position
@@ -86,15 +92,35 @@ def _faulted(recs: list[Recording], fault: str, seed: int) -> list[Recording]:
     return out
 
 
-def _flag_rate(health: list[SensorHealth], recs: list[Recording], counts: list[int]) -> tuple[float, float]:
-    """(share of windows where the faulted capsule was flagged, share where another one was)."""
+def _reorder_rate(
+    health: list[SensorHealth], recs: list[Recording], counts: list[int], index: list[int]
+) -> float:
+    """Share of windows where the swapped capsule was put back by re-ordering (``_faulted``'s pair)."""
+    done = n = k = 0
+    for r, c, i in zip(recs, counts, index, strict=True):
+        ch = i % r.n_channels
+        for h in health[k : k + c]:
+            done += int(h.reasons[ch] == "swapped" and ch in h.repaired)
+            n += 1
+        k += c
+    return done / n if n else math.nan
+
+
+def _flag_rate(
+    health: list[SensorHealth], recs: list[Recording], counts: list[int], index: list[int] | None = None
+) -> tuple[float, float]:
+    """(share of windows where the faulted capsule was flagged, share where another one was);
+    ``index``: the recordings' numbers in the whole set (the faulted capsule is ``index mod 8``)."""
     hit = other = n = 0
     k = 0
-    for i, c in enumerate(counts):
-        ch = i % recs[i].n_channels
+    for pos, c in enumerate(counts):
+        i = index[pos] if index is not None else pos
+        ch = i % recs[pos].n_channels
         for h in health[k : k + c]:
             hit += int(not h.trusted[ch])
-            other += int(any(not ok for j, ok in enumerate(h.trusted) if j != ch))
+            other += int(
+                any(not ok for j, ok in enumerate(h.trusted) if j != ch and h.reasons[j] != "swapped")
+            )
             n += 1
         k += c
     return (hit / n if n else math.nan, other / n if n else math.nan)
@@ -133,8 +159,20 @@ def audio_part(args: argparse.Namespace, tmp: Path) -> dict[str, Any]:
     cases: list[tuple[str, str | None, bool]] = [("clean", None, False), ("clean, health check", None, True)]
     for fault in AUDIO_FAULTS:
         cases += [(f"{fault}", fault, False), (f"{fault}, repaired", fault, True)]
+    # the swaps the array can attribute (a unit's left and right capsules: recordings i with
+    # i mod 4 in {1, 3}); a front/back swap mirrors the scene, which the symmetric array cannot undo
+    lr = [i for i in range(len(recs)) if i % 4 in (1, 3)]
+    cases += [
+        ("clean, left-right subset", None, False),
+        ("swapped left-right", "swapped_channels", False),
+        ("swapped left-right, re-ordered", "swapped_channels", True),
+    ]
     for name, fault, repair in cases:
         data = recs if fault is None else _faulted(recs, fault, args.fault_seed)
+        subset = list(range(len(recs)))
+        if "left-right" in name:
+            subset = lr
+            data = [data[i] for i in lr]
         health: list[SensorHealth] = []
         with progress_bar(f"audio: {name}", len(data), unit="rec") as advance:
             res = evaluate(
@@ -149,11 +187,14 @@ def audio_part(args: argparse.Namespace, tmp: Path) -> dict[str, Any]:
             k: res["range_10_50"][k] for k in ("recall", "angle_median_deg", "distance_median_m")
         }
         if repair:
-            hit, other = _flag_rate(health, recs, counts)
+            sub_recs, sub_counts = [recs[i] for i in subset], [counts[i] for i in subset]
+            hit, other = _flag_rate(health, sub_recs, sub_counts, subset)
             row["flagged_faulted"] = hit if fault is not None else None
             row["flagged_other"] = other
             if fault is None:
                 row["flagged_any"] = float(np.mean([not h.ok for h in health])) if health else None
+            if fault == "swapped_channels":
+                row["reordered"] = _reorder_rate(health, sub_recs, sub_counts, subset)
         rows[name] = row
     print(f"\naudio: {len(recs)} recordings, {sum(counts)} windows ({args.n} per seed, seeds {args.seeds})")
     print(
@@ -182,6 +223,21 @@ def audio_part(args: argparse.Namespace, tmp: Path) -> dict[str, Any]:
             f"(target ≤ {TARGET_RECALL_DROP:g}), angle median {worse:+.2f}° worse "
             f"(target ≤ {TARGET_ANGLE_WORSE:g}°) — against the clean run without the check"
         )
+    sw = rows["swapped_channels, repaired"]
+    print(
+        f"swapped capsules (all pairs): flagged in {_pct(sw['flagged_faulted'])} % of the windows, put back "
+        f"by re-ordering in {_pct(sw['reordered'])} %; clean run: a capsule flagged in "
+        f"{_pct(rows['clean, health check']['flagged_any'])} % of the windows"
+    )
+    lr_rows = [
+        rows[k] for k in ("clean, left-right subset", "swapped left-right", "swapped left-right, re-ordered")
+    ]
+    print(
+        "swapped left-right capsules, angle median: clean {:.2f}°, swapped {:.2f}°, re-ordered {:.2f}° "
+        "(re-ordered in {} % of the windows)".format(
+            *(r["angle_median_deg"] for r in lr_rows), _pct(lr_rows[2]["reordered"]).strip()
+        )
+    )
     rows["target"] = {"recall_drop_points": TARGET_RECALL_DROP, "angle_median_worse_deg": TARGET_ANGLE_WORSE}
     del clean
 

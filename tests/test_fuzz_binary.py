@@ -490,6 +490,7 @@ def _with_der_edit(pem: bytes, old: bytes, new: bytes) -> bytes:
 # the DER of the OID id-ecPublicKey (1.2.840.10045.2.1) and of the curve P-256's (1.2.840.10045.3.1.7)
 EC_PUBLIC_KEY = bytes.fromhex("06072a8648ce3d0201")
 P256 = bytes.fromhex("06082a8648ce3d030107")
+VERSION_3 = bytes.fromhex("a003020102")  # [0] EXPLICIT INTEGER 2: an X.509 v3 certificate
 
 
 @pytest.mark.parametrize(
@@ -497,6 +498,8 @@ P256 = bytes.fromhex("06082a8648ce3d030107")
     [
         (EC_PUBLIC_KEY, EC_PUBLIC_KEY[:-1] + b"\x09", "unknown key type"),  # UnsupportedAlgorithm
         (P256, P256[:-1] + b"\x09", "unknown curve"),  # ValueError on the lazy key parse
+        # found by the long run: version 2 (v2) raised x509.InvalidVersion, not a ValueError
+        (VERSION_3, VERSION_3[:-1] + b"\x01", "version 2"),
     ],
 )
 def test_damaged_certificate_is_one_input_error(

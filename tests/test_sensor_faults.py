@@ -13,7 +13,14 @@ from makeway.fuse.siren_track import SirenTrackFusion
 from makeway.messages import Box, Detection, SensorHealth, SirenObservation, SirenSource
 from makeway.perceive.audio.features import bandpass
 from makeway.perceive.audio.stream import SirenListener, listen_windows
-from makeway.perceive.health import FROZEN_FRAMES, CameraHealth, audio_health, repair_window
+from makeway.perceive.health import (
+    FROZEN_FRAMES,
+    SWAP_MIN_WINDOWS,
+    CameraHealth,
+    SwapCheck,
+    audio_health,
+    repair_window,
+)
 from makeway.registry import UnknownNameError
 from makeway.sense.faults import (
     AUDIO_FAULTS,
@@ -159,6 +166,56 @@ def test_listener_reports_and_repairs_a_dead_capsule(rec: Recording) -> None:
     assert clean.health is not None and clean.health.ok and "health" not in clean.to_json()
 
 
+def _swap_verdict(r: Recording) -> SwapCheck:
+    check = SwapCheck(r.mics, r.sample_rate)
+    n = r.sample_rate // 2
+    for k in range(0, r.audio.shape[0] - n + 1, n):  # 0.5 s windows, one after the other
+        check.update(r.audio[k : k + n].T, (k + n) / r.sample_rate)
+    return check
+
+
+def test_swap_check_finds_two_swapped_capsules(rec: Recording) -> None:
+    """A real siren recorded on the simulated roof array: the clean wiring is kept; a swap of a
+    unit's left and right capsules is found and undone; a swap of a unit's front and back capsules
+    is found, but the array (mirror-symmetric front to back) cannot say on which unit."""
+    clean = _swap_verdict(rec)
+    assert clean.windows == 8 and clean.swapped == () and clean.margin < 0.0
+
+    left_right = apply_audio_fault(rec, "swapped_channels", channel=5, other=7)
+    check = _swap_verdict(left_right)
+    assert check.swapped == ((5, 7),) and not check.ambiguous and check.margin > 0.25
+    w = left_right.audio[:24000].T
+    fixed, health = check.repair(w, audio_health(w, rec.mics, rec.sample_rate))
+    np.testing.assert_array_equal(fixed, rec.audio[:24000].T)
+    assert health.reasons == ("ok",) * 5 + ("swapped", "ok", "swapped") and health.repaired == (5, 7)
+    # a swapped capsule is not rebuilt from its neighbours: the re-ordered channel is the real one
+    np.testing.assert_array_equal(repair_window(fixed, rec.mics, health)[0], fixed)
+
+    front_back = _swap_verdict(apply_audio_fault(rec, "swapped_channels", channel=0, other=2))
+    assert front_back.ambiguous and set(front_back.swapped) == {(0, 2), (4, 6)}
+    w = rec.audio[:24000].T
+    kept, health = front_back.repair(w, audio_health(w, rec.mics, rec.sample_rate))
+    assert (
+        kept is w
+        and health.repaired == ()
+        and health.faults() == tuple(f"audio:{k} swapped" for k in (0, 2, 4, 6))
+    )
+
+
+def test_listener_undoes_a_swap_after_a_few_windows(rec: Recording) -> None:
+    swapped = apply_audio_fault(rec, "swapped_channels", channel=1, other=3)
+    listener = SirenListener(swapped.mics, swapped.sample_rate)
+    win = listener.window_samples
+    healths = [
+        listener.step(swapped.audio[k : k + win].T, (k + win) / swapped.sample_rate).health
+        for k in range(0, swapped.audio.shape[0] - win + 1, win)
+    ]
+    assert all(h is not None for h in healths)
+    assert all(h.ok for h in healths[: SWAP_MIN_WINDOWS - 1])  # type: ignore[union-attr]
+    assert all(h.faults() == ("audio:1 swapped", "audio:3 swapped") for h in healths[-3:])  # type: ignore[union-attr]
+    assert healths[-1].repaired == (1, 3)  # type: ignore[union-attr]
+
+
 def test_fusion_lowers_confidence_and_names_the_fault() -> None:
     health = SensorHealth(1.0, "audio", (True,) * 6 + (False, True), ("ok",) * 6 + ("dead", "ok"))
     src = (SirenSource(bearing_rad=0.3, distance_m=25.0),)
@@ -250,3 +307,33 @@ def test_vision_pipeline_holds_its_tracks_while_the_camera_is_frozen(
         assert f.tracks == held.tracks and f.health is not None and f.health.reasons == ("frozen",)
         assert f.to_json()["health"]["distrusted"] == {"0": "frozen"}
     assert all(f.health is not None and f.health.ok and "health" not in f.to_json() for f in out[:first])
+
+
+def test_camera_health_reaches_the_fused_belief(frames: list[tuple[int, float, np.ndarray]]) -> None:
+    """The real vision pipeline on a real clip blacked out for 7 frames: each frame's health goes to
+    the multi-EV fusion beside a lit EV seen by the lights detector and announced over V2X; while
+    the camera is black the belief names the fault and no longer counts the light sense."""
+    from makeway.fuse.multi_ev import FusedBeliefSource
+    from makeway.messages import LightObservation, V2XObservation, VehicleState
+    from makeway.perceive.vision.detectors import DETECTORS
+    from makeway.pipeline.video import VisionPipeline
+
+    pipe = VisionPipeline(DETECTORS["yolox_nano"](None, class_agnostic=True, num_threads=1))
+    fusion = FusedBeliefSource()
+    ego = VehicleState(0.0, 0.0, 0.0, 0.0, 0.0)
+    black = (frames[8][1], frames[15][1] - frames[8][1])
+    got = []
+    for i, t, img in apply_video_fault(frames[:20], "blackout", start_s=black[0], duration_s=black[1]):
+        frame = pipe.process(img, i, t)
+        assert frame.health is not None
+        fusion.receive(frame.health)
+        fusion.receive(LightObservation(t, 0.0, range_m=30.0, range_sigma_m=3.0, probability=0.9))
+        fusion.receive(V2XObservation(t, 7, 30.0, 0.0, math.pi, 0.0, verified=True))
+        got.append((frame.health.ok, fusion.update(t, ego)))
+    assert [ok for ok, _ in got] == [True] * 8 + [False] * 7 + [True] * 5
+    for ok, belief in got:
+        assert belief.detected and set(belief.sources) == {"light", "v2x"}
+        if ok:
+            assert belief.sensor_faults == () and belief.confidence == pytest.approx(1 - 0.1 * 0.01)
+        else:
+            assert belief.sensor_faults == ("camera:0 black",) and belief.confidence == pytest.approx(0.99)

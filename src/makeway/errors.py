@@ -27,4 +27,7 @@ class InputError(MakewayError):
         self.path = Path(path)
         # one line, whatever a library's message held (the CLI prints it as one ``error:`` line)
         self.problem = " ".join(part.strip() for part in problem.splitlines() if part.strip())
-        super().__init__(f"{self.path}: {self.problem}")
+        shown = str(self.path)
+        if any(c in shown for c in "\n\r\x00"):  # a name with line breaks: quoted, still one line
+            shown = repr(shown)
+        super().__init__(f"{shown}: {self.problem}")

@@ -251,7 +251,8 @@ class SensorHealth:
     ``sensor`` names it (``"audio"`` for the microphone array, ``"camera"`` for a camera);
     ``trusted`` holds one flag per channel (a microphone capsule, in the array's channel order; one
     entry for a camera) and ``reasons`` one word per channel: ``"ok"`` or what is wrong (``"dead"``,
-    ``"clipped"``, ``"loud"``, ``"uncorrelated"`` for a microphone; ``"frozen"``, ``"black"`` for a camera).
+    ``"clipped"``, ``"loud"``, ``"uncorrelated"``, ``"swapped"`` for a microphone; ``"frozen"``,
+    ``"black"`` for a camera).
     ``repaired`` lists the channels the stage rebuilt from their neighbours before using the data
     (see :mod:`makeway.perceive.health`). Consumers (fusion, the decision) read :attr:`trust`.
     """

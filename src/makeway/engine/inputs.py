@@ -152,6 +152,14 @@ INPUT_KINDS.register("recording")(
 INPUT_KINDS.register("images")(InputKind("folder of road images", _is_image_folder, _mine_images))
 
 
+def _exists(path: Path) -> bool:
+    """``path.exists()``, false for a name the file system refuses (too long, ...)."""
+    try:
+        return path.exists()
+    except OSError:
+        return False
+
+
 def parse_input(name: str | Path) -> EngineInput:
     """One command-line name → an :class:`EngineInput` (module docstring).
 
@@ -160,13 +168,18 @@ def parse_input(name: str | Path) -> EngineInput:
             given for a kind that has no frames.
     """
     text = str(name)
+    if not text or "\x00" in text:
+        raise InputError(text, "is not a usable file name (empty, or holds a NUL character)")
     start, end = 0, None
     m = _SLICE.match(text)
-    if m is not None and not Path(text).exists():
+    if m is not None and not _exists(Path(text)):
         text, start = m["path"], int(m["start"])
         end = int(m["end"]) if m["end"] else None
-    path = Path(text).expanduser().absolute()
-    if not path.exists():
+    try:
+        path = Path(text).expanduser().absolute()
+    except RuntimeError:  # ``~user`` for a user that does not exist
+        raise InputError(text, "names the home folder of an unknown user") from None
+    if not _exists(path):
         raise InputError(path, "no such file or folder")
     for kind_name, kind in INPUT_KINDS.items():
         if kind.matches(path):

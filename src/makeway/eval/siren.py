@@ -51,8 +51,14 @@ from makeway.eval.siren_labels import label_recording
 from makeway.messages import SensorHealth
 from makeway.perceive.audio.doa import DOA_METHODS, SirenEnergyDetector, wrap_angle
 from makeway.perceive.audio.features import window_batch
-from makeway.perceive.audio.windows import SMOOTH_AVERAGE, StreamSmoother, smoothed_probability
-from makeway.perceive.health import audio_health, repair_window
+from makeway.perceive.audio.windows import (
+    HOP_S,
+    SMOOTH_AVERAGE,
+    WINDOW_S,
+    StreamSmoother,
+    smoothed_probability,
+)
+from makeway.perceive.health import SwapCheck, audio_health, repair_window
 from makeway.sense.recording import Recording, assume_calibration, read_recording
 
 METRIC_KEYS = (
@@ -173,6 +179,10 @@ def baseline_estimator(method: str, detector: SirenEnergyDetector | None = None)
     return estimate
 
 
+SWAP_EVERY = max(1, round(WINDOW_S / HOP_S))
+"""The evaluation's swap check analyses every this many windows (consecutive ones overlap)."""
+
+
 def model_estimator(
     model: Any,
     source: str | Path | None = None,
@@ -192,13 +202,21 @@ def model_estimator(
         if not len(windows):
             return np.zeros(0), np.zeros(0), np.zeros(0)
         if repair or health is not None:
-            checked = [audio_health(w, rec.mics, rec.sample_rate) for w in windows]
+            # as the listener: every window checked on its own, the swap check over the windows
+            # so far (every third: the windows overlap, HOP_S apart)
+            swap = SwapCheck(rec.mics, rec.sample_rate)
+            checked, fixed = [], []
+            for i, w in enumerate(windows):
+                if i % SWAP_EVERY == 0:
+                    swap.update(w)
+                h = audio_health(w, rec.mics, rec.sample_rate)
+                w, h = swap.repair(w, h)
+                checked.append(h)
+                fixed.append(repair_window(w, rec.mics, h)[0] if repair else w)
             if health is not None:
                 health.extend(checked)
             if repair:
-                windows = np.stack(
-                    [repair_window(w, rec.mics, h)[0] for w, h in zip(windows, checked, strict=True)]
-                )
+                windows = np.stack(fixed)
         fs = rec.full_scale_db_spl
         preds = [model.predict(windows[i : i + 64], fs) for i in range(0, len(windows), 64)]
         return (

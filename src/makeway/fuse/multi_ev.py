@@ -53,7 +53,13 @@ the distance); relation (:func:`~makeway.fuse.relation.classify_relation`) once 
 then, else the listener's last call; ``sources`` — the senses that supported the track within
 ``sense_hold_s``; ``confidence`` the noisy-OR ``1 − Π(1 − p_s)`` over those senses, ``p_s`` the last
 detector probability of sense ``s`` (the listener's smoothed probability, the light detector's,
-``v2x_confidence`` for a verified alert). :meth:`MultiEVFusion.most_urgent` picks the most urgent
+``v2x_confidence`` for a verified alert), each scaled by the share of its sensor's channels the
+perception stage trusted. **Sensor health**: the latest :class:`~makeway.messages.SensorHealth` of
+each sensor — a siren observation's ``health`` (the microphone array), or one handed in on its
+own, such as a vision frame's ``PerceptionFrame.health`` (a frozen or blacked-out camera) — scales
+its sense (:data:`SENSE_OF_SENSOR`) and is named in every belief's ``sensor_faults``
+(:meth:`~makeway.messages.SensorHealth.faults`) until the sensor reports itself healthy again.
+:meth:`MultiEVFusion.most_urgent` picks the most urgent
 belief (what :meth:`~makeway.fuse.source.BeliefSource.update` publishes); the yield decision reads
 every track's (:meth:`FusedBeliefSource.beliefs`).
 """
@@ -76,6 +82,7 @@ from makeway.messages import (
     EVBelief,
     EVRelation,
     LightObservation,
+    SensorHealth,
     SirenObservation,
     V2XObservation,
     VehicleState,
@@ -83,6 +90,7 @@ from makeway.messages import (
 
 __all__ = [
     "SENSES",
+    "SENSE_OF_SENSOR",
     "EVTrack",
     "FusedBeliefSource",
     "MultiEVFusion",
@@ -95,7 +103,9 @@ SIREN, LIGHT, V2X = "siren", "light", "v2x"
 SENSES = (V2X, LIGHT, SIREN)  # association order: most precise first
 SOURCE = "fused"
 
-Observation = SirenObservation | LightObservation | V2XObservation
+Observation = SirenObservation | LightObservation | V2XObservation | SensorHealth
+SENSE_OF_SENSOR = {"audio": SIREN, "camera": LIGHT}
+"""The fusion sense each sensor of a :class:`~makeway.messages.SensorHealth` feeds."""
 
 _BARRED = 1e12
 
@@ -226,7 +236,24 @@ class MultiEVFusion:
         self.time_s_ = -math.inf
         self.next_id_ = 1
         self.unverified_ = 0  # V2X observations set aside because not verified
+        self.health_: dict[str, SensorHealth] = {}  # the latest health per sensor
         return self
+
+    def _note_health(self, health: SensorHealth) -> None:
+        last = self.health_.get(health.sensor)
+        if last is None or health.time_s >= last.time_s:
+            self.health_[health.sensor] = health
+
+    def sensor_faults(self) -> tuple[str, ...]:
+        """Every channel a perception stage distrusts in its latest health (``"camera:0 frozen"``)."""
+        return tuple(f for h in self.health_.values() for f in h.faults())
+
+    def _trust(self, sense: str) -> float:
+        """The share of trusted channels of the sensor feeding ``sense`` (1 without a report)."""
+        return min(
+            (h.trust for name, h in self.health_.items() if SENSE_OF_SENSOR.get(name) == sense),
+            default=1.0,
+        )
 
     # ------------------------------------------------------------------------------ observations
 
@@ -234,7 +261,12 @@ class MultiEVFusion:
         out: dict[str, list[_Meas]] = {s: [] for s in SENSES}
         sb2 = self.siren_bearing_sigma_rad**2
         for o in observations:
+            if isinstance(o, SensorHealth):
+                self._note_health(o)
+                continue
             if isinstance(o, SirenObservation):
+                if o.health is not None:
+                    self._note_health(o.health)
                 if not o.is_siren:
                     continue
                 for src in o.sources:
@@ -436,7 +468,7 @@ class MultiEVFusion:
         senses = t.senses(time_s, self.sense_hold_s)
         miss = 1.0
         for s_ in senses:
-            miss *= 1.0 - min(max(t.sense_probability.get(s_, 0.0), 0.0), 1.0)
+            miss *= 1.0 - min(max(t.sense_probability.get(s_, 0.0), 0.0), 1.0) * self._trust(s_)
         v2x_on = V2X in senses
         nan = float("nan")
         return EVBelief(
@@ -454,6 +486,7 @@ class MultiEVFusion:
             source=SOURCE,
             sources=senses,
             track_id=t.track_id,
+            sensor_faults=self.sensor_faults(),
         )
 
     @staticmethod

@@ -47,7 +47,7 @@ from pathlib import Path
 import numpy as np
 
 from makeway.fuse.multi_ev import FusedBeliefSource, MultiEVFusion, Observation
-from makeway.messages import EVBelief, SirenObservation, V2XObservation, VehicleState
+from makeway.messages import EVBelief, SensorHealth, SirenObservation, V2XObservation, VehicleState
 from makeway.perceive.audio.siren_model import SirenModel
 from makeway.pipeline.siren_perception import SirenPerception, SirenPerceptionConfig
 from makeway.roadside.geodesy import LocalFrame
@@ -298,6 +298,12 @@ class FusedPerception:
             self.counts[_sense_of(o)] += 1
             self.source.receive(o)
         return self.source.update(time_s, ego)
+
+    def receive_health(self, health: SensorHealth) -> None:
+        """A perception stage's health report (e.g. a real camera's ``PerceptionFrame.health``) for
+        the next :meth:`update`: it scales that sensor's sense and is named in the beliefs'
+        ``sensor_faults`` (the siren listener's travels inside its observations)."""
+        self.source.receive(health)
 
     def beliefs(self) -> list[EVBelief]:
         """One belief per confirmed EV track as of the last :meth:`update`."""

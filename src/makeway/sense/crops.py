@@ -300,8 +300,14 @@ def read_crop_folder(root: str | Path) -> CropSet:
                 csv_path, f"line {line}: image {name!r} listed twice (first on line {first_line[name]})"
             )
         first_line[name] = line
+        if Path(name).is_absolute() or ".." in Path(name).parts or "\x00" in name:
+            raise InputError(csv_path, f"line {line}: image name {name!r} does not lie inside images/")
         path = images_dir / name
-        if not path.is_file():
+        try:
+            present = path.is_file()
+        except OSError as exc:  # a name the file system refuses (too long, ...)
+            raise InputError(csv_path, f"line {line}: image name {name[:60]!r} ({exc.strerror})") from None
+        if not present:
             raise InputError(path, f"listed in {csv_path.name} (line {line}) but missing")
         if not cv2.haveImageReader(str(path)):
             raise InputError(path, f"listed in {csv_path.name} (line {line}) but not an image OpenCV reads")

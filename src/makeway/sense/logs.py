@@ -303,7 +303,11 @@ class LogReader:
                 raise InputError(
                     self.path, f"{where}: unsupported image format {msg.format!r} (jpeg, png, webp)"
                 )
-            image = cv2.imdecode(_bytes(msg.data), cv2.IMREAD_COLOR)
+            payload = _bytes(msg.data)
+            try:  # OpenCV asserts on an empty buffer instead of returning None
+                image = cv2.imdecode(payload, cv2.IMREAD_COLOR) if payload.size else None
+            except cv2.error:
+                image = None
             if image is None:
                 raise InputError(self.path, f"{where}: the {msg.format} image does not decode (damaged)")
             return image
@@ -390,12 +394,18 @@ class LogReader:
         return audio
 
     def _read_array(self, topic: str, audio: LogAudio) -> None:
+        problem = f"array description on {topic}"
         for _, _, msg in self._messages([topic]):
-            spec = msg if isinstance(msg, dict) else yaml.safe_load(str(msg.data))
+            # a ROS std_msgs/String holds YAML text; a JSON channel decodes to any JSON value
+            spec = getattr(msg, "data", msg) if not isinstance(msg, dict) else msg
+            if isinstance(spec, str):
+                try:
+                    spec = yaml.safe_load(spec)
+                except yaml.YAMLError as exc:
+                    raise InputError(self.path, f"{problem} is not YAML ({_first_line(exc)})") from None
             break
         else:
             return
-        problem = f"array description on {topic}"
         if not isinstance(spec, dict) or "mics" not in spec:
             raise InputError(self.path, f"{problem} has no 'mics' list")
         try:
@@ -411,12 +421,16 @@ class LogReader:
                 f"{audio.samples.shape[1]} channel(s)",
             )
         rate = spec.get("sample_rate", audio.sample_rate)
-        if int(rate) != audio.sample_rate:
+        if isinstance(rate, bool) or not isinstance(rate, int | float) or rate != audio.sample_rate:
             raise InputError(
-                self.path, f"{problem} says sample_rate {rate}, the audio is {audio.sample_rate} Hz"
+                self.path, f"{problem} says sample_rate {rate!r}, the audio is {audio.sample_rate} Hz"
             )
-        audio.mics = mics
         full = spec.get("full_scale_db_spl")
+        if full is not None and (
+            isinstance(full, bool) or not isinstance(full, int | float) or not math.isfinite(full)
+        ):
+            raise InputError(self.path, f"{problem}: full_scale_db_spl {full!r} is not a number (dB SPL)")
+        audio.mics = mics
         audio.full_scale_db_spl = None if full is None else float(full)
 
     # ------------------------------------------------------------------------------------ poses
@@ -687,17 +701,25 @@ class BagLog(LogReader):
         super().__init__(path)
         from rosbags.highlevel import AnyReader
 
+        reader = None
         try:
-            self._reader = AnyReader([path])
-            self._reader.open()
+            reader = AnyReader([path])
+            reader.open()
+            # rosbags reads parts of metadata.yaml lazily: a damaged one fails here, not at open
+            for name, info in reader.topics.items():
+                schema = _ros_name(info.msgtype or "")
+                encoding = info.connections[0].ext.serialization_format if info.connections else "cdr"  # type: ignore[union-attr]
+                self._topics[name] = TopicInfo(
+                    name, schema, str(encoding), int(info.msgcount), _kind(schema, name)
+                )
         except Exception as exc:
+            try:
+                if reader is not None:
+                    reader.close()
+            except Exception:  # it did not open: nothing to release
+                pass
             raise InputError(path, f"is not a readable ROS 2 bag ({_first_line(exc)})") from None
-        for name, info in self._reader.topics.items():
-            schema = _ros_name(info.msgtype or "")
-            encoding = info.connections[0].ext.serialization_format if info.connections else "cdr"  # type: ignore[union-attr]
-            self._topics[name] = TopicInfo(
-                name, schema, str(encoding), int(info.msgcount), _kind(schema, name)
-            )
+        self._reader = reader
 
     def _raw_messages(self, topics: Iterable[str]) -> Iterator[tuple[Any, int, Any]]:
         """``(connection, log_time_ns, serialized bytes)`` for ``topics``, in log-time order."""

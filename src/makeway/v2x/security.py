@@ -198,6 +198,8 @@ def _load_cert(path: Path) -> x509.Certificate:
         cert = x509.load_pem_x509_certificate(path.read_bytes())
     except OSError as exc:
         raise InputError(path, f"cannot be read ({exc.strerror})") from None
+    except x509.InvalidVersion as exc:  # not a ValueError
+        raise InputError(path, f"is a damaged X.509 certificate ({exc})") from None
     except ValueError:
         raise InputError(path, "is not a PEM X.509 certificate") from None
     try:

@@ -150,6 +150,11 @@ class AlertSubscriber:
         """Payloads dropped unread because the queue was full."""
         return self._queue.dropped
 
+    @property
+    def pending(self) -> int:
+        """Payloads received and not yet handed out."""
+        return len(self._queue)
+
     def close(self) -> None:
         for sub in self._subs:
             sub.undeclare()

@@ -59,7 +59,7 @@ from makeway.perceive.audio.windows import (
     StreamSmoother,
     window_starts,
 )
-from makeway.perceive.health import audio_health, repair_window
+from makeway.perceive.health import SwapCheck, audio_health, repair_window
 from makeway.queues import live, paced
 from makeway.sense.recording import AUDIO_FILE, REFERENCE_FULL_SCALE_DB_SPL, Recording
 
@@ -74,9 +74,11 @@ class SirenListener:
     calibration (``None``: the networks' scale). ``source`` names the stream in error messages.
 
     With ``health`` (the default) every window's capsules are checked first
-    (:func:`~makeway.perceive.health.audio_health`: dead, clipped or uncorrelated) and a distrusted
-    one is rebuilt from its neighbours (:func:`~makeway.perceive.health.repair_window`) before
-    anything else reads the window; the observation's ``health`` says which.
+    (:func:`~makeway.perceive.health.audio_health`: dead, clipped or uncorrelated; and, over the
+    windows so far, two capsules swapped: :class:`~makeway.perceive.health.SwapCheck`, undone by
+    re-ordering when the array's symmetry allows) and a distrusted one is rebuilt from its
+    neighbours (:func:`~makeway.perceive.health.repair_window`) before anything else reads the
+    window; the observation's ``health`` says which.
     """
 
     def __init__(
@@ -96,6 +98,8 @@ class SirenListener:
         health: bool = True,
     ) -> None:
         self.check_health = bool(health)
+        self.swap_check = SwapCheck(mics, int(sample_rate)) if self.check_health else None
+        """Two capsules wired the wrong way round, found over the windows heard so far."""
         self.smoother = StreamSmoother(smooth, average)
         self.doa = DOA_METHODS[method]
         self.mics = np.asarray(mics, dtype=np.float64)
@@ -139,9 +143,11 @@ class SirenListener:
         return self.model.threshold if self.model is not None else 0.5
 
     def reset(self) -> SirenListener:
-        """Forget the history (decision smoothing, approach trend)."""
+        """Forget the history (decision smoothing, approach trend, what the swap check heard)."""
         self.smoother.reset()
         self.approach.reset()
+        if self.swap_check is not None:
+            self.swap_check.reset()
         return self
 
     def step(self, window: np.ndarray, t_end: float) -> SirenObservation:
@@ -151,9 +157,12 @@ class SirenListener:
         health = None
         if self.check_health:
             health = audio_health(window, self.mics, sr, t_end)
+            if self.swap_check is not None:
+                self.swap_check.update(window, t_end, self.window_s)
+                window, health = self.swap_check.repair(window, health)
             if not health.ok:
                 window, rebuilt = repair_window(window, self.mics, health)
-                health = replace(health, repaired=rebuilt)
+                health = replace(health, repaired=tuple(sorted({*health.repaired, *rebuilt})))
         model = self.model
         pred = model.predict(window, self.full_scale_db_spl) if model is not None else None
         if pred is not None:
