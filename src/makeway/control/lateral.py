@@ -249,6 +249,7 @@ def _fit_errors(
     line_tolerance_m: float,
     point_spacing_m: float | None = None,
     ahead: bool = True,
+    cache: dict[bytes, LineFit | ArcFit] | None = None,
 ) -> tuple[TrackingErrors, int, LineFit | ArcFit]:
     xs, ys, index = window(
         path,
@@ -259,9 +260,25 @@ def _fit_errors(
         ahead=ahead,
         stride=_stride(path, point_spacing_m),
     )
-    fit = fit_local(xs, ys, line_tolerance_m=line_tolerance_m)
+    fit: LineFit | ArcFit | None = None
+    key = b""
+    if cache is not None:
+        # the same window points give the same fit: look it up by the points' bytes
+        key = xs.tobytes() + ys.tobytes()
+        fit = cache.get(key)
+    if fit is None:
+        fit = fit_local(xs, ys, line_tolerance_m=line_tolerance_m)
+        if cache is not None:
+            if len(cache) >= _FIT_CACHE_SIZE:
+                cache.pop(next(iter(cache)))
+            cache[key] = fit
     errors = tracking_errors(fit, state.x_m, state.y_m, state.yaw_rad, state.yaw_rate_radps, state.vx_mps)
     return errors, index, fit
+
+
+_FIT_CACHE_SIZE = 8
+"""Local fits a controller remembers (the path's window moves one point every few control periods,
+and the delay compensation fits two windows per period)."""
 
 
 class _LocalFitController:
@@ -285,12 +302,20 @@ class _LocalFitController:
         self.line_tolerance_m = line_tolerance_m
         self.point_spacing_m = point_spacing_m
         self.ahead = ahead
+        self._fits: dict[bytes, LineFit | ArcFit] = {}
 
     def _errors(
         self, state: VehicleState, path: ReferencePath, hint: int | None
     ) -> tuple[TrackingErrors, int, LineFit | ArcFit]:
         return _fit_errors(
-            state, path, hint, self.n_points, self.line_tolerance_m, self.point_spacing_m, self.ahead
+            state,
+            path,
+            hint,
+            self.n_points,
+            self.line_tolerance_m,
+            self.point_spacing_m,
+            self.ahead,
+            self._fits,
         )
 
     def errors(

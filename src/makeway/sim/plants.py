@@ -105,6 +105,9 @@ class PlantDivergedError(ValueError):
     an overflow in CommonRoad's model, or a yaw rate beyond any car's): the loop was unstable."""
 
 
+RK4_REAL_STABILITY = 2.785
+"""Where the classic RK4 method's stability region meets the negative real axis (``|λ h|``)."""
+
 MAX_YAW_RATE_RADPS = 5.0
 """A yaw rate no car on tyres reaches (beyond it the car is spinning: the run has diverged)."""
 
@@ -241,6 +244,7 @@ class CommonRoadPlant:
         max_substep_s: float = 0.005,
         handover_low_mps: float = 1.0,
         handover_high_mps: float = 1.5,
+        stability_fraction: float = 2.0 / RK4_REAL_STABILITY,
     ) -> None:
         if model not in _MODELS:
             raise ValueError(f"unknown CommonRoad model {model!r}; choose from: {', '.join(_MODELS)}")
@@ -260,10 +264,11 @@ class CommonRoadPlant:
         # static wheel load and the wheel-spin mode's step bound per m/s (module docstring)
         fz = p.m * G * max(p.a, p.b) / (p.a + p.b)
         fz_wheel = fz if model == "single_track_drift" else 0.5 * fz
-        self._h_per_mps = 2.0 * p.I_y_w / (p.R_w**2 * fz_wheel * p.tire.p_kx1)
+        limit = stability_fraction * RK4_REAL_STABILITY
+        self._h_per_mps = limit * p.I_y_w / (p.R_w**2 * fz_wheel * p.tire.p_kx1)
         if model == "single_track":
             # lateral modes of the linear-tyre single track: |λ| ≈ μ C_S g (…)/u
-            self._h_per_mps = 2.0 / (-p.tire.p_ky1 * G * 2.0)
+            self._h_per_mps = limit / (-p.tire.p_ky1 * G * 2.0)
         self._x: list[float] = []
         self._kinematic = True  # below the hand-over speed: (x, y, δ, v, ψ) at the CG
         self._ax = 0.0
