@@ -347,6 +347,14 @@ class FeedforwardFeedback(_LocalFitController):
     With ``sideslip_compensation`` (default) the yaw error is fed back relative to its steady-state
     value on the fitted arc (``δ_β`` in the module docstring); without it the law is seed 003's.
     ``gains`` default to :func:`default_gains` for ``params``.
+
+    ``max_approach_rad`` (default 0.05 rad, 2.9°; ``None``: linear everywhere) bounds the lateral
+    error's term: ``k_e·e_lat`` is clipped to ``±k_θ·max_approach_rad``, so far off the path the law
+    steers for a yaw error of at most that angle towards it instead of a steering angle in
+    proportion to the offset. Within ``|e_lat| ≤ (k_θ/k_e)·max_approach_rad`` (0.15 m at 13 m/s) the
+    law is the linear one the gains were designed for; beyond, the steering the high ``k_e`` asks
+    for a 0.5 m offset (0.57 rad at 13 m/s) would meet the actuator's lock and rate limit and the
+    loop, linear only on paper, would oscillate.
     """
 
     def __init__(
@@ -359,6 +367,7 @@ class FeedforwardFeedback(_LocalFitController):
         point_spacing_m: float | None = 1.0,
         ahead: bool = False,
         sideslip_compensation: bool = True,
+        max_approach_rad: float | None = 0.05,
     ) -> None:
         super().__init__(
             params,
@@ -369,6 +378,7 @@ class FeedforwardFeedback(_LocalFitController):
         )
         self.gains = gains if gains is not None else default_gains(params)
         self.sideslip_compensation = sideslip_compensation
+        self.max_approach_rad = max_approach_rad
 
     def feedforward(self, curvature_1pm: float, vx: float) -> float:
         """``δ_ff = L/R + (m/L)(b/C_f − a/C_r)·v_x²/R`` with ``1/R`` = the signed curvature."""
@@ -389,7 +399,11 @@ class FeedforwardFeedback(_LocalFitController):
         e_lat, yaw_error, yaw_rate_error = errors.e_lat, errors.yaw_error, errors.yaw_rate_error
         k_e, k_theta, k_omega = self.gains.gains(vx)
         delta_ff = self.feedforward(errors.curvature_1pm, vx)
-        delta_fb = -k_e * e_lat - k_theta * yaw_error - k_omega * yaw_rate_error
+        e_term = k_e * e_lat
+        if self.max_approach_rad is not None:  # far off the path: approach it at a bounded angle
+            cap = k_theta * self.max_approach_rad
+            e_term = min(max(e_term, -cap), cap)
+        delta_fb = -e_term - k_theta * yaw_error - k_omega * yaw_rate_error
         delta_beta = 0.0
         if self.sideslip_compensation:
             delta_beta = k_theta * self.steady_yaw_error(errors.curvature_1pm, vx)
