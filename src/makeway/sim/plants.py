@@ -82,6 +82,7 @@ from makeway.vehicle import VehicleParams
 
 __all__ = [
     "PLANTS",
+    "RK4_REAL_STABILITY",
     "ROADS",
     "VEHICLES",
     "ActuatorConfig",
@@ -91,7 +92,6 @@ __all__ = [
     "Plant",
     "PlantDivergedError",
     "PlantSpec",
-    "RK4_REAL_STABILITY",
     "vehicle_parameters",
 ]
 
