@@ -101,10 +101,13 @@ __all__ = [
 
 DEFAULT_DESIGN_SPEEDS_MPS: tuple[float, ...] = tuple(float(v) for v in range(5, 31))
 # Bryson weights: acceptable e_lat, ė_lat, θ̃, θ̃̇, δ (None: not weighted) and δ_cmd
-_DEFAULT_STATE_SCALES: tuple[float | None, ...] = (0.03, None, 0.05, 0.2, None)
+_DEFAULT_STATE_SCALES: tuple[float | None, ...] = (0.02, None, 0.05, 0.2, None)
 _DEFAULT_INPUT_SCALE = 0.05
 # standard deviations of the initial error state (m, m/s, rad, rad/s, rad)
 _DEFAULT_X0_STD: tuple[float, ...] = (0.5, 0.2, 0.05, 0.05, 0.01)
+DESIGN_RESIDUAL_DELAY_S = 0.05
+"""Steering transport delay the gains are designed to tolerate beyond what the delay compensation
+predicts (s): the compensation assumes a nominal 0.15 s for a real 0.1–0.2 s (module docstring)."""
 
 
 class LateralController(Protocol):
@@ -118,9 +121,15 @@ class LateralController(Protocol):
 # ------------------------------------------------------------------------------------------ design
 
 
-def path_error_model(params: VehicleParams, vx: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def path_error_model(
+    params: VehicleParams, vx: float, residual_delay_s: float = 0.0
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``(A, B, C)`` of the path-error model (module docstring) at speed ``vx``: state
-    ``[e_lat, ė_lat, θ̃, θ̃̇, δ]``, input ``δ_cmd``, output ``[e_lat, θ̃, θ̃̇]``."""
+    ``[e_lat, ė_lat, θ̃, θ̃̇, δ]``, input ``δ_cmd``, output ``[e_lat, θ̃, θ̃̇]``.
+
+    With ``residual_delay_s`` > 0 a first-order Padé approximation of that transport delay sits
+    between ``δ_cmd`` and the actuator, ``(1 − sT/2)/(1 + sT/2)``, as a sixth state ``z``
+    (``ż = (2/T)(δ_cmd − z)``, the delayed command ``2z − δ_cmd``)."""
     A2, B2 = lateral_dynamics_matrices(params, vx)
     tau = params.steer_time_constant_s
     # with v_y = ė − v_x θ̃ and r = θ̃̇ (+ v_x κ, a constant that the feed-forward cancels):
@@ -141,7 +150,19 @@ def path_error_model(params: VehicleParams, vx: float) -> tuple[np.ndarray, np.n
     B[4, 0] = 1.0 / tau
     C = np.zeros((3, 5))
     C[0, 0] = C[1, 2] = C[2, 3] = 1.0
-    return A, B, C
+    if residual_delay_s <= 0.0:
+        return A, B, C
+    rate = 2.0 / residual_delay_s
+    Ad = np.zeros((6, 6))
+    Ad[:5, :5] = A
+    Ad[:5, 5:] = 2.0 * B
+    Ad[5, 5] = -rate
+    Bd = np.zeros((6, 1))
+    Bd[:5] = -B
+    Bd[5, 0] = rate
+    Cd = np.zeros((3, 6))
+    Cd[:, :5] = C
+    return Ad, Bd, Cd
 
 
 @dataclass(frozen=True, eq=False)
@@ -196,6 +217,7 @@ def design_gains(
     state_scales: tuple[float | None, ...] = _DEFAULT_STATE_SCALES,
     input_scale: float = _DEFAULT_INPUT_SCALE,
     x0_std: tuple[float, ...] = _DEFAULT_X0_STD,
+    residual_delay_s: float = DESIGN_RESIDUAL_DELAY_S,
 ) -> GainSchedule:
     """Structured LQR gains ``(k_e, k_θ, k_ω)`` per speed (module docstring).
 
@@ -205,14 +227,19 @@ def design_gains(
     speeds = np.asarray(speeds_mps, dtype=float).ravel()
     if speeds.size == 0 or np.any(speeds <= 0.0) or np.any(np.diff(speeds) <= 0.0):
         raise ValueError("speeds_mps must be positive and increasing")
-    Q = np.diag([0.0 if s is None else 1.0 / s**2 for s in state_scales])
+    scales = list(state_scales)
+    x0 = list(x0_std)
+    if residual_delay_s > 0.0:  # the Padé state: not weighted, started like δ
+        scales.append(None)
+        x0.append(x0[-1])
+    Q = np.diag([0.0 if s is None else 1.0 / s**2 for s in scales])
     R = np.array([[1.0 / input_scale**2]])
-    X0 = np.diag(np.asarray(x0_std, dtype=float) ** 2)
+    X0 = np.diag(np.asarray(x0, dtype=float) ** 2)
     starts = [np.array(g) for g in ((0.1, 0.5, 0.05), (0.05, 0.3, 0.02), (0.2, 1.0, 0.1), (0.02, 0.2, 0.0))]
     previous: np.ndarray | None = None
     rows_k, rows_eig, costs = [], [], []
     for vx in speeds:
-        A, B, C = path_error_model(params, float(vx))
+        A, B, C = path_error_model(params, float(vx), residual_delay_s)
         candidates = ([previous] if previous is not None else []) + starts
         k0 = next((c for c in candidates if _is_stable(c, A, B, C)), None)
         if k0 is None:
