@@ -16,7 +16,7 @@ vehicle are fitted by a line or an arc (:mod:`makeway.plan.curvefit`), which giv
 ``C_r`` per axle, as in :mod:`makeway.vehicle`). ``δ_β`` is not in seed 003: cornering steadily,
 the car's heading differs from the path tangent by its sideslip angle, so ``θ̃`` settles at
 ``θ̃_ss ≠ 0`` and seed 003's ``−k_θ·θ̃`` then holds a lateral error ``k_θ θ̃_ss / k_e`` (on
-R = 100 m at 15 m/s with the default gains: 1.6 cm). Feeding back ``θ̃ − θ̃_ss`` instead (Rajamani, *Vehicle
+R = 100 m at 15 m/s with the default gains: 1.8 cm). Feeding back ``θ̃ − θ̃_ss`` instead (Rajamani, *Vehicle
 Dynamics and Control*, §3.2, the ``e2_ss`` term) removes it; ``sideslip_compensation=False`` gives
 seed 003's law exactly.
 
@@ -43,23 +43,31 @@ from the Lyapunov equation ``A_clᵀP + P A_cl + Q + CᵀKᵀRKC = 0`` and the g
 ``J`` is minimised with BFGS from a stabilising start; unstable candidates are rejected (infinite
 cost). Unlike state-feedback LQR the optimum depends on ``X₀``, so it is part of the design.
 
-Weights (Bryson's rule, ``1/(acceptable value)²``): ``e_lat`` 0.03 m, ``θ̃`` 0.05 rad, ``θ̃̇`` 0.2 rad/s,
+Weights (Bryson's rule, ``1/(acceptable value)²``): ``e_lat`` 0.02 m, ``θ̃`` 0.05 rad, ``θ̃̇`` 0.2 rad/s,
 ``δ_cmd`` 0.05 rad. ``X₀``: standard deviations 0.5 m, 0.2 m/s, 0.05 rad, 0.05 rad/s, 0.01 rad — a
 lane-change-sized offset. One triple per speed on a grid; :meth:`GainSchedule.gains` interpolates
-linearly and clamps outside the grid. At 13 m/s this gives ``k_e`` 1.13 rad/m, ``k_θ`` 3.33,
-``k_ω`` 0.42 s, the slowest closed-loop pole of the design model at −1.8 s⁻¹ over 5–30 m/s.
+linearly and clamps outside the grid.
+
+**Residual delay.** A steering transport delay is taken out of the loop by
+:mod:`makeway.control.delay`, which predicts over a *nominal* delay (0.15 s); a real one may be
+0.1–0.2 s. The gains are therefore designed on the error model with a residual delay of
+``DESIGN_RESIDUAL_DELAY_S`` = 0.05 s in front of the actuator (first-order Padé,
+:func:`path_error_model`), so that the loop they close on the design model stays stable for up to
+±0.05 s of delay the prediction did not cover (checked: slowest pole of the design model with a
+0.05 s residual delay −0.46 s⁻¹ at 30 m/s; a design without the Padé state, ``e_lat`` weighted
+0.03 m, was unstable above 16 m/s with that residual delay, and CommonRoad's multi-body BMW went
+into a growing weave with a real 0.2 s delay). At 13 m/s
+this gives ``k_e`` 0.82 rad/m, ``k_θ`` 2.63, ``k_ω`` 0.40 s; the undelayed loop's slowest pole is
+−1.6 s⁻¹ over 5–30 m/s.
 
 Why these weights (the design model alone decides them). The yaw error a car holds on an arc is
 its sideslip angle, which depends on its tyres — the least certain part of any car model; the
-feedback turns a yaw-reference error ``Δθ`` into a lateral offset ``(k_θ/k_e)·Δθ``. An earlier
-weighting (``e_lat`` 0.1 m, ``θ̃`` 0.02 rad, ``θ̃̇`` 0.1 rad/s) had ``k_θ/k_e`` = 7.6 m at 13 m/s: 1.5 mrad
-of sideslip the design model does not share cost 1 cm, and the lateral error converged with a time
-constant near 1 s. Weighting ``e_lat`` more and ``θ̃`` less brings the ratio to 2.9 m and the lateral
-mode to about 0.5 s; it also lowers the design car's own figure (seed003, linear plant, no delay:
-max |e_lat| 0.012 m instead of 0.014 m). On CommonRoad's multi-body cars with a 0.15 s steering delay
-(predicted with the ``mean`` predictor of :mod:`makeway.control.delay`) it brings seed003 from
-0.053 m to 0.015 m on the BMW 320i, ahead of Stanley (0.021 m) and pure pursuit on the same plant
-(``benchmarks/bench_robust_pull_over.py``).
+feedback turns a yaw-reference error ``Δθ`` into a lateral offset ``(k_θ/k_e)·Δθ``. Seed-003-like
+weights (``e_lat`` 0.1 m, ``θ̃`` 0.02 rad, ``θ̃̇`` 0.1 rad/s, no residual delay) had ``k_θ/k_e`` = 7.6 m at
+13 m/s: 1.5 mrad of sideslip the design model does not share cost 1 cm, and the lateral error
+converged with a time constant near 1 s. Weighting ``e_lat`` more and ``θ̃`` less brings the ratio to
+3.2 m; it also lowers the design car's own figure (seed003, linear plant, no delay: max |e_lat|
+0.012 m instead of 0.014 m). Results on CommonRoad's cars: ``benchmarks/bench_robust_pull_over.py``.
 
 **Baselines** on the same interface (δ, errors, nearest index), their errors computed the same way:
 
@@ -88,6 +96,7 @@ from makeway.vehicle import VehicleParams, lateral_dynamics_matrices
 
 __all__ = [
     "DEFAULT_DESIGN_SPEEDS_MPS",
+    "DESIGN_RESIDUAL_DELAY_S",
     "LATERAL_CONTROLLERS",
     "FeedforwardFeedback",
     "GainSchedule",
@@ -169,7 +178,8 @@ def path_error_model(
 class GainSchedule:
     """Feedback gains per design speed and the closed-loop eigenvalues of the error model there.
 
-    ``eigenvalues`` has one row of five (complex) eigenvalues per speed; ``cost`` is ``J`` per speed.
+    ``eigenvalues`` has one row of five (complex) eigenvalues per speed, those of the loop without
+    the residual delay; ``cost`` is ``J`` per speed (of the design with it).
     """
 
     speeds_mps: np.ndarray
@@ -222,7 +232,9 @@ def design_gains(
     """Structured LQR gains ``(k_e, k_θ, k_ω)`` per speed (module docstring).
 
     ``state_scales``/``input_scale`` are Bryson scales of ``[e_lat, ė_lat, θ̃, θ̃̇, δ]``/``δ_cmd``
-    (``None``: state not weighted); ``x0_std`` the initial-state standard deviations.
+    (``None``: state not weighted); ``x0_std`` the initial-state standard deviations;
+    ``residual_delay_s`` the transport delay (s) the design model carries in front of its actuator
+    (module docstring; 0: none).
     """
     speeds = np.asarray(speeds_mps, dtype=float).ravel()
     if speeds.size == 0 or np.any(speeds <= 0.0) or np.any(np.diff(speeds) <= 0.0):
@@ -250,7 +262,9 @@ def design_gains(
         k = res.x if np.isfinite(res.fun) and _is_stable(res.x, A, B, C) else k0
         cost, _ = _lqr_cost(k, A, B, C, Q, R, X0)
         rows_k.append(k)
-        rows_eig.append(np.linalg.eigvals(A - B @ k.reshape(1, -1) @ C))
+        # the eigenvalues of the loop without the residual delay (the compensated nominal loop)
+        A0, B0, C0 = path_error_model(params, float(vx))
+        rows_eig.append(np.linalg.eigvals(A0 - B0 @ k.reshape(1, -1) @ C0))
         costs.append(cost)
         previous = k
     K = np.array(rows_k)
@@ -377,17 +391,18 @@ class FeedforwardFeedback(_LocalFitController):
 
     Design, in short: the gains ``k_e`` (rad/m), ``k_θ`` (rad/rad) and ``k_ω`` (s) come from the
     structured LQR of the module docstring on the design car alone (``params``, the linear
-    single-track model with its 0.1 s steering lag as a state), scheduled over 5–30 m/s. A steering
-    transport delay is not in that design: :class:`~makeway.control.delay.DelayCompensated` (nominal
-    0.15 s, ``mean`` predictor) lets this law steer on the state predicted over the delay, so the
-    loop the gains see is the undelayed one. Nothing of the simulated car is used.
+    single-track model with its 0.1 s steering lag as a state, and a 0.05 s residual transport
+    delay as a Padé state), scheduled over 5–30 m/s. The nominal steering delay (0.15 s) is taken
+    out by :class:`~makeway.control.delay.DelayCompensated` (``mean`` predictor), which lets this
+    law steer on the state predicted over it; the residual term covers a real delay 0.05 s off
+    the nominal one. Nothing of the simulated car is used.
 
     ``max_approach_rad`` (default 0.05 rad, 2.9°; ``None``: linear everywhere) bounds the lateral
     error's term: ``k_e·e_lat`` is clipped to ``±k_θ·max_approach_rad``, so far off the path the law
     steers for a yaw error of at most that angle towards it instead of a steering angle in
-    proportion to the offset. Within ``|e_lat| ≤ (k_θ/k_e)·max_approach_rad`` (0.15 m at 13 m/s) the
+    proportion to the offset. Within ``|e_lat| ≤ (k_θ/k_e)·max_approach_rad`` (0.16 m at 13 m/s) the
     law is the linear one the gains were designed for; beyond, the steering the high ``k_e`` asks
-    for a 0.5 m offset (0.57 rad at 13 m/s) would meet the actuator's lock and rate limit and the
+    for a 0.5 m offset (0.41 rad at 13 m/s) would meet the actuator's lock and rate limit and the
     loop, linear only on paper, would oscillate.
     """
 
