@@ -31,11 +31,12 @@ seed003 with a 0.15 s steering delay, feed-forward + feedback (max |e_lat|, m):
 =================================  ========  ===========  ========
 plant                              design    kinematic    mean
 =================================  ========  ===========  ========
-linear (the design car)            0.012     0.040        0.018
-CommonRoad multi-body BMW 320i     0.026     0.011        0.015
+linear (the design car)            0.012     0.043        0.020
+CommonRoad multi-body BMW 320i     0.029     0.011        0.019
 =================================  ========  ===========  ========
 
-(Stanley on the multi-body BMW: 0.023, 0.020, 0.021.) All controllers get the same predictor.
+(Stanley on the multi-body BMW: 0.023, 0.020, 0.021; ``benchmarks/bench_robust_pull_over.py``.)
+All controllers get the same predictor.
 
 Integration: explicit Euler on half control periods (the design model's lateral modes are slower
 than −160 s⁻¹ above 3 m/s; Euler is stable to ``|λ h| < 2``). The longitudinal acceleration is held
