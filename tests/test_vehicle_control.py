@@ -19,6 +19,7 @@ from makeway.control import (
     design_gains,
     path_error_model,
 )
+from makeway.control.lateral import DESIGN_RESIDUAL_DELAY_S
 from makeway.messages import ControlCommand, ReferencePath, TrackingErrors, VehicleState
 from makeway.plan.path import make_path
 from makeway.sim.vehicle import SingleTrackModel
@@ -247,10 +248,11 @@ def test_gain_design_optimum_beats_its_start_and_neighbours() -> None:
     from makeway.control.lateral import _lqr_cost
 
     single = design_gains(P, [13.4])
-    A, B, C = path_error_model(P, 13.4)
-    Q = np.diag([1 / 0.1**2, 0.0, 1 / 0.02**2, 1 / 0.1**2, 0.0])
+    # the design model with the 0.05 s residual steering delay (a Padé state) the gains tolerate
+    A, B, C = path_error_model(P, 13.4, DESIGN_RESIDUAL_DELAY_S)
+    Q = np.diag([1 / 0.02**2, 0.0, 1 / 0.05**2, 1 / 0.2**2, 0.0, 0.0])
     R = np.array([[1 / 0.05**2]])
-    X0 = np.diag(np.array([0.5, 0.2, 0.05, 0.05, 0.01]) ** 2)
+    X0 = np.diag(np.array([0.5, 0.2, 0.05, 0.05, 0.01, 0.01]) ** 2)
     k = np.array([single.k_e[0], single.k_theta[0], single.k_omega[0]])
     best, grad = _lqr_cost(k, A, B, C, Q, R, X0)
     assert best == pytest.approx(single.cost[0])
@@ -319,7 +321,8 @@ def test_feedforward_does_the_work_on_a_circle() -> None:
     no_ff = FeedforwardFeedback(P, sideslip_compensation=False)
     no_ff.feedforward = lambda curvature_1pm, vx: 0.0  # type: ignore[method-assign]
     fb_only, _, _ = _drive(no_ff, path, start, 15.0)
-    assert np.max(np.abs(_e_lat(fb_only)[-300:])) > 0.05
+    # (k_e ≈ 0.71 rad/m at 15 m/s: a couple of centimetres for the 0.034 rad this circle needs)
+    assert np.max(np.abs(_e_lat(fb_only)[-300:])) > 0.01
 
 
 def test_seed_law_keeps_a_sideslip_offset_that_the_compensation_removes() -> None:

@@ -8,9 +8,9 @@ Prog.* 53, 1957): it keeps the commands
 issued during the last ``T_d`` (sent, not yet applied), integrates a model of the design car
 (:class:`~makeway.vehicle.VehicleParams`) forward over them from the measured state, and lets the
 wrapped controller steer on that predicted state. Only the design car and the nominal delay ``T_d``
-of the steering spec are used, never the plant's parameters. Two predictors (``model``):
+of the steering spec are used, never the plant's parameters. Three predictors (``model``):
 
-* ``design`` (default): the full linear single-track model the gains were designed on (with its
+* ``design``: the full linear single-track model the gains were designed on (with its
   tyres; the kinematic bicycle below ``kinematic_below_mps``). Exact on the design car; a car whose
   steering gain differs (the CommonRoad cars are about neutral-steer where the design car
   understeers: 27 % more yaw per radian at 13 m/s) is predicted wrongly throughout every
@@ -20,12 +20,23 @@ of the steering spec are used, never the plant's parameters. Two predictors (``m
   part of any car (cornering stiffness changes with the car, its load, its tyres and the road);
   over 0.15 s at the pull-over's lateral accelerations (≤ 1.5 m/s²) tyre slip changes the
   predicted heading by a few milliradians. It suits a neutral-steer car (as CommonRoad's are)
-  and costs the understeering design car itself accuracy (seed003 with a 0.15 s delay on the
-  linear plant: 0.052 m instead of 0.014 m).
+  and costs the understeering design car itself accuracy;
+* ``mean`` (default): the mean of the two predictions (position, heading, velocities, yaw rate).
+  The design model cannot tell how a real car's steering gain lies between its own tyres'
+  understeer and no tyres at all (neutral steer); the mean halves the worst prediction error over
+  that range instead of betting on either end.
 
-On seed003 with a 0.15 s delay, CommonRoad's single-track BMW: feed-forward + feedback 0.046 m
-with ``design``, 0.018 m with ``kinematic``; Stanley 0.017 m and 0.023 m. All controllers get the
-same predictor; which one fits depends on how the car steers, which the design car cannot tell.
+seed003 with a 0.15 s steering delay, feed-forward + feedback (max |e_lat|, m):
+
+=================================  ========  ===========  ========
+plant                              design    kinematic    mean
+=================================  ========  ===========  ========
+linear (the design car)            0.012     0.043        0.020
+CommonRoad multi-body BMW 320i     0.029     0.011        0.019
+=================================  ========  ===========  ========
+
+(Stanley on the multi-body BMW: 0.023, 0.020, 0.021; ``benchmarks/bench_robust_pull_over.py``.)
+All controllers get the same predictor.
 
 Integration: explicit Euler on half control periods (the design model's lateral modes are slower
 than −160 s⁻¹ above 3 m/s; Euler is stable to ``|λ h| < 2``). The longitudinal acceleration is held
@@ -42,7 +53,10 @@ from typing import Any
 from makeway.messages import ReferencePath, TrackingErrors, VehicleState
 from makeway.vehicle import VehicleParams
 
-__all__ = ["DelayCompensated", "predict_state"]
+__all__ = ["PREDICTORS", "DelayCompensated", "predict_state"]
+
+PREDICTORS: tuple[str, ...] = ("mean", "design", "kinematic")
+"""The predictors :class:`DelayCompensated` offers (module docstring); the first is the default."""
 
 
 def _clip(value: float, low: float, high: float) -> float:
@@ -100,21 +114,37 @@ def predict_state(
     )
 
 
+def _mean_state(a: VehicleState, b: VehicleState) -> VehicleState:
+    """The mean of two predictions of the same car at the same time (headings averaged on the circle)."""
+    return replace(
+        a,
+        x_m=0.5 * (a.x_m + b.x_m),
+        y_m=0.5 * (a.y_m + b.y_m),
+        yaw_rad=math.remainder(
+            a.yaw_rad + 0.5 * math.remainder(b.yaw_rad - a.yaw_rad, 2.0 * math.pi), 2.0 * math.pi
+        ),
+        vx_mps=0.5 * (a.vx_mps + b.vx_mps),
+        vy_mps=0.5 * (a.vy_mps + b.vy_mps),
+        yaw_rate_radps=0.5 * (a.yaw_rate_radps + b.yaw_rate_radps),
+        steer_rad=0.5 * (a.steer_rad + b.steer_rad),
+    )
+
+
 class DelayCompensated:
     """A lateral controller that steers on the state predicted ``delay_s`` ahead (module docstring).
 
     ``inner`` is a lateral controller with ``steer`` and ``errors`` (those of
     :data:`~makeway.control.LATERAL_CONTROLLERS`); ``delay_s`` a whole number of control periods
-    ``dt``; ``model`` the predictor (``design`` or ``kinematic``, module docstring).
+    ``dt``; ``model`` the predictor (one of :data:`PREDICTORS`, module docstring).
     :meth:`steer` returns the command, and the errors and nearest index of the *present* state
     (what the car is doing now, for logs and the planner).
     """
 
     def __init__(
-        self, inner: Any, params: VehicleParams, delay_s: float, dt: float, model: str = "design"
+        self, inner: Any, params: VehicleParams, delay_s: float, dt: float, model: str = "mean"
     ) -> None:
-        if model not in ("kinematic", "design"):
-            raise ValueError(f"unknown predictor {model!r}; choose from: kinematic, design")
+        if model not in PREDICTORS:
+            raise ValueError(f"unknown predictor {model!r}; choose from: {', '.join(PREDICTORS)}")
         self.model = model
         n = round(delay_s / dt)
         if n < 0 or abs(n * dt - delay_s) > 1e-9 + 1e-6 * delay_s:
@@ -132,8 +162,12 @@ class DelayCompensated:
         pending = list(self._pending)
         if len(pending) < self.steps:  # before the first commands: the wheel holds its angle
             pending = [state.steer_rad] * (self.steps - len(pending)) + pending
-        below = math.inf if self.model == "kinematic" else 3.0
-        return predict_state(state, pending, self.params, self.dt, kinematic_below_mps=below)
+        if self.model != "mean":
+            below = math.inf if self.model == "kinematic" else 3.0
+            return predict_state(state, pending, self.params, self.dt, kinematic_below_mps=below)
+        tyres = predict_state(state, pending, self.params, self.dt)
+        bicycle = predict_state(state, pending, self.params, self.dt, kinematic_below_mps=math.inf)
+        return _mean_state(tyres, bicycle)
 
     def steer(
         self, state: VehicleState, path: ReferencePath, hint: int | None = None

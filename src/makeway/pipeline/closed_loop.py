@@ -182,7 +182,7 @@ def run_scenario(
     localization: LocalizationConfig | None = None,
     localization_seed: int = 0,
     delay_compensation_s: float = 0.0,
-    delay_predictor: str = "design",
+    delay_predictor: str = "mean",
 ) -> ClosedLoopResult:
     """Run ``scenario`` in closed loop with the lateral controller ``controller`` (a name of
     :data:`~makeway.control.LATERAL_CONTROLLERS`) and the belief source ``perception`` builds
@@ -194,7 +194,7 @@ def run_scenario(
     the noise of the car's estimate of its own state, seeded with ``localization_seed``;
     ``delay_compensation_s`` > 0 wraps the lateral controller in
     :class:`~makeway.control.delay.DelayCompensated` for that nominal steering delay with the
-    predictor ``delay_predictor`` (``design`` or ``kinematic``; the design car only).
+    predictor ``delay_predictor`` (``mean``, ``design`` or ``kinematic``; the design car only).
     """
     params = params if params is not None else VehicleParams()
     lateral = LATERAL_CONTROLLERS[controller](params)
