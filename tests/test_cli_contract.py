@@ -217,6 +217,8 @@ def test_fuzz_track_through_the_cli(mot15_root: Path, tmp_path_factory: pytest.T
     @given(data=file_contents(seed))
     # found by the long run: a box at y = 1.15e18 has height 0 in floats, and SORT divided by it
     @example(data=b"1,-1,281.9,1.152921504606847e+18,187.4,79.9,0.99\n2,-1,281.9,1.15e+18,187.4,79.9,0.99\n")
+    # found by the long run: a frame number in the billions made the tracker step through every frame
+    @example(data=b"1,-1,281.9,100.0,187.4,79.9,0.99\n4398046511104,-1,281.9,100.0,187.4,79.9,0.99\n")
     def run(data: bytes) -> None:
         det = work / "det.txt"
         det.write_bytes(data)

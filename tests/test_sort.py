@@ -10,7 +10,7 @@ import pytest
 from makeway.eval.mot import combine, evaluate_mot
 from makeway.messages import Box, Detection
 from makeway.pipeline.mot import track_mot
-from makeway.sense.motfile import read_mot
+from makeway.sense.motfile import MotData, read_mot
 from makeway.track.sort import Sort, _BoxFilter, associate, iou_matrix
 
 
@@ -171,3 +171,31 @@ def test_mot15_tud_accuracy(mot15_root: Path) -> None:
     assert round(total.idf1 * 100, 1) >= 70.5
     assert total.motp > 0.7
     assert total.idsw <= 20
+
+
+def test_skip_equals_empty_updates_and_a_gap_of_any_length_is_cheap(mot15_root: Path) -> None:
+    """``Sort.skip(n)`` leaves the tracker exactly as ``n`` empty updates would, and tracking a
+    detection file whose frames jump by billions takes as long as its rows."""
+    dets = read_mot(mot15_root / "TUD-Campus" / "det" / "det.txt")
+    a, b = Sort(max_age=3), Sort(max_age=3)
+    for f, rows in dets.by_frame():
+        if f == 20:
+            for _ in range(7):
+                a.update_arrays(np.zeros((0, 4)))
+            b.skip(7)
+        ra = a.update_arrays(dets.xyxy[rows], dets.conf[rows])
+        rb = b.update_arrays(dets.xyxy[rows], dets.conf[rows])
+        assert np.array_equal(ra[1], rb[1]) and np.allclose(ra[0], rb[0])
+    assert a.frame_count == b.frame_count
+
+    far = MotData(
+        np.concatenate([dets.frames, dets.frames + 2**42]),
+        np.concatenate([dets.ids, dets.ids]),
+        np.concatenate([dets.xywh, dets.xywh]),
+        np.concatenate([dets.conf, dets.conf]),
+    )
+    tracks = track_mot(far)
+    near = track_mot(dets)
+    first = tracks.frames <= dets.num_frames
+    assert np.array_equal(tracks.frames[first], near.frames) and np.allclose(tracks.xywh[first], near.xywh)
+    assert (tracks.frames[~first] - 2**42).min() >= 1 and len(tracks) > len(near)

@@ -121,8 +121,10 @@ def evaluate_mot(gt: MotData, hyp: MotData, iou_threshold: float = 0.5) -> MotCo
     ov_rows: list[np.ndarray] = []
     ov_cols: list[np.ndarray] = []
 
-    gt_frames = gt.by_frame(num_frames)
-    hyp_frames = hyp.by_frame(num_frames)
+    # frames where neither file has a row change no count (and keep every last match): skipped
+    either = np.union1d(gt.frames_with_rows(), hyp.frames_with_rows())
+    gt_frames = gt.by_frame(only=either)
+    hyp_frames = hyp.by_frame(only=either)
     for (_, gi), (_, hi) in zip(gt_frames, hyp_frames, strict=True):
         n_g, n_h = len(gi), len(hi)
         if n_h == 0:

@@ -29,7 +29,10 @@ def track_mot(
     frames: list[np.ndarray] = []
     ids: list[np.ndarray] = []
     boxes: list[np.ndarray] = []
-    for f, rows in dets.by_frame(num_frames):
+    previous = 0
+    for f, rows in dets.by_frame(only=dets.frames_with_rows(num_frames)):
+        tracker.skip(f - previous - 1)  # the empty frames between: no track is confirmed on them
+        previous = f
         out_boxes, out_ids = tracker.update_arrays(xyxy[rows], dets.conf[rows])
         if len(out_ids):
             frames.append(np.full(len(out_ids), f, dtype=np.int64))

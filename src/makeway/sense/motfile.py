@@ -45,12 +45,24 @@ class MotData:
         out[:, 2:] += out[:, :2]
         return out
 
-    def by_frame(self, num_frames: int | None = None) -> Iterator[tuple[int, np.ndarray]]:
-        """Yield ``(frame, row indices)`` for every frame 1…``num_frames``, empty ones included."""
-        last = self.num_frames if num_frames is None else num_frames
-        starts = np.searchsorted(self.frames, np.arange(1, last + 2))
-        for f in range(1, last + 1):
-            yield f, np.arange(starts[f - 1], starts[f])
+    def by_frame(
+        self, num_frames: int | None = None, *, only: np.ndarray | None = None
+    ) -> Iterator[tuple[int, np.ndarray]]:
+        """Yield ``(frame, row indices)`` for every frame 1…``num_frames``, empty ones included; with
+        ``only`` (sorted 1-based frame numbers) for just those frames, so a sparse file with frame
+        numbers in the billions costs its rows, not its frame range."""
+        if only is None:
+            last = self.num_frames if num_frames is None else num_frames
+            only = np.arange(1, last + 1)
+        lo = np.searchsorted(self.frames, only, side="left").tolist()
+        hi = np.searchsorted(self.frames, only, side="right").tolist()
+        for f, a, b in zip(np.asarray(only).tolist(), lo, hi, strict=True):
+            yield int(f), np.arange(a, b)
+
+    def frames_with_rows(self, num_frames: int | None = None) -> np.ndarray:
+        """The sorted frame numbers that hold at least one row (up to ``num_frames``)."""
+        frames = np.unique(self.frames)
+        return frames if num_frames is None else frames[frames <= num_frames]
 
     def select(self, mask: np.ndarray) -> MotData:
         return MotData(self.frames[mask], self.ids[mask], self.xywh[mask], self.conf[mask])

@@ -218,6 +218,17 @@ class Sort:
             for t in self._step(boxes, scores, classes, labels)
         ]
 
+    def skip(self, frames: int) -> None:
+        """Advance ``frames`` frames in which nothing was detected: the same as that many
+        ``update([])`` calls (none of which confirms a track), but once every track has aged out the
+        rest of the gap only counts frames, so a gap of any length costs at most ``max_age + 1``
+        steps."""
+        n = max(0, int(frames))
+        while n > 0 and self._tracks:
+            self._step([], [], [], None)
+            n -= 1
+        self.frame_count += n
+
     def coast(self, steps: int = 1) -> None:
         """Carry every track ``steps`` frames forward on its motion model for frames that never
         arrived (dropped by the camera or the transport): no association, and the lost frames do not
