@@ -269,7 +269,7 @@ def run_listener(
     sender = ctx.Process(
         target=_publish, args=(endpoint, "bench", [b for b, _ in pool], rate_hz, seconds, sent), daemon=True
     )
-    lat: list[float] = []
+    lat = LatencyReservoir()  # millions of alerts: a list of floats would grow the process measured
     valid = 0
     last_round = 0
     sender.start()
@@ -306,8 +306,37 @@ def run_rate(
     return _summary(lat, mem, rate_hz, seconds, delivered[0], dropped)
 
 
+class LatencyReservoir:
+    """Latencies (s) kept in fixed memory: a uniform random sample of at most ``size`` of them
+    (reservoir sampling, Vitter's algorithm R), in an array allocated and touched before the run,
+    so that millions of alerts do not grow the process the benchmark measures; ``len`` counts all."""
+
+    def __init__(self, size: int = 1 << 20, seed: int = 29) -> None:
+        self._buf = np.full(size, np.nan)
+        self._rng = np.random.default_rng(seed)
+        self._draws = self._rng.random(size)
+        self._n = 0
+
+    def append(self, value: float) -> None:
+        n, size = self._n, len(self._buf)
+        if n < size:
+            self._buf[n] = value
+        else:
+            k = int(self._draws[n % size] * (n + 1))
+            if k < size:
+                self._buf[k] = value
+        self._n = n + 1
+
+    def __len__(self) -> int:
+        return self._n
+
+    @property
+    def values(self) -> np.ndarray:
+        return self._buf[: min(self._n, len(self._buf))]
+
+
 def _summary(
-    lat: list[float],
+    lat: list[float] | LatencyReservoir,
     mem: MemorySampler,
     rate_hz: float,
     seconds: float,
@@ -317,7 +346,7 @@ def _summary(
 ) -> dict[str, Any]:
     rss = [m for _, m in mem.samples]
     warm = rss[max(1, len(rss) // 10) :] or rss
-    arr = np.asarray(lat) * 1000.0
+    arr = (lat.values if isinstance(lat, LatencyReservoir) else np.asarray(lat)) * 1000.0
     return (extra or {}) | {
         "rate_hz": rate_hz,
         "seconds": seconds,
