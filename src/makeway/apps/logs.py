@@ -5,10 +5,9 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from makeway.sense.log_writer import make_test_log
 from makeway.sense.logs import open_log
 
-__all__ = ["log_info", "make_log"]
+__all__ = ["log_info"]
 
 
 def log_info(path: str | Path) -> dict[str, Any]:
@@ -34,20 +33,3 @@ def log_info(path: str | Path) -> dict[str, Any]:
                 for t in log.topics().values()
             ],
         }
-
-
-def make_log(
-    out: str | Path,
-    *,
-    video: str | Path | None = None,
-    recording: str | Path | None = None,
-    fmt: str = "mcap-ros2",
-    image: str = "compressed",
-    max_frames: int | None = 50,
-    stride: int = 1,
-) -> dict[str, Any]:
-    """Write a log from a video's frames and/or a recording folder's audio, array and ego path
-    (:func:`makeway.sense.log_writer.make_test_log`); returns what was written."""
-    return make_test_log(
-        out, video=video, recording=recording, fmt=fmt, image=image, max_frames=max_frames, stride=stride
-    )

@@ -80,9 +80,9 @@ def make_test(
 
     Topics: /camera/image, /audio/raw with its array on /audio/raw/array, /ego/odom.
     """
-    from makeway.apps.logs import make_log
+    from makeway.sense.log_writer import make_test_log
 
-    written = make_log(
+    written = make_test_log(
         out, video=video, recording=recording, fmt=fmt, image=image, max_frames=max_frames, stride=stride
     )
     if as_json:

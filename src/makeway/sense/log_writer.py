@@ -19,6 +19,7 @@ the three kinds, for tests, benchmarks and users who want to try the log inputs.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import os
@@ -102,14 +103,32 @@ def ros_time(ns: int) -> tuple[int, int]:
 
 
 class _AtomicLog:
+    """A log written beside its target and moved onto it when finished: subclasses say how to
+    finish (:meth:`_finish`) and how to let go of a half-written one (:meth:`_release`)."""
+
     path: Path
     _tmp: Path
 
-    def close(self) -> None:
+    def _finish(self) -> None:
         raise NotImplementedError
 
-    def abort(self) -> None:
+    def _release(self) -> None:
         raise NotImplementedError
+
+    def close(self) -> None:
+        """Finish the log and move it onto :attr:`path` (nothing is left on a failure)."""
+        try:
+            self._finish()
+            _publish(self._tmp, self.path)
+        except BaseException:
+            _discard(self._tmp)
+            raise
+
+    def abort(self) -> None:
+        """Drop everything written."""
+        with contextlib.suppress(Exception):  # the partial log is deleted anyway
+            self._release()
+        _discard(self._tmp)
 
     def __enter__(self) -> Any:
         return self
@@ -205,29 +224,18 @@ class Ros2LogWriter(_AtomicLog):
         else:
             self._mcap.add_message(handle, int(log_time_ns), data, int(log_time_ns))
 
-    def close(self) -> None:
-        """Finish the log and move it onto :attr:`path`."""
-        try:
-            if self.bag:
-                self._bag.close()
-            else:
-                self._mcap.finish()
-                self._file.close()
-            _publish(self._tmp, self.path)
-        except BaseException:
-            _discard(self._tmp)
-            raise
+    def _finish(self) -> None:
+        if self.bag:
+            self._bag.close()
+        else:
+            self._mcap.finish()
+            self._file.close()
 
-    def abort(self) -> None:
-        """Drop everything written."""
-        try:
-            if self.bag:
-                self._bag.close()
-            else:
-                self._file.close()
-        except Exception:  # the partial log is deleted anyway
-            pass
-        _discard(self._tmp)
+    def _release(self) -> None:
+        if self.bag:
+            self._bag.close()
+        else:
+            self._file.close()
 
 
 def _descriptor_set(message_class: Any) -> bytes:
@@ -304,20 +312,12 @@ class FoxgloveMcapWriter(_AtomicLog):
     def metadata(self, name: str, data: dict[str, str]) -> None:
         self._mcap.add_metadata(name, data)
 
-    def close(self) -> None:
-        """Finish the file and move it onto :attr:`path`."""
-        try:
-            self._mcap.finish()
-            self._file.close()
-            _publish(self._tmp, self.path)
-        except BaseException:
-            _discard(self._tmp)
-            raise
-
-    def abort(self) -> None:
-        """Drop everything written."""
+    def _finish(self) -> None:
+        self._mcap.finish()
         self._file.close()
-        _discard(self._tmp)
+
+    def _release(self) -> None:
+        self._file.close()
 
 
 # ------------------------------------------------------------------------------ test logs from data
