@@ -37,7 +37,7 @@ from typing import Any
 
 import numpy as np
 
-from makeway.atomic import write_text_atomic
+from makeway.atomic import check_writable, write_text_atomic
 from makeway.decide.clip_seconds import SECOND_DECISIONS, SecondDecision, decide_seconds, whole_seconds
 from makeway.decide.duty import DUTY_PRESETS, DutyToYield
 from makeway.errors import InputError
@@ -162,6 +162,8 @@ def run_clip(
         UnknownNameError: an unknown duty preset.
     """
     rule = DUTY_PRESETS[duty] if isinstance(duty, str) else duty
+    if out_dir is not None:
+        check_writable(out_dir, folder=True)
     src = Path(video)
     clip: ClipAudio | None = None
     siren: SirenTimeline | None = None
