@@ -18,6 +18,7 @@ strongest siren probability of a span (the per-second figure of ``makeway detect
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -96,7 +97,7 @@ def fuse_clip(frames: Sequence[FrameLights], siren: SirenTimeline | None = None)
         ValueError: frame times that go backwards.
     """
     times = [f.time_s for f in frames]
-    if any(b < a for a, b in zip(times, times[1:], strict=False)):
+    if any(b < a for a, b in itertools.pairwise(times)):
         raise ValueError("frame times must not decrease")
     events: list[tuple[float, int, int]] = [(f.time_s, 0, i) for i, f in enumerate(frames)]
     if siren is not None:

@@ -45,7 +45,13 @@ from makeway.eval.siren_mono import LEVEL_DBA, render_static
 from makeway.fuse.clip_seconds import FrameLights, SirenTimeline, fuse_clip
 from makeway.messages import PerceptionFrame
 from makeway.perceive.audio.siren_model import SirenModel
-from makeway.perceive.audio.windows import HOP_S, LISTEN_SMOOTH, SMOOTH_AVERAGE, WINDOW_S, smoothed_probability
+from makeway.perceive.audio.windows import (
+    HOP_S,
+    LISTEN_SMOOTH,
+    SMOOTH_AVERAGE,
+    WINDOW_S,
+    smoothed_probability,
+)
 from makeway.perceive.audio.windows import window_starts as _window_starts
 from makeway.pipeline.video import VideoRunSummary, run_video
 from makeway.sense.clip_audio import ClipAudio, has_audio, read_clip_audio
