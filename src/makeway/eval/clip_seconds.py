@@ -104,19 +104,21 @@ def score_seconds(predicted: Iterable[bool], truth: Iterable[bool | None]) -> di
             fn += 1
         else:
             tn += 1
+    return _scores(tp, fp, fn, tn, skipped)
+
+
+def _scores(tp: int, fp: int, fn: int, tn: int, unsure: int) -> dict[str, Any]:
     precision = tp / (tp + fp) if tp + fp else None
     recall = tp / (tp + fn) if tp + fn else None
-    f1 = (
-        2 * precision * recall / (precision + recall)
-        if precision is not None and recall is not None and precision + recall > 0
-        else (0.0 if precision is not None and recall is not None else None)
-    )
+    f1 = None
+    if precision is not None and recall is not None:
+        f1 = 2 * precision * recall / (precision + recall) if precision + recall > 0 else 0.0
     return {
         "tp": tp,
         "fp": fp,
         "fn": fn,
         "tn": tn,
-        "unsure": skipped,
+        "unsure": unsure,
         "precision": None if precision is None else round(precision, 4),
         "recall": None if recall is None else round(recall, 4),
         "f1": None if f1 is None else round(f1, 4),
@@ -125,13 +127,5 @@ def score_seconds(predicted: Iterable[bool], truth: Iterable[bool | None]) -> di
 
 def pooled(blocks: Mapping[str, Mapping[str, Any]]) -> dict[str, Any]:
     """The scores of several clips' counts added up (the "all clips" row)."""
-    tp = sum(int(b["tp"]) for b in blocks.values())
-    fp = sum(int(b["fp"]) for b in blocks.values())
-    fn = sum(int(b["fn"]) for b in blocks.values())
-    tn = sum(int(b["tn"]) for b in blocks.values())
-    unsure = sum(int(b["unsure"]) for b in blocks.values())
-    pred = [True] * tp + [True] * fp + [False] * fn + [False] * tn
-    true: list[bool | None] = [True] * tp + [False] * fp + [True] * fn + [False] * tn
-    out = score_seconds(pred, true)
-    out["unsure"] = unsure
-    return out
+    counts = [sum(int(b[key]) for b in blocks.values()) for key in ("tp", "fp", "fn", "tn", "unsure")]
+    return _scores(*counts)

@@ -135,7 +135,12 @@ def _resolve_audio(video: Path, audio: bool | None) -> bool:
         return False
     if audio is False:
         return False
-    present = has_audio(video)
+    try:
+        present = has_audio(video)
+    except InputError:
+        if audio:
+            raise
+        return False  # not a media file FFmpeg opens: the video reader names the problem
     if audio and not present:
         raise InputError(video, "has no audio stream (run without sound: --no-audio)")
     return present
