@@ -4,16 +4,18 @@ item 6).
 :func:`run_clip` runs the video pipeline (:func:`~makeway.pipeline.video.run_video`, its active-EV
 rule per frame) and the siren detector on the clip's sound track, and combines them per second:
 
-1. **Sound** (before the video, so a damaged track fails before any long work): the first audio
-   stream is decoded, downmixed to mono (channel mean) and resampled to the siren network's rate
+1. **Sound**: the first audio stream is decoded before the video runs (a damaged track fails
+   before any long work), downmixed to mono (channel mean) and resampled to the siren network's rate
    (48 kHz; polyphase, exact ratio; :func:`~makeway.sense.clip_audio.read_clip_audio`). A phone or
    dash-camera microphone is one channel: it can tell *whether* a siren sounds, not where. The
    networks read the eight channels of the reference roof array, so the track is rendered as one
-   static point source 25 m from the array, scaled to ``level_dba`` over the whole clip (70 dB(A),
+   static point source 25 m from the array, scaled to ``level_dba`` over the part of the track
+   the video run covered (the whole clip unless frames were limited; 70 dB(A),
    as in the real mono check of :mod:`makeway.eval.siren_mono`; the camera's gain is unknown, so
    absolute levels mean nothing here), cut into 0.5 s windows every 0.17 s and decided as
    ``makeway audio listen`` decides (logit mean of the last 8 windows, the detector's own
-   threshold). Only the detector runs: no bearing or distance is asked of a mono track.
+   threshold), once every frame has been seen. Only the detector runs: no bearing or distance is
+   asked of a mono track.
 2. **Lights**: each processed frame's verdict, the strongest smoothed evidence among its tracks
    that the active-EV rule (default ``lights+crop``) turned active
    (:class:`~makeway.fuse.clip_seconds.FrameLights`).
@@ -29,7 +31,6 @@ pipeline's outputs, and ``summary.json`` gets the per-second counts under ``seco
 from __future__ import annotations
 
 import json
-import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -77,11 +78,14 @@ def listen_clip(
     seed: int = 0,
     smooth: int = LISTEN_SMOOTH,
     average: str = SMOOTH_AVERAGE,
+    until_s: float | None = None,
 ) -> SirenTimeline:
     """The siren listener's decisions over a clip's mono track (module docstring, step 1).
 
     ``audio`` must be at the model's sample rate. ``seed`` draws the rendered source's bearing and
-    the capsules' self-noise. A track shorter than one window gives an empty timeline.
+    the capsules' self-noise. ``until_s`` listens to the track's first ``until_s`` seconds only
+    (the part the video run covered; the level is then set over that part). A track shorter than
+    one window gives an empty timeline.
 
     Raises:
         ValueError: ``audio`` is not at the model's sample rate.
@@ -89,14 +93,17 @@ def listen_clip(
     cfg = model.config
     if audio.sample_rate != cfg.sample_rate:
         raise ValueError(f"audio at {audio.sample_rate} Hz; the siren model reads {cfg.sample_rate} Hz")
-    starts = _window_starts(len(audio.samples), cfg.sample_rate, WINDOW_S, HOP_S)
+    x = audio.samples
+    if until_s is not None:
+        x = x[: max(0, round(until_s * cfg.sample_rate))]
+    starts = _window_starts(len(x), cfg.sample_rate, WINDOW_S, HOP_S)
     win = cfg.n_samples
     if len(starts) == 0:
         return SirenTimeline(np.zeros(0), np.zeros(0), model.threshold)
     rng = np.random.default_rng(seed)
     n = int(starts[-1]) + win
-    if math.isfinite(audio.level_dbfs()):
-        array, _ = render_static(audio.samples[:n], model, rng, level_dba=level_dba)
+    if np.any(x[:n]):
+        array, _ = render_static(x[:n], model, rng, level_dba=level_dba)
     else:  # a digitally silent track: the capsules' own noise only
         array = (self_noise(n, len(model.mics), rng) / FULL_SCALE_PA).astype(np.float32)
     probs = []
@@ -177,14 +184,14 @@ def run_clip(
         check_writable(out_dir, folder=True)
     src = Path(video)
     clip: ClipAudio | None = None
-    siren: SirenTimeline | None = None
+    model: SirenModel | None = None
     listen = _resolve_audio(src, audio) if src.exists() else False  # a missing file: run_video says so
-    if listen:
+    if listen:  # decode the whole track now: a damaged one fails before the video runs
         model = siren_model if siren_model is not None else detection_model()
         clip = read_clip_audio(src, model.config.sample_rate)
-        siren = listen_clip(clip, model, level_dba=level_dba)
     frames: list[FrameLights] = []
     decisions: list[SecondDecision] = []
+    heard: list[SirenTimeline] = []
 
     def collect(frame: PerceptionFrame) -> None:
         frames.append(frame_lights(frame))
@@ -192,6 +199,10 @@ def run_clip(
             on_frame(frame)
 
     def finish(out: Path | None, covered_s: float) -> tuple[dict[str, Any], dict[str, str]]:
+        siren = None
+        if clip is not None and model is not None:
+            siren = listen_clip(clip, model, level_dba=level_dba, until_s=covered_s)
+            heard.append(siren)
         beliefs = fuse_clip(frames, siren)
         decisions.extend(decide_seconds(beliefs, frames, siren, whole_seconds(covered_s), rule))
         counts = {d: sum(1 for s in decisions if s.decision == d) for d in SECOND_DECISIONS}
@@ -215,4 +226,6 @@ def run_clip(
         return per_second, written
 
     summary = run_video(video, out_dir, on_frame=collect, finish=finish, **video_options)
-    return ClipRun(summary, decisions, siren, clip.to_dict() if clip is not None else None)
+    return ClipRun(
+        summary, decisions, heard[0] if heard else None, clip.to_dict() if clip is not None else None
+    )
