@@ -44,10 +44,10 @@ def _decide(
 
 # ------------------------------------------------------------------------------ the combination rule
 def test_siren_and_lights_yield_siren_alone_prepares() -> None:
-    # 4 s: lights in seconds 0-1 only, a siren (prob 0.95) throughout
+    # 4 s: lights in seconds 0-1 only (held for 1 s after the last, to 2.9 s), a siren throughout
     lit = [True] * 20 + [False] * 20
     siren = _siren([0.95] * 16)
-    assert _decide(lit, siren, 4) == ["yield", "yield", "prepare", "prepare"]
+    assert _decide(lit, siren, 4) == ["yield", "yield", "yield", "prepare"]
     # the same under the UK preset: a siren alone is a yield
     assert _decide(lit, siren, 4, "uk") == ["yield"] * 4
 
@@ -55,9 +55,12 @@ def test_siren_and_lights_yield_siren_alone_prepares() -> None:
 def test_lights_alone_need_two_unbroken_seconds() -> None:
     lit = [True] * 40
     assert _decide(lit, None, 4) == ["none", "none", "yield", "yield"]
-    # a break at 1.5 s restarts the count: lights again from 1.6 s reach 2 s at 3.6 s
-    broken = [True] * 15 + [False] + [True] * 24
-    assert _decide(broken, None, 4) == ["none", "none", "none", "yield"]
+    # a gap shorter than the 1 s hold does not break the run
+    short_gap = [True] * 15 + [False] * 5 + [True] * 20
+    assert _decide(short_gap, None, 4) == ["none", "none", "yield", "yield"]
+    # lights 0-0.9 s (held to 1.9 s), none until 2.5 s: the count restarts and reaches 2 s at 4.5 s
+    long_gap = [True] * 10 + [False] * 15 + [True] * 35
+    assert _decide(long_gap, None, 6) == ["none", "none", "none", "none", "yield", "yield"]
     # Germany: lights alone only prepare
     assert _decide(lit, None, 4, "germany") == ["none", "none", "prepare", "prepare"]
 
@@ -76,12 +79,15 @@ def test_streams_merge_in_time_and_lights_are_held_briefly() -> None:
     siren = SirenTimeline(np.array([0.3, 0.5, 1.2]), np.array([0.9, 0.9, 0.9]), 0.8)
     beliefs = fuse_clip(frames, siren)
     assert [b.time_s for b in beliefs] == [0.0, 0.1, 0.3, 0.5, 1.2]
-    assert [b.lights for b in beliefs] == [True, True, True, True, False]  # held ≤ 0.5 s
+    assert [b.lights for b in beliefs] == [True, True, True, True, False]  # held for 1 s
     assert [b.siren for b in beliefs] == [False, False, True, True, True]  # none before 1st decision
     assert beliefs[2].sources == ("light", "siren") and beliefs[-1].sources == ("siren",)
     assert all(b.source == "clip" for b in beliefs)
     with pytest.raises(ValueError):
         fuse_clip([FrameLights(1.0), FrameLights(0.5)])
+    # a siren decision below the threshold does not end the hold of the last one above it
+    dips = SirenTimeline(np.array([0.5, 0.9, 1.4, 1.6]), np.array([0.9, 0.1, 0.1, 0.1]), 0.8)
+    assert [b.siren for b in fuse_clip([], dips)] == [True, True, True, False]
     with pytest.raises(ValueError):
         SirenTimeline(np.array([0.5, 0.4]), np.array([0.1, 0.2]), 0.8)
     assert whole_seconds(10.0) == 10 and whole_seconds(11.28) == 11 and whole_seconds(0.4) == 0

@@ -6,11 +6,14 @@ hop of the sound track, from a mono microphone: *whether* a siren sounds, not wh
 places the EV, so the fused belief has no position: it says which signals are perceived now.
 
 :func:`fuse_clip` merges the two streams in time order into one :class:`~makeway.messages.EVBelief`
-per event (a frame or a listener decision): each sense holds its last value until its next one,
-so a belief at a frame's time carries the last siren decision made by then, and one at a siren
-decision the last frame's lights (for at most :data:`LIGHTS_HOLD_S`: a camera that has gone
-quiet proves nothing). Times are seconds from the clip's start; the sound track is taken to start
-with the first frame.
+per event (a frame or a listener decision). As in the multi-EV fusion
+(:class:`~makeway.fuse.multi_ev.MultiEVFusion`'s ``sense_hold_s``), a sense supports the belief for
+:data:`~makeway.fuse.multi_ev.SENSE_HOLD_S` (1 s) after its last positive observation: a frame with
+an active EV's lights, a listener decision at or above the detector's threshold. The hold bridges
+the moments where a vehicle track's active state drops out for a few frames (the track fragments,
+the smoother dips) or the listener's probability dips below its threshold, so a belief says
+"lights and siren" while both were perceived within the last second. Times are seconds from the
+clip's start; the sound track is taken to start with the first frame.
 
 :class:`SirenTimeline` holds the listener's decisions; :meth:`SirenTimeline.max_in` is the
 strongest siren probability of a span (the per-second figure of ``makeway detect``).
@@ -25,16 +28,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from makeway.fuse.multi_ev import SENSE_HOLD_S
 from makeway.messages import EVBelief
 
-__all__ = ["LIGHTS_HOLD_S", "SOURCE", "FrameLights", "SirenTimeline", "fuse_clip"]
+__all__ = ["SOURCE", "FrameLights", "SirenTimeline", "fuse_clip"]
 
 SOURCE = "clip"
 """The ``source`` of the beliefs :func:`fuse_clip` makes."""
-
-LIGHTS_HOLD_S = 0.5
-"""How long (s) a frame's lights verdict stands for a listener decision made after it, when no
-newer frame came (frames dropped by a live feed, the end of the video)."""
 
 
 @dataclass(frozen=True)
@@ -84,18 +84,23 @@ class SirenTimeline:
         return float(self.probability[sel].max()) if np.any(sel) else None
 
 
-def fuse_clip(frames: Sequence[FrameLights], siren: SirenTimeline | None = None) -> list[EVBelief]:
+def fuse_clip(
+    frames: Sequence[FrameLights], siren: SirenTimeline | None = None, *, hold_s: float = SENSE_HOLD_S
+) -> list[EVBelief]:
     """One belief per event of the two streams, in time order (module docstring).
 
-    ``frames`` in time order; ``siren`` ``None`` when the clip is run without its sound. A belief is
-    ``detected`` when the lights are seen or the siren is heard; ``lights`` and ``siren`` say which;
-    ``confidence`` is the higher of the lights evidence and the siren probability (the latter only
-    once a siren is heard); ``sources`` lists ``"light"`` and/or ``"siren"``. Before the listener's
-    first decision the siren counts as not heard.
+    ``frames`` in time order; ``siren`` ``None`` when the clip is run without its sound; ``hold_s``
+    how long a sense supports the belief after its last positive observation. A belief is
+    ``detected`` when the lights are seen or the siren is heard (within ``hold_s``); ``lights`` and
+    ``siren`` say which; ``confidence`` is the higher of the last positive lights evidence and siren
+    probability among the senses that support it; ``sources`` lists ``"light"`` and/or
+    ``"siren"``.
 
     Raises:
-        ValueError: frame times that go backwards.
+        ValueError: frame times that go backwards, or a negative ``hold_s``.
     """
+    if hold_s < 0:
+        raise ValueError(f"hold_s must be >= 0, got {hold_s}")
     times = [f.time_s for f in frames]
     if any(b < a for a, b in itertools.pairwise(times)):
         raise ValueError("frame times must not decrease")
@@ -103,18 +108,18 @@ def fuse_clip(frames: Sequence[FrameLights], siren: SirenTimeline | None = None)
     if siren is not None:
         events += [(float(t), 1, i) for i, t in enumerate(siren.time_s)]
     events.sort()
-    lights = 0.0
-    lights_at = -math.inf
-    p_siren = 0.0
+    lights, lights_at = 0.0, -math.inf  # the last positive observation of each sense
+    p_siren, siren_at = 0.0, -math.inf
     out: list[EVBelief] = []
     for t, kind, i in events:
-        if kind == 0:
+        if kind == 0 and frames[i].seen:
             lights, lights_at = frames[i].lights, t
-        else:
+        elif kind == 1:
             assert siren is not None
-            p_siren = float(siren.probability[i])
-        seen = lights > 0.0 and t - lights_at <= LIGHTS_HOLD_S
-        heard = siren is not None and p_siren >= siren.threshold
+            if siren.probability[i] >= siren.threshold:
+                p_siren, siren_at = float(siren.probability[i]), t
+        seen = t - lights_at <= hold_s
+        heard = t - siren_at <= hold_s
         sources = (("light",) if seen else ()) + (("siren",) if heard else ())
         confidence = max(lights if seen else 0.0, p_siren if heard else 0.0)
         out.append(
