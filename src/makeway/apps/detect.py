@@ -1,11 +1,13 @@
 """``makeway detect``: the detector → tracker → active-EV rule (lights and/or crop classifier) →
-smoother pipeline on a video."""
+smoother pipeline on a video, with the siren detector on its sound track and both fused into
+per-second decisions (:mod:`makeway.pipeline.clip_sound`)."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
-from makeway.pipeline.video import DEFAULT_LIGHTS, VideoRunSummary, run_video
+from makeway.pipeline.clip_sound import run_clip
+from makeway.pipeline.video import DEFAULT_LIGHTS, VideoRunSummary
 from makeway.track.lights import ACTIVE_RULES
 
 __all__ = ["DEFAULT_RULE", "detect"]
@@ -34,6 +36,8 @@ def detect(
     topic: str | None = None,
     mcap: str | Path | None = None,
     realtime: bool = False,
+    audio: bool | None = None,
+    duty: str = "audible_and_visual",
 ) -> VideoRunSummary:
     """Detect, track and judge the vehicles of ``video``; write the annotated video, ``tracks.jsonl``
     and ``summary.json`` to ``out`` (default ``makeway_out/<video stem>``).
@@ -57,10 +61,18 @@ def detect(
     ``realtime`` plays the video as a live camera would deliver it: when the pipeline falls behind,
     the oldest waiting frame is dropped, never the newest (``dropped_frames`` counts them).
 
+    ``audio`` runs the siren detector on the clip's sound track (``None``, the default: when it has
+    one) and each whole second is decided under the duty-to-yield preset ``duty``
+    (:func:`makeway.pipeline.clip_sound.run_clip`): ``seconds.jsonl`` (per second: siren
+    probability, lights seen, decision ``yield``/``prepare``/``none``) is written beside the other
+    outputs, and the summary's ``seconds`` holds the per-second counts. Without sound the seconds
+    are decided on the lights alone.
+
     Raises:
         InputError: the video, the detector weights or the classifier cannot be read (names the file;
-            an unknown classifier name lists the shipped ones).
-        UnknownNameError: an unknown detector (lists the known ones).
+            an unknown classifier name lists the shipped ones); ``audio`` is asked for and the clip
+            has no sound track, or its sound track cannot be decoded.
+        UnknownNameError: an unknown detector or duty preset (lists the known ones).
     """
     if rule not in ACTIVE_RULES:
         raise ValueError(f"unknown rule {rule!r}; choose from: {', '.join(ACTIVE_RULES)}")
@@ -74,9 +86,11 @@ def detect(
         track_classifier = EVTrackClassifier(crop_classifier, every=classify_every)
         getattr(track_classifier.classifier, "extractors", None)  # build them now: bad weights fail early
     out_dir = Path(out) if out is not None else Path("makeway_out") / Path(video).stem
-    return run_video(
+    return run_clip(
         video,
         out_dir,
+        audio=audio,
+        duty=duty,
         detector=detector,
         model=model,
         score_threshold=score_threshold,
@@ -91,4 +105,4 @@ def detect(
         topic=topic,
         mcap=mcap,
         realtime=realtime,
-    )
+    ).summary

@@ -127,6 +127,21 @@ def detect(
             "pipeline falls behind, the oldest waiting frame is dropped, never the newest.",
         ),
     ] = False,
+    audio: Annotated[
+        bool | None,
+        typer.Option(
+            "--audio/--no-audio",
+            help="Also listen for a siren on the video's sound track and decide each second on "
+            "lights and siren together. Default: on when the video has a sound track.",
+        ),
+    ] = None,
+    duty: Annotated[
+        str,
+        typer.Option(
+            help="When to make way, per second: audible_and_visual (default: siren and lights, or "
+            "lights for 2 s, mean yield; a siren alone means prepare), germany or uk."
+        ),
+    ] = "audible_and_visual",
     as_json: Annotated[bool, typer.Option("--json", help="Print the run summary as one JSON line.")] = False,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")] = False,
 ) -> None:
@@ -139,6 +154,12 @@ def detect(
     (one JSON object per frame, with its lights) and OUT/summary.json (timings per stage,
     real-time factor, active EV track ids). VIDEO may be an MCAP file or a ROS 2 bag folder
     (--topic picks the camera); --mcap writes the run for Foxglove.
+
+    With sound (--audio, on by default when the video has a sound track) the siren detector
+    listens to the track (mono: whether a siren sounds, not where), and every second of the video
+    is decided on lights and siren together: OUT/seconds.jsonl holds, per second, the siren
+    probability, whether an emergency vehicle's lights were seen, and the decision (yield,
+    prepare or none).
     """
     from makeway.apps.detect import detect as run
     from makeway.perceive.vision.lights import DEFAULT_LIGHT_DETECTOR
@@ -162,6 +183,8 @@ def detect(
         topic=topic,
         mcap=mcap,
         realtime=realtime,
+        audio=audio,
+        duty=duty,
     )
     table = Table(title=f"makeway detect — {video.name}", show_header=False)
     if summary.topic is not None:
@@ -176,6 +199,22 @@ def detect(
         f"active EVs ({summary.rule})",
         ", ".join(f"#{i}" for i in summary.active_ev_tracks) or "none",
     )
+    per_second = summary.seconds
+    if per_second is not None:
+        sound = per_second["audio"]
+        table.add_row(
+            "sound",
+            f"{sound['codec']}, {sound['channels']} ch, {sound['source_rate_hz']} Hz, "
+            f"siren heard in {per_second['siren_seconds']} s"
+            if sound is not None
+            else "not used",
+        )
+        counts = per_second["decisions"]
+        table.add_row(
+            f"seconds ({per_second['duty']})",
+            f"{per_second['seconds']}: yield {counts['yield']}, prepare {counts['prepare']}, "
+            f"none {counts['none']}; lights seen in {per_second['lights_seconds']}",
+        )
     for name, path in summary.outputs.items():
         table.add_row(f"→ {name}", path)
     if not as_json:

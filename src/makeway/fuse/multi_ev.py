@@ -90,6 +90,7 @@ from makeway.messages import (
 
 __all__ = [
     "SENSES",
+    "SENSE_HOLD_S",
     "SENSE_OF_SENSOR",
     "EVTrack",
     "FusedBeliefSource",
@@ -102,6 +103,8 @@ __all__ = [
 SIREN, LIGHT, V2X = "siren", "light", "v2x"
 SENSES = (V2X, LIGHT, SIREN)  # association order: most precise first
 SOURCE = "fused"
+SENSE_HOLD_S = 1.0
+"""How long (s) a sense supports a track after its last observation (``sense_hold_s``'s default)."""
 
 Observation = SirenObservation | LightObservation | V2XObservation | SensorHealth
 SENSE_OF_SENSOR = {"audio": SIREN, "camera": LIGHT}
@@ -190,7 +193,7 @@ class MultiEVFusion:
         confirm_n: int = 9,
         lost_after_s: float = 2.0,
         merge_chi2: float = 3.0,
-        sense_hold_s: float = 1.0,
+        sense_hold_s: float = SENSE_HOLD_S,
         placed_sigma_frac: float = 0.5,
         min_speed_mps: float = 3.0,
         max_speed_sigma_mps: float = 4.0,

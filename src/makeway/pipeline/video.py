@@ -233,6 +233,9 @@ class VideoRunSummary:
     topic: str | None = None
     """The camera topic read, when the input was a robotics log."""
     dropped_frames: int = 0
+    seconds: dict[str, Any] | None = None
+    """Per-second counts of the active-EV decisions when the run also fused them per second
+    (:mod:`makeway.pipeline.clip_sound`: the sound track, the per-second decisions); else ``None``."""
 
     def to_json(self) -> dict[str, Any]:
         return asdict(self)
@@ -432,6 +435,11 @@ def draw_lights(image: np.ndarray, lights: Sequence[LightTrack]) -> None:
             )
 
 
+def _dropped(frames: _Prefetch | _LiveFrames) -> int:
+    """Frames a live feed dropped while the pipeline was busy (0 for a file read in full)."""
+    return frames.feed.dropped if isinstance(frames, _LiveFrames) else 0
+
+
 def run_video(
     video: str | Path,
     out_dir: str | Path | None,
@@ -457,6 +465,7 @@ def run_video(
     frame_filter: Callable[[Iterator[tuple[int, float, np.ndarray]]], Iterator[tuple[int, float, np.ndarray]]]
     | None = None,
     realtime: bool = False,
+    finish: Callable[[Path | None, float], tuple[dict[str, Any], dict[str, str]]] | None = None,
 ) -> VideoRunSummary:
     """Run Framework B over ``video``; write the annotated video, JSONL and summary to ``out_dir``.
 
@@ -497,6 +506,11 @@ def run_video(
             the pipeline is busy, a newer frame replaces the one waiting (the oldest is dropped,
             never the newest; ``dropped_frames`` in the summary counts them). Without it every
             frame is processed, however long it takes.
+        finish: called once after the last frame, inside the run's all-or-nothing guard, with the
+            output folder and the seconds of video covered; it may write further outputs into the
+            folder (atomically) and returns ``(seconds, outputs)``: what the summary's ``seconds``
+            holds and the files it wrote (name → path). An error in it leaves nothing behind, as
+            an error in the run does.
 
     Raises:
         InputError: the video or the model is missing or unreadable, or ``out_dir`` cannot be
@@ -551,6 +565,7 @@ def run_video(
     seen_ids: set[int] = set()
     active_ids: set[int] = set()
     annotate_s = 0.0
+    per_second: dict[str, Any] | None = None
     recent: deque[float] = deque(maxlen=26)  # completion times of the last frames, for the FPS overlay
 
     guard = removed_on_error(out) if out is not None else contextlib.nullcontext()
@@ -618,6 +633,10 @@ def run_video(
                 if recorder is not None:
                     recorder.close()
                     outputs["mcap"] = str(recorder.path)
+                if finish is not None:
+                    covered = (n_frames + _dropped(frames)) * stride / info.fps
+                    per_second, written = finish(out, covered)
+                    outputs.update(written)
             except BaseException:
                 frames.close()
                 if recorder is not None:
@@ -642,7 +661,7 @@ def run_video(
         seconds["lights"] = detect_seconds[1]
     seconds["annotate"] = annotate_s
     seconds["encode"] = bg.seconds if bg is not None else 0.0
-    dropped = frames.feed.dropped if isinstance(frames, _LiveFrames) else 0
+    dropped = _dropped(frames)
     video_seconds = (n_frames + dropped) * stride / info.fps
     summary = VideoRunSummary(
         video=str(video),
@@ -665,6 +684,7 @@ def run_video(
         outputs=outputs,
         topic=getattr(reader, "topic", None),
         dropped_frames=dropped,
+        seconds=per_second,
     )
     if out is not None:
         summary.outputs["summary"] = str(out / "summary.json")
