@@ -3,7 +3,8 @@ latest-wins hand-over (``makeway.queues.live``, a ``LatestQueue`` of one item).
 
     .venv/bin/python benchmarks/bench_overload.py [--minutes 10] [--stages siren,vision,rsu,listener]
         [--rates 0.5,1,2,10] [--baseline-s 20] [--listener-pending 1024]
-        [--listener-queue per_sender|fifo] [--listener-units 20] [--listener-evs 3] [--json FILE]
+        [--listener-queue per_sender|fifo] [--listener-per-sender 2] [--listener-units 20]
+        [--listener-evs 3] [--json FILE]
 
 For each stage, its processing time is measured first (median of 15 inputs, nothing else
 running); then a paced source hands it input at each of ``--rates`` times the rate it can
@@ -54,7 +55,7 @@ import threading
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal, cast
 
 import numpy as np
 
@@ -259,7 +260,8 @@ def run_listener(
     senders: int,
     folder: Path,
     pending: int,
-    queue: str,
+    queue: Literal["per_sender", "fifo"],
+    per_sender: int = 2,
 ) -> dict[str, Any]:
     """The car's V2X listener as ``makeway v2x listen`` runs it: an :class:`AlertSubscriber` (its
     bounded queue of ``pending`` payloads, ``queue`` policy, the trust store's signers known) on a
@@ -283,7 +285,8 @@ def run_listener(
         ["bench"],
         max_pending=pending,
         queue=queue,
-        known_signers=set(store.units),  # type: ignore[arg-type]
+        per_sender=per_sender,
+        known_signers=set(store.units),
     )
     verifiers = [Verifier(store) for _ in range(senders)]
     index = {data: i for i, (data, _) in enumerate(pool)}
@@ -383,6 +386,7 @@ def _summary(
         "rss_drift_pct": 100.0 * (warm[-1] - warm[0]) / warm[0],
         "rss_spread_pct": 100.0 * (max(warm) - min(warm)) / statistics.median(warm),
         "rss_peak_growth_pct": 100.0 * (max(warm) - warm[0]) / warm[0],
+        "rss_each_minute_mb": rss[::60],  # sampled every second: where a growth levels off
         "load": os.getloadavg(),
     }
 
@@ -399,6 +403,7 @@ def main() -> int:
     ap.add_argument(
         "--listener-queue", choices=("per_sender", "fifo"), default="per_sender", help="its policy"
     )
+    ap.add_argument("--listener-per-sender", type=int, default=2, help="alerts kept per sender")
     ap.add_argument("--listener-units", type=int, default=20, help="roadside units sending alerts")
     ap.add_argument("--listener-evs", type=int, default=3, help="emergency vehicles sending alerts")
     ap.add_argument("--json", type=Path, default=None)
@@ -432,8 +437,16 @@ def main() -> int:
                 folder: Path = folder,
             ) -> dict[str, Any]:
                 if maxsize == 1:  # the listener's own queue
+                    queue = cast(Literal["per_sender", "fifo"], args.listener_queue)
                     return run_listener(
-                        rate_hz, seconds, pool, senders, folder, args.listener_pending, args.listener_queue
+                        rate_hz,
+                        seconds,
+                        pool,
+                        senders,
+                        folder,
+                        args.listener_pending,
+                        queue,
+                        args.listener_per_sender,
                     )
                 return run_listener(rate_hz, seconds, pool, senders, folder, maxsize, "fifo")
 
@@ -457,7 +470,9 @@ def main() -> int:
         )
         if name == "listener":
             print(
-                f"  (the listener's queue: {args.listener_queue}, at most {args.listener_pending} alerts; "
+                f"  (the listener's queue: {args.listener_queue}, at most {args.listener_pending} alerts"
+                + (f", {args.listener_per_sender} per sender" if args.listener_queue == "per_sender" else "")
+                + "; "
                 f"{args.listener_units} roadside units + {args.listener_evs} EVs sending)"
             )
         print(
