@@ -128,7 +128,7 @@ def test_two_producers_one_consumer() -> None:
             got.append(q.get(timeout=10.0))
         except QueueClosedError:
             break
-        if len(got) % 50 == 0:
+        if len(got) % 10 == 0:
             time.sleep(0.0005)  # slower than the producers
     closer.join()
     assert high[0] <= 12
