@@ -160,7 +160,7 @@ def latency(keys: Path, n: int, rate_hz: float) -> dict[str, Any]:
     port = free_loopback_port()
     verifier = Verifier(TrustStore.load(keys / "lat" / "trust"))
     session = open_peer(listen=[f"tcp/127.0.0.1:{port}"])
-    sub = AlertSubscriber(session, [SEGMENT])
+    sub = AlertSubscriber(session, [SEGMENT], queue="fifo")  # counts every alert lost
     created_file = keys / "created.npy"
     child = subprocess.Popen(
         [

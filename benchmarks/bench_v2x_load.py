@@ -136,7 +136,7 @@ def cars(
     store = TrustStore.load(keys / "trust")
     segments = [f"load-{u:02d}" for u in range(units)]
     sessions = [open_peer(connect=[f"tcp/127.0.0.1:{port}"]) for _ in range(n_cars)]
-    subs = [AlertSubscriber(s, segments) for s in sessions]
+    subs = [AlertSubscriber(s, segments, queue="fifo") for s in sessions]  # counts every alert lost
     time.sleep(1.0)
     (work / f"cars-{proc}.ready").touch()
     _wait_file(work / "go", 120.0)

@@ -96,7 +96,7 @@ def test_v2x_subscriber_drops_the_oldest_when_flooded() -> None:
     car = open_peer(listen=[f"tcp/127.0.0.1:{port}"])
     unit = open_peer(connect=[f"tcp/127.0.0.1:{port}"])
     try:
-        sub = AlertSubscriber(car, ["flood"], max_pending=5)
+        sub = AlertSubscriber(car, ["flood"], max_pending=5, queue="fifo")
         pub = AlertPublisher(unit, "flood")
         assert pub.wait_for_subscribers(10.0)
         for k in range(50):  # nobody reads while they arrive

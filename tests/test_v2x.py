@@ -471,7 +471,7 @@ def test_belief_holds_through_ten_percent_packet_loss(keys: dict) -> None:
     car = open_peer(listen=[f"tcp/127.0.0.1:{port}"])
     unit = open_peer(connect=[f"tcp/127.0.0.1:{port}"])
     try:
-        sub = AlertSubscriber(car, ["loss"])
+        sub = AlertSubscriber(car, ["loss"], queue="fifo")  # every alert, in order
         pub = AlertPublisher(unit, "loss")
         assert pub.wait_for_subscribers(10.0)
         payloads: list[bytes] = []

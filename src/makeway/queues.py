@@ -7,6 +7,10 @@ answers are about the past and whose memory climbs until the process dies. :clas
 holds at most ``maxsize`` items and, when full, drops the **oldest** to make room, so the newest
 input is always kept and ``put`` never blocks the sensor. It counts what it dropped.
 
+:class:`KeyedLatestQueue` is the same hand-over for inputs that are repeated states of several
+senders (V2X alerts: each unit repeats its state at 10 Hz): it keeps each key's newest few items
+and serves the keys in turn, so one sender's flood neither delays nor displaces another's input.
+
 :class:`LiveSource` reads a live source this way: a thread takes what the sensor delivers into a
 :class:`LatestQueue`, and the consumer takes the next item whenever it is free; :func:`live` runs a
 stage over one. :func:`paced` plays a file back on the clock of a live sensor.
@@ -18,15 +22,24 @@ from __future__ import annotations
 
 import threading
 import time
-from collections import deque
-from collections.abc import Callable, Iterable, Iterator
+from collections import OrderedDict, deque
+from collections.abc import Callable, Hashable, Iterable, Iterator
 from dataclasses import dataclass
 from typing import Generic, TypeVar
 
-__all__ = ["LatestQueue", "LiveResult", "LiveSource", "QueueClosedError", "live", "paced"]
+__all__ = [
+    "KeyedLatestQueue",
+    "LatestQueue",
+    "LiveResult",
+    "LiveSource",
+    "QueueClosedError",
+    "live",
+    "paced",
+]
 
 T = TypeVar("T")
 R = TypeVar("R")
+K = TypeVar("K", bound=Hashable)
 
 
 class QueueClosedError(Exception):
@@ -91,6 +104,116 @@ class LatestQueue(Generic[T]):
     def __len__(self) -> int:
         with self._cond:
             return len(self._items)
+
+
+class KeyedLatestQueue(Generic[K, T]):
+    """A thread-safe hand-over that keeps, for each key, its ``per_key`` newest items.
+
+    Made for state messages repeated by several senders (a V2X alert is one unit's state, repeated
+    at 10 Hz): once a newer item of a key is waiting, an older one of the same key is stale, so
+    :meth:`put` drops the key's oldest item when the key already holds ``per_key``. Keys are served
+    in turn: :meth:`get` takes the oldest item of the key that has waited longest, and a key that
+    still holds items goes to the back of the line, so a key flooded with items gets one turn per
+    round like every other key and cannot delay or displace them. At most ``max_keys`` keys wait at
+    once; a new key arriving at a full queue drops the key that has waited longest, with its items.
+    Memory is bounded by ``max_keys × per_key`` items; the delay of an item by about one round of
+    the waiting keys.
+
+    :attr:`dropped` counts every item pushed out unread (:attr:`superseded` those pushed out by a
+    newer item of their own key, :attr:`evicted` those dropped with their key), :attr:`put_count`
+    every item put. :meth:`get` waits for an item (``timeout`` in seconds; ``TimeoutError`` when it
+    passes) and raises :class:`QueueClosedError` once the queue is closed and empty, as
+    :meth:`LatestQueue.get`.
+
+    ``per_key`` > 1 is for keys that a third party can claim (a V2X alert's signer id is read
+    before its signature is checked): an item that turns out forged then does not hide the
+    genuine one queued just before it, unless ``per_key`` or more newer items of the same key
+    arrive before the key's turn (see :class:`makeway.v2x.transport.AlertSubscriber`).
+    """
+
+    def __init__(self, max_keys: int = 256, per_key: int = 1) -> None:
+        if max_keys < 1:
+            raise ValueError(f"max_keys must be >= 1, got {max_keys}")
+        if per_key < 1:
+            raise ValueError(f"per_key must be >= 1, got {per_key}")
+        self.max_keys = int(max_keys)
+        self.per_key = int(per_key)
+        self._keys: OrderedDict[K, deque[T]] = OrderedDict()  # in serving order
+        self._size = 0
+        self._cond = threading.Condition()
+        self._closed = False
+        self.superseded = 0
+        self.evicted = 0
+        self.put_count = 0
+
+    @property
+    def dropped(self) -> int:
+        """Items dropped unread: superseded by a newer item of their key, or evicted with it."""
+        return self.superseded + self.evicted
+
+    def put(self, key: K, item: T) -> int:
+        """Add ``item`` under ``key``; return how many items this dropped (0, or more)."""
+        with self._cond:
+            if self._closed:
+                raise QueueClosedError("put on a closed queue")
+            dropped = 0
+            held = self._keys.get(key)
+            if held is None:
+                if len(self._keys) >= self.max_keys:
+                    _, gone = self._keys.popitem(last=False)
+                    self.evicted += len(gone)
+                    self._size -= len(gone)
+                    dropped += len(gone)
+                held = self._keys[key] = deque()
+            elif len(held) >= self.per_key:
+                held.popleft()
+                self.superseded += 1
+                self._size -= 1
+                dropped += 1
+            held.append(item)
+            self._size += 1
+            self.put_count += 1
+            self._cond.notify()
+            return dropped
+
+    def get(self, timeout: float | None = None) -> T:
+        """The oldest item of the key that has waited longest, waiting up to ``timeout`` seconds
+        (``None``: for ever)."""
+        deadline = None if timeout is None else time.monotonic() + timeout
+        with self._cond:
+            while not self._keys:
+                if self._closed:
+                    raise QueueClosedError("queue closed")
+                left = None if deadline is None else deadline - time.monotonic()
+                if left is not None and left <= 0:
+                    raise TimeoutError("no item within the timeout")
+                self._cond.wait(left)
+            key, held = self._keys.popitem(last=False)
+            item = held.popleft()
+            self._size -= 1
+            if held:  # its newer items wait for the key's next turn, behind the others
+                self._keys[key] = held
+            return item
+
+    def close(self) -> None:
+        """No more items will come: waiting getters wake up (they drain what is left first)."""
+        with self._cond:
+            self._closed = True
+            self._cond.notify_all()
+
+    @property
+    def closed(self) -> bool:
+        return self._closed
+
+    @property
+    def keys_waiting(self) -> int:
+        """How many keys hold items now."""
+        with self._cond:
+            return len(self._keys)
+
+    def __len__(self) -> int:
+        with self._cond:
+            return self._size
 
 
 class LiveSource(Generic[T]):

@@ -185,21 +185,23 @@ def listen(
         to it; without it the belief says presence, siren and lights only; ``hold_s`` is how long the belief
     keeps an alert after its generation time. Ends after ``duration_s`` or
         ``count`` payloads, then yields a summary row ``{"summary": {...}}`` (``dropped_unread``: alerts
-        that came faster than they were verified and were dropped, oldest first)."""
+        that came faster than they were verified and were dropped unread because newer ones of the
+        same sender were waiting; see :class:`~makeway.v2x.transport.AlertSubscriber`)."""
     from makeway.v2x.belief import LocalFrame, V2XBeliefSource
     from makeway.v2x.security import TrustStore, Verifier
     from makeway.v2x.transport import AlertSubscriber, open_peer, segment_key
 
     for s in segments:
         segment_key(s)
-    verifier = Verifier(TrustStore.load(trust))
+    store = TrustStore.load(trust)
+    verifier = Verifier(store)
     frame = LocalFrame(ego[0], ego[1]) if ego is not None else None
     source = V2XBeliefSource(frame or LocalFrame(0.0, 0.0), hold_s=hold_s)
     valid = rejected = dropped = 0
     reasons: dict[str, int] = {}
     session = open_peer(listen_on, connect)
     try:
-        sub = AlertSubscriber(session, segments)
+        sub = AlertSubscriber(session, segments, known_signers=set(store.units) - store.revoked)
         for got in sub.receive(duration_s):
             verdict = verifier.verify(got.payload, got.time_s)
             row: dict[str, Any] = {"key": got.key, **verdict.to_json()}

@@ -88,7 +88,8 @@ class ZenohRadio:
         try:
             wait_listening(port, timeout_s)
             self._car = open_peer(connect=[endpoint])
-            self._subscriber = AlertSubscriber(self._car, self.segments)
+            # every alert sent is waited for (a simulation step may send a burst): arrival order
+            self._subscriber = AlertSubscriber(self._car, self.segments, queue="fifo")
             self._publishers = {s: AlertPublisher(self._roadside, s) for s in self.segments}
             for pub in self._publishers.values():
                 if not pub.wait_for_subscribers(timeout_s):

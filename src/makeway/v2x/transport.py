@@ -15,12 +15,15 @@ import json
 import re
 import socket
 import time
-from collections.abc import Iterator, Sequence
+from collections.abc import Collection, Hashable, Iterator, Sequence
 from dataclasses import dataclass
+from typing import Literal
 
 import zenoh
 
-from makeway.queues import LatestQueue
+from makeway.queues import KeyedLatestQueue, LatestQueue
+from makeway.v2x.message import ALERT_SIZE, MAGIC
+from makeway.v2x.security import SIGNED_SIZE
 
 __all__ = [
     "KEY_PREFIX",
@@ -31,6 +34,7 @@ __all__ = [
     "open_peer",
     "peer_config",
     "segment_key",
+    "sender_key",
     "wait_listening",
 ]
 
@@ -118,42 +122,120 @@ class Received:
     time_s: float
 
 
+def sender_key(key: str, payload: bytes, known_signers: Collection[bytes] | None = None) -> Hashable:
+    """The queue key of a payload received on zenoh key ``key``, read from the envelope before any
+    check of the signature: ``(key, signer HashedId8)``, where the signer is the one the payload
+    *claims*. Payloads that cannot be a signed alert (wrong length or magic, a station id that
+    is not the claimed signer's) share the key ``(key, "malformed")``; when ``known_signers`` is
+    given, a claimed signer outside it (unknown or revoked: the verifier will reject it) shares
+    ``(key, "unknown")``, so made-up signer ids cannot create keys without end."""
+    if len(payload) != SIGNED_SIZE or payload[:4] != MAGIC:
+        return (key, "malformed")
+    signer = bytes(payload[ALERT_SIZE : ALERT_SIZE + 8])
+    if payload[8:12] != signer[:4]:  # the alert's station id must be the signer's
+        return (key, "malformed")
+    if known_signers is not None and signer not in known_signers:
+        return (key, "unknown")
+    return (key, signer)
+
+
 class AlertSubscriber:
-    """Receives payloads on the given segments, in arrival order (zenoh's callback thread stamps the
-    receive time and queues them; :meth:`receive` hands them out).
+    """Receives payloads on the given segments (zenoh's callback thread stamps the receive time and
+    queues them; :meth:`receive` hands them out), through a bounded queue that never blocks zenoh.
 
-    The queue holds at most ``max_pending`` payloads (:class:`~makeway.queues.LatestQueue`): when
-    alerts arrive faster than the listener verifies them, the oldest waiting ones are dropped, never
-    the newest, and memory stays bounded (:attr:`dropped` counts them)."""
+    ``queue="per_sender"`` (the default, what a car runs): a
+    :class:`~makeway.queues.KeyedLatestQueue` keyed by :func:`sender_key` (segment and the signer
+    the payload claims) that keeps each sender's ``per_sender`` newest payloads and serves the
+    senders in turn. An alert is a state repeated at 10 Hz, so an older one from the same sender is
+    stale once a newer one waits: under overload the listener verifies every sender's newest alerts
+    and its delay stays about one round of the senders waiting, not a backlog. At most
+    ``max_pending`` payloads wait (``max_pending // per_sender`` senders; a new sender arriving at a
+    full queue drops the one waiting longest).
 
-    def __init__(self, session: zenoh.Session, segments: Sequence[str], max_pending: int = 1024) -> None:
-        self._queue: LatestQueue[Received] = LatestQueue(max_pending)
+    ``queue="fifo"``: a :class:`~makeway.queues.LatestQueue` of ``max_pending`` payloads in arrival
+    order, dropping the oldest when full; for a consumer that must see every payload of a burst
+    (a loss count, a simulation that replays every alert it sent).
+
+    Forgery and flooding (per-sender queue). The key is read before the signature is checked, so
+    anyone who can publish on a segment can claim a real unit's signer id (it is in every alert
+    that unit sends). What that attacker can and cannot do:
+
+    * it cannot delay or displace another sender's alerts: each key gets one turn per round, and
+      a key's flood only pushes out that key's own older payloads;
+    * made-up signer ids do not multiply keys when ``known_signers`` is given (the trust store's
+      units, minus revoked ones): they all share one key per segment; nor do malformed payloads;
+    * it **can** hide the claimed unit's genuine alerts: a genuine alert is verified only if fewer
+      than ``per_sender`` payloads claiming the same signer arrive after it before the key's turn.
+      With ``per_sender = 2`` that means two forged payloads per turn of that key (a turn comes
+      about every (senders waiting) × (verification time), ~0.1 ms per sender here); a flood of
+      tens of thousands per second against one unit denies that unit's alerts while it lasts. The
+      forged payloads themselves are still all rejected by the verifier, and a FIFO queue under
+      the same flood would lose the genuine alert too (pushed out by the flood's volume), along
+      with every other unit's. Telling the genuine alert from the forged ones takes the signature
+      check, which is exactly the work that is overloaded.
+    """
+
+    def __init__(
+        self,
+        session: zenoh.Session,
+        segments: Sequence[str],
+        max_pending: int = 1024,
+        *,
+        queue: Literal["per_sender", "fifo"] = "per_sender",
+        per_sender: int = 2,
+        known_signers: Collection[bytes] | None = None,
+    ) -> None:
+        if queue not in ("per_sender", "fifo"):
+            raise ValueError(f"queue is 'per_sender' or 'fifo', not {queue!r}")
+        self.queue_policy = queue
+        self._known = None if known_signers is None else frozenset(bytes(s) for s in known_signers)
+        self._fifo: LatestQueue[Received] | None = None
+        self._keyed: KeyedLatestQueue[Hashable, Received] | None = None
+        if queue == "fifo":
+            self._fifo = LatestQueue(max_pending)
+        else:
+            self._keyed = KeyedLatestQueue(max(1, max_pending // per_sender), per_sender)
         self._subs = [session.declare_subscriber(segment_key(s), self._on_sample) for s in segments]
 
     def _on_sample(self, sample: zenoh.Sample) -> None:
-        self._queue.put(Received(str(sample.key_expr), sample.payload.to_bytes(), time.time()))
+        got = Received(str(sample.key_expr), sample.payload.to_bytes(), time.time())
+        if self._keyed is not None:
+            self._keyed.put(sender_key(got.key, got.payload, self._known), got)
+        else:
+            assert self._fifo is not None
+            self._fifo.put(got)
+
+    def _get(self, timeout: float) -> Received:
+        if self._keyed is not None:
+            return self._keyed.get(timeout=timeout)
+        assert self._fifo is not None
+        return self._fifo.get(timeout=timeout)
 
     def receive(self, timeout_s: float) -> Iterator[Received]:
-        """Yield payloads as they arrive until ``timeout_s`` (s) passes (``inf``: forever)."""
+        """Yield payloads as they are served until ``timeout_s`` (s) passes (``inf``: forever)."""
         deadline = time.monotonic() + timeout_s
         while True:
             left = deadline - time.monotonic()
             if left <= 0:
                 return
             try:
-                yield self._queue.get(timeout=min(left, 0.5))
+                yield self._get(min(left, 0.5))
             except TimeoutError:
                 continue
 
     @property
     def dropped(self) -> int:
-        """Payloads dropped unread because the queue was full."""
-        return self._queue.dropped
+        """Payloads dropped unread (pushed out by newer ones, see the class)."""
+        q = self._keyed if self._keyed is not None else self._fifo
+        assert q is not None
+        return q.dropped
 
     @property
     def pending(self) -> int:
         """Payloads received and not yet handed out."""
-        return len(self._queue)
+        q = self._keyed if self._keyed is not None else self._fifo
+        assert q is not None
+        return len(q)
 
     def close(self) -> None:
         for sub in self._subs:
