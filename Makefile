@@ -8,7 +8,7 @@ OUT    ?= reports/demo
 
 .PHONY: venv demo test lint typecheck bench bench-sort bench-video bench-crops bench-detection bench-pull-over \
 	bench-siren-loop bench-audio bench-rig bench-v2x bench-fusion bench-roadside bench-lights bench-active-rule \
-	bench-rsu bench-fusion-ablation bench-mcap bench-engine bench-robust bench-faults bench-overload bench-range fuzz clean
+	bench-rsu bench-fusion-ablation bench-mcap bench-engine bench-robust bench-faults bench-overload bench-overload-listener bench-range bench-clip-fusion fuzz clean
 
 # `make demo` installs the runtime only; `make test` and the benchmarks add the dev extra (linters,
 # scikit-learn, XGBoost, torch for the training tests).
@@ -129,6 +129,14 @@ bench-faults: venv
 bench-overload: venv
 	$(BIN)/python benchmarks/bench_overload.py
 
+# the car's V2X listener at 0.5x, 2x and 10x its verification rate, 20 roadside units + 3 EVs, 10 minutes each
+bench-overload-listener: venv
+	$(BIN)/python benchmarks/bench_overload.py --stages listener --rates 0.5,2,10
+
+# lights and siren per second on the real clips with sound (issue 26 item 6)
+bench-clip-fusion: venv
+	$(BIN)/python benchmarks/bench_clip_fusion.py
+
 # siren recall and distance per 5 dB band of emitted level; level-independent range cues alone and combined
 bench-range: venv
 	$(BIN)/python benchmarks/bench_audio_range_levels.py --n 25
@@ -140,7 +148,8 @@ fuzz: venv
 
 bench: bench-sort bench-video bench-crops bench-detection bench-pull-over bench-siren-loop bench-audio bench-rig \
 	bench-v2x bench-fusion bench-roadside bench-lights bench-active-rule bench-rsu \
-	bench-fusion-ablation bench-mcap bench-engine bench-robust bench-faults bench-overload bench-range
+	bench-fusion-ablation bench-mcap bench-engine bench-robust bench-faults bench-overload bench-overload-listener \
+	bench-range bench-clip-fusion
 
 clean:
 	rm -rf $(VENV) reports .pytest_cache .mypy_cache .ruff_cache
