@@ -467,8 +467,9 @@ def train(
 ) -> tuple[nn.Module, dict[str, Any]]:
     """Train the network of ``cfg.arch`` (:func:`build_net`; module docstring); returns the model and
     a log dict (config, losses, validation F1 per check with its best threshold, the chosen step and
-    threshold, seconds). The operating threshold (``log["threshold"]``) is the best-F1 one on validation at the chosen step,
-    or ``cfg.threshold`` when validation has no lit lights or no true positive at any threshold."""
+    threshold, seconds). The operating threshold (``log["threshold"]``) is the best-F1 one on
+    validation at the chosen step, or ``cfg.threshold`` when validation has no lit lights or no true
+    positive at any threshold."""
     if not train_frames:
         raise InputError("lights labels", "no checked training frames (see docs/data_card_lights.md)")
     if not any(len(f.boxes) for f in train_frames):
