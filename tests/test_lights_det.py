@@ -116,11 +116,12 @@ def test_best_f1_threshold_picks_the_threshold_with_the_best_f1() -> None:
     # one sure hit (0.9), one false box (0.6), the second lamp found at 0.4
     boxes = np.array([[10, 10, 20, 20], [70, 70, 80, 80], [40, 40, 50, 50]], float)
     scores = np.array([0.9, 0.6, 0.4])
-    f1, thr, p, r = best_f1_threshold([(boxes, scores)], gt)
+    f1, thr, p, r, tp = best_f1_threshold([(boxes, scores)], gt)
     # at 0.05–0.4: P 2/3, R 1 (F1 0.8); at 0.45–0.9: P ≤ 1, R 0.5 (F1 ≤ 0.67); ties go to the highest
     assert thr == pytest.approx(0.4) and f1 == pytest.approx(0.8) and p == pytest.approx(2 / 3) and r == 1.0
-    f1, thr, _, _ = best_f1_threshold([(boxes[1:2], scores[1:2])], gt)
-    assert f1 == 0.0 and np.isnan(thr)  # no true positive: validation cannot choose
+    assert tp == 2
+    f1, thr, _, _, tp = best_f1_threshold([(boxes[1:2], scores[1:2])], gt)
+    assert f1 == 0.0 and np.isnan(thr) and tp == 0  # no true positive: validation cannot choose
 
 
 def test_split_is_by_source_and_held_out_images_are_test() -> None:

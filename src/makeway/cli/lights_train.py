@@ -26,9 +26,9 @@ def lights_train(
             "or small (a small network trained from scratch)."
         ),
     ] = "yolox",
-    steps: Annotated[int, typer.Option(min=20, help="Optimiser steps.")] = 3000,
+    steps: Annotated[int, typer.Option(min=20, help="Optimiser steps.")] = 1500,
     crop: Annotated[int, typer.Option(min=32, help="Training crop side in pixels (multiple of 16).")] = 256,
-    batch: Annotated[int, typer.Option(min=1, help="Crops per optimiser step.")] = 12,
+    batch: Annotated[int, typer.Option(min=1, help="Crops per optimiser step.")] = 8,
     seed: Annotated[int, typer.Option(help="Random seed.")] = 0,
     threads: Annotated[int, typer.Option(min=1, help="CPU threads for training.")] = 2,
     paste: Annotated[

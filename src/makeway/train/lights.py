@@ -32,8 +32,8 @@ training frames pasted in (``paste``), through :func:`makeway.train.light_augmen
 day → night change ``night_lamps``); AdamW, one-cycle learning rate, a fixed number of steps. When
 the validation split has lit lights, the step with the best validation F1 (checked every
 ``eval_every`` steps, at the best threshold of :data:`THRESHOLDS`) is kept with that threshold as
-the operating point; otherwise (or with no true positive at any threshold) the last step and the
-fixed ``TrainConfig.threshold``.
+the operating point; otherwise (or when no check reaches ``TrainConfig.min_val_tp`` true positives)
+the last step and the fixed ``TrainConfig.threshold``.
 """
 
 from __future__ import annotations
@@ -334,11 +334,12 @@ class TrainConfig:
     has lights); ``backbone_lr`` the pretrained backbone's learning rate as a fraction of ``lr``;
     ``paste``, ``night_lamps``, ``swap_red_blue``, ``night`` the probabilities of those
     augmentations (:mod:`makeway.train.light_augment`); ``threshold`` the operating threshold used
-    when validation cannot choose one (no lit lights or no true positive)."""
+    when validation cannot choose one: it has no lit lights, or no check reaches ``min_val_tp``
+    true positives (a choice resting on a handful of matches is noise)."""
 
     arch: str = "yolox"
-    steps: int = 3000
-    batch: int = 12
+    steps: int = 1500
+    batch: int = 8
     crop: int = 256
     lr: float = 2e-3
     backbone_lr: float = 0.3
@@ -357,6 +358,7 @@ class TrainConfig:
     night: float = 0.0
     paste: float = 0.0
     night_lamps: float = 0.0
+    min_val_tp: int = 10
 
 
 def _sample_crop(frame: LightFrame, crop: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
@@ -434,13 +436,14 @@ THRESHOLDS = tuple(round(0.05 * k, 2) for k in range(1, 19))
 
 def best_f1_threshold(
     preds: Sequence[tuple[np.ndarray, np.ndarray]], gt: Sequence[np.ndarray]
-) -> tuple[float, float, float, float]:
-    """``(F1, threshold, precision, recall)`` at the threshold of :data:`THRESHOLDS` with the best
-    array-level F1 (IoU ≥ 0.5), ties to the highest (the same validation detections with the
-    stricter threshold); F1 0 and threshold ``nan`` when none has a true positive."""
+) -> tuple[float, float, float, float, int]:
+    """``(F1, threshold, precision, recall, true positives)`` at the threshold of
+    :data:`THRESHOLDS` with the best array-level F1 (IoU ≥ 0.5), ties to the highest (the same
+    validation detections with the stricter threshold); F1 0, threshold ``nan`` and 0 true
+    positives when no threshold has one."""
     from makeway.eval.detection import precision_recall
 
-    best = (0.0, float("nan"), 0.0, 0.0)
+    best: tuple[float, float, float, float, int] = (0.0, float("nan"), 0.0, 0.0, 0)
     for t in THRESHOLDS:
         p, r, tp, _nd, _ng = precision_recall(
             [b for b, _ in preds], [s for _, s in preds], list(gt), score_threshold=t
@@ -449,11 +452,11 @@ def best_f1_threshold(
             continue
         f1 = 2 * p * r / (p + r)
         if f1 >= best[0]:
-            best = (f1, t, p, r)
+            best = (f1, t, p, r, int(tp))
     return best
 
 
-def _val_f1(net: nn.Module, frames: Sequence[LightFrame]) -> tuple[float, float, float, float]:
+def _val_f1(net: nn.Module, frames: Sequence[LightFrame]) -> tuple[float, float, float, float, int]:
     preds = predict_frames(net, frames, THRESHOLDS[0])
     return best_f1_threshold(preds, [f.boxes for f in frames])
 
@@ -527,11 +530,11 @@ def train(
             if progress is not None:
                 progress(step, cfg.steps, running)
             if val_has_lights and (step % cfg.eval_every == 0 or step == cfg.steps):
-                f1, thr, p, r = _val_f1(net, val_frames)
+                f1, thr, p, r, tp = _val_f1(net, val_frames)
                 log["val_f1"].append(
-                    [step, round(f1, 4), thr if math.isfinite(thr) else None, round(p, 4), round(r, 4)]
+                    [step, round(f1, 4), thr if math.isfinite(thr) else None, round(p, 4), round(r, 4), tp]
                 )
-                if f1 > best[0]:
+                if tp >= cfg.min_val_tp and f1 > best[0]:
                     best = (f1, step, copy.deepcopy(net.state_dict()), thr)
     finally:
         torch.set_num_threads(old_threads)
@@ -544,7 +547,9 @@ def train(
         log["chosen_step"] = cfg.steps
         log["threshold"] = cfg.threshold
         log["threshold_from"] = (
-            "fixed (validation has no true positive)" if val_has_lights else "fixed (no validation lights)"
+            f"fixed (validation never reached {cfg.min_val_tp} true positives)"
+            if val_has_lights
+            else "fixed (no validation lights)"
         )
     log["seconds"] = round(time.perf_counter() - t0, 1)
     net.eval()
