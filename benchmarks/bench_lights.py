@@ -64,7 +64,7 @@ def _ensure_ablation(path: Path) -> bool:
 
     path.parent.mkdir(parents=True, exist_ok=True)
     print(f"training the ablation (no colour attention) into {path} …", flush=True)
-    train_lights(path, attention=False)
+    train_lights(path, attention=False, threads=1, min_val_tp=1)  # the shipped model's recipe
     return True
 
 

@@ -195,10 +195,10 @@ def test_shipped_detector_finds_lit_lights_on_labelled_night_frames_and_nothing_
         assert det.detect(img) == []
 
 
-#: a regression guard against a broken model, not the target: the shipped model finds 3 of the 26
-#: lamps of these six night frames, 11.7 % of the night clip's lamps (benchmarks/bench_lights.py has
-#: the full test figures)
-MIN_RECALL = 0.08
+#: a regression guard against a broken model, not the target: the shipped model (YOLOX-nano early
+#: stages, fine-tuned) finds 13 of the 26 lamps of these six night frames (the earlier small network
+#: found 3); benchmarks/bench_lights.py has the full test figures
+MIN_RECALL = 0.3
 
 
 def test_colour_set_filters_cnn_detections(data_root: Path) -> None:

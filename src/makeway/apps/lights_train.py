@@ -32,6 +32,7 @@ def train_lights(
     night: float = 0.0,
     paste: float = 0.5,
     night_lamps: float = 0.3,
+    min_val_tp: int = 10,
     data: str | Path | None = None,
     label_dir: str | Path | None = None,
     show_progress: bool = True,
@@ -40,7 +41,8 @@ def train_lights(
     COCO-pretrained early stages fine-tuned; ``small``: the from-scratch ``LightNet``); ``attention``
     False trains the ablation without the colour-attention block; ``steps`` of ``batch`` crops of
     ``crop`` px on ``threads`` torch threads; ``paste``, ``night_lamps``, ``swap_red_blue`` and
-    ``night`` are the probabilities of those augmentations (:mod:`makeway.train.light_augment`).
+    ``night`` are the probabilities of those augmentations (:mod:`makeway.train.light_augment`);
+    validation picks the step and threshold only when a check reaches ``min_val_tp`` true positives.
     Returns the summary: frames and boxes per split, the chosen step and operating threshold (and
     where it came from), seconds, model size (bytes), the label files left out (unknown source)."""
     from makeway.progress import progress_bar
@@ -86,6 +88,7 @@ def train_lights(
         night=night,
         paste=paste,
         night_lamps=night_lamps,
+        min_val_tp=min_val_tp,
     )
     t0 = time.perf_counter()
     size = (cfg.input_width, cfg.input_height)
@@ -98,7 +101,8 @@ def train_lights(
         f"makeway lights-train {out}"
         + ("" if attention else " --no-attention")
         + f" --arch {arch} --steps {steps} --crop {crop} --batch {batch} --threads {threads} --seed {seed}"
-        + f" --paste {paste} --night-lamps {night_lamps} --swap-red-blue {swap_red_blue} --night {night}"
+        + f" --paste {paste} --night-lamps {night_lamps} --min-val-tp {min_val_tp}"
+        + f" --swap-red-blue {swap_red_blue} --night {night}"
     )
     export_onnx(net, out, cfg, training=command, threshold=float(log["threshold"]))
     summary: dict[str, Any] = {

@@ -38,6 +38,14 @@ def lights_train(
         float,
         typer.Option(help="Probability of the day-to-night change (frame darkened, lamps kept bright)."),
     ] = 0.3,
+    min_val_tp: Annotated[
+        int,
+        typer.Option(
+            min=1,
+            help="Lamps the validation clip must find before it may pick the kept step and "
+            "threshold (else the last step and threshold 0.3).",
+        ),
+    ] = 10,
     swap_red_blue: Annotated[
         float, typer.Option(help="Probability of exchanging red and blue channels (red lamps become blue).")
     ] = 0.0,
@@ -95,6 +103,7 @@ def lights_train(
         night=night,
         paste=paste,
         night_lamps=night_lamps,
+        min_val_tp=min_val_tp,
         data=data,
         label_dir=labels,
     )
