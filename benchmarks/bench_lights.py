@@ -1,14 +1,17 @@
 """Lit-light detection on the held-out labelled frames: seed 004's metrics beside their targets.
 
 Prints, per test source and for the worst source, array (bulb) P/R at IoU 0.5, vehicle P/R, mAP50,
-mAP50:95 and ms/frame for four detectors:
+mAP50:95 and ms/frame for these detectors:
 
 * ``colour`` — the rule-based finder (``LIGHT_DETECTORS["colour"]``, the baseline);
 * ``cnn+att`` — the shipped learned detector with seed 004's colour-attention block
-  (``src/makeway/models/lights_det.onnx``);
+  (``src/makeway/models/lights_det.onnx``: YOLOX-nano's pretrained early stages, fine-tuned);
 * ``cnn-att`` — the same network trained by the same command with ``--no-attention`` (the ablation:
   the block's gain). Read from ``benchmarks/out/lights_det_no_attention.onnx``; trained there first
-  (about 15 min on one core) when missing and torch is installed;
+  (``makeway lights-train … --no-attention``, about 40 min on a shared 2-core machine) when missing
+  and torch is installed;
+* ``small+att`` — the earlier from-scratch network (``--arch small``), when
+  ``benchmarks/out/lights_det_small.onnx`` exists (``git show 16d5812:src/makeway/models/lights_det.onnx``);
 * ``verified`` — rule proposals scored by the learned verifier (``LIGHT_DETECTORS["verified"]``,
   ``src/makeway/models/lights_verifier.onnx``; ``makeway lights-train --verifier``).
 
@@ -38,6 +41,7 @@ from makeway.train.light_split import load_split
 
 ROOT = Path(__file__).resolve().parents[1]
 ABLATION = ROOT / "benchmarks" / "out" / "lights_det_no_attention.onnx"
+SMALL = ROOT / "benchmarks" / "out" / "lights_det_small.onnx"
 TARGETS = {"array_precision": 0.90, "array_recall": 0.88, "vehicle_precision": 0.95, "vehicle_recall": 0.94}
 SEED004 = {"array_precision": 0.888, "array_recall": 0.864}
 
@@ -60,7 +64,7 @@ def _ensure_ablation(path: Path) -> bool:
 
     path.parent.mkdir(parents=True, exist_ok=True)
     print(f"training the ablation (no colour attention) into {path} …", flush=True)
-    train_lights(path, attention=False)
+    train_lights(path, attention=False, threads=1, min_val_tp=1)  # the shipped model's recipe
     return True
 
 
@@ -70,6 +74,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--threads", type=int, default=1, help="ONNX Runtime threads (default 1)")
     ap.add_argument("--model", type=Path, default=default_lights_model(), help="the attention model")
     ap.add_argument("--ablation", type=Path, default=ABLATION, help="the no-attention model")
+    ap.add_argument(
+        "--small", type=Path, default=SMALL, help="the earlier small model (row skipped if absent)"
+    )
     ap.add_argument("--verifier", type=Path, default=DEFAULT_VERIFIER_MODEL, help="the verifier model")
     ap.add_argument("--split", default="test", choices=["test", "val"], help="which split to score")
     ap.add_argument(
@@ -90,6 +97,8 @@ def main(argv: list[str] | None = None) -> int:
     models = {"cnn+att": args.model}
     if _ensure_ablation(args.ablation):
         models["cnn-att"] = args.ablation
+    if args.small.is_file():
+        models["small+att"] = args.small
     for name, path in models.items():
         # run at a low threshold so mAP sees the ranking; P/R count the model's own operating threshold
         probe = LIGHT_DETECTORS["cnn"](colours="all", model=path, num_threads=args.threads)
@@ -124,7 +133,7 @@ def main(argv: list[str] | None = None) -> int:
         + ")"
     )
     head = (
-        f"{'source':26s} {'detector':8s} {'arrP':>6s} {'arrR':>6s} {'vehP':>6s} {'vehR':>6s} "
+        f"{'source':26s} {'detector':9s} {'arrP':>6s} {'arrR':>6s} {'vehP':>6s} {'vehR':>6s} "
         f"{'mAP50':>6s} {'mAP50:95':>8s} {'ms/fr':>6s}  frames/boxes/dets/FP-frames"
     )
     print(head)
@@ -140,7 +149,7 @@ def main(argv: list[str] | None = None) -> int:
                 + ")"
             )
             print(
-                f"{src:26s} {name:8s} {_fmt(m['array_precision'])} {_fmt(m['array_recall'])} "
+                f"{src:26s} {name:9s} {_fmt(m['array_precision'])} {_fmt(m['array_recall'])} "
                 f"{_fmt(m['vehicle_precision'])} {_fmt(m['vehicle_recall'])} {_fmt(m['map50'])} "
                 f"{_fmt(m['map50_95']):>8s} {_fmt(m['ms_mean'], pct=False)}{extra}"
             )

@@ -94,3 +94,43 @@ def test_night_darkens_mid_tones_keeps_lamps_and_swap_turns_red_lamps_blue() -> 
     swapped = swap_red_blue(img)
     assert tuple(swapped[105, 15]) == (200, 30, 30)  # now blue in BGR
     assert tuple(swapped[120, 160]) == tuple(img[120, 160][::-1])
+
+
+def test_night_lamps_darkens_the_scene_but_keeps_the_labelled_lamp() -> None:
+    from makeway.train.light_augment import night_lamps
+
+    img, boxes = _scene((160, 120))
+    img[:, :] = np.clip(img.astype(np.int16) + 100, 0, 255).astype(np.uint8)  # a daytime grey scene
+    cv2.rectangle(img, (153, 113), (167, 127), (255, 120, 0), -1)  # the lamp (box `boxes`)
+    for seed in range(5):
+        out = night_lamps(img, boxes, np.random.default_rng(seed))
+        assert out.shape == img.shape and out.dtype == np.uint8
+        assert out[20:60, 20:60].mean() < 0.65 * img[20:60, 20:60].mean()  # the scene went dark
+        x1, y1, x2, y2 = boxes[0].astype(int)
+        assert out[y1:y2, x1:x2, 0].mean() >= 0.95 * img[y1:y2, x1:x2, 0].mean()  # the lamp did not
+        assert _lamp_box(out)[0] <= x1 + 1 and _lamp_box(out)[2] >= x2 - 1
+
+
+def test_paste_lamps_copies_real_patches_with_their_boxes() -> None:
+    from makeway.train.light_augment import lamp_patches, paste_lamps
+
+    src, src_boxes = _scene((100, 100), radius=5)
+    patches = lamp_patches([src], [src_boxes])
+    assert len(patches) == 1
+    patch, pbox = patches[0]
+    assert patch.shape[0] > pbox[3] - pbox[1] and patch.shape[1] > pbox[2] - pbox[0]  # the halo
+    dst = np.full((200, 200, 3), 30, np.uint8)
+    rng = np.random.default_rng(1)
+    for _ in range(10):
+        out, boxes = paste_lamps(dst, np.zeros((0, 4)), patches, rng, count=(1, 1))
+        assert boxes.shape == (1, 4)
+        x1, y1, x2, y2 = boxes[0]
+        assert 0 <= x1 < x2 <= 200 and 0 <= y1 < y2 <= 200
+        # the pasted lamp (blue, or red when its channels were swapped) is where its box says
+        cx, cy = int((x1 + x2) / 2), int((y1 + y2) / 2)
+        assert out[cy, cx].max() > 200 and (out >= dst).all()  # "lighten" blend never darkens
+        ys, xs = np.nonzero(out.max(axis=2) > 150)
+        assert _iou(np.array([xs.min(), ys.min(), xs.max() + 1, ys.max() + 1], float), boxes[0]) > 0.5
+    existing = np.array([[20.0, 20.0, 30.0, 30.0]])
+    _, kept = paste_lamps(dst, existing, patches, rng, count=(2, 2))
+    assert len(kept) == 3 and np.array_equal(kept[0], existing[0])

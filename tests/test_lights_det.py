@@ -74,6 +74,56 @@ def test_export_round_trip_torch_equals_onnx(tmp_path: Path) -> None:
     assert meta["stride"] == "4" and meta["attention"] == "blue,red,white"
 
 
+def test_yolox_network_exports_and_onnx_equals_torch(tmp_path: Path, data_root: Path) -> None:
+    torch = require_module("torch")
+    import onnxruntime as ort
+
+    from makeway.train.lights import TrainConfig, YoloxLightNet, build_net, deploy_outputs, export_onnx
+
+    torch.manual_seed(0)
+    cfg = TrainConfig(arch="yolox", input_width=96, input_height=64)
+    net = build_net(cfg).eval()
+    assert isinstance(net, YoloxLightNet) and net.attention.enabled
+    # the backbone starts from YOLOX-nano's COCO weights: its first convolution is the file's
+    import onnx
+    from onnx import numpy_helper
+
+    model = onnx.load(str(data_root / "models" / "yolox_nano.onnx"))
+    first_conv = next(n for n in model.graph.node if n.op_type == "Conv")
+    init = {i.name: numpy_helper.to_array(i) for i in model.graph.initializer}
+    got_w = net.backbone.weights[net.backbone._keys[first_conv.input[1]]].detach().numpy()
+    np.testing.assert_array_equal(got_w, init[first_conv.input[1]])
+    path = export_onnx(net, tmp_path / "yolox.onnx", cfg, threshold=0.35)
+    x = np.random.default_rng(0).random((1, 3, 64, 96), dtype=np.float32)
+    want = deploy_outputs(net, torch.from_numpy(x))
+    sess = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"])
+    got = sess.run(["heat", "size", "offset"], {"images": x})
+    for w, g in zip(want, got, strict=True):
+        assert w.shape == g.shape == (1, w.shape[1], 16, 24)
+        np.testing.assert_allclose(g, w, atol=1e-4)
+    meta = sess.get_modelmeta().custom_metadata_map
+    assert meta["arch"] == "yolox" and meta["threshold"] == "0.35" and meta["attention"] == "blue,red,white"
+    off = build_net(TrainConfig(arch="yolox", attention=False))
+    assert not off.attention.enabled  # type: ignore[union-attr]
+    with pytest.raises(ValueError, match="unknown arch"):
+        build_net(TrainConfig(arch="resnet"))
+
+
+def test_best_f1_threshold_picks_the_threshold_with_the_best_f1() -> None:
+    from makeway.train.lights import best_f1_threshold
+
+    gt = [np.array([[10, 10, 20, 20], [40, 40, 50, 50]], float)]
+    # one sure hit (0.9), one false box (0.6), the second lamp found at 0.4
+    boxes = np.array([[10, 10, 20, 20], [70, 70, 80, 80], [40, 40, 50, 50]], float)
+    scores = np.array([0.9, 0.6, 0.4])
+    f1, thr, p, r, tp = best_f1_threshold([(boxes, scores)], gt)
+    # at 0.05–0.4: P 2/3, R 1 (F1 0.8); at 0.45–0.9: P ≤ 1, R 0.5 (F1 ≤ 0.67); ties go to the highest
+    assert thr == pytest.approx(0.4) and f1 == pytest.approx(0.8) and p == pytest.approx(2 / 3) and r == 1.0
+    assert tp == 2
+    f1, thr, _, _, tp = best_f1_threshold([(boxes[1:2], scores[1:2])], gt)
+    assert f1 == 0.0 and np.isnan(thr) and tp == 0  # no true positive: validation cannot choose
+
+
 def test_split_is_by_source_and_held_out_images_are_test() -> None:
     assert set(SPLITS.values()) == {"train", "val", "test"}
     held = held_out_images()
@@ -145,10 +195,10 @@ def test_shipped_detector_finds_lit_lights_on_labelled_night_frames_and_nothing_
         assert det.detect(img) == []
 
 
-#: a regression guard against a broken model, not the target: the shipped model finds 3 of the 26
-#: lamps of these six night frames, 11.7 % of the night clip's lamps (benchmarks/bench_lights.py has
-#: the full test figures)
-MIN_RECALL = 0.08
+#: a regression guard against a broken model, not the target: the shipped model (YOLOX-nano early
+#: stages, fine-tuned) finds 13 of the 26 lamps of these six night frames (the earlier small network
+#: found 3); benchmarks/bench_lights.py has the full test figures
+MIN_RECALL = 0.3
 
 
 def test_colour_set_filters_cnn_detections(data_root: Path) -> None:

@@ -19,9 +19,33 @@ def lights_train(
     no_attention: Annotated[
         bool, typer.Option("--no-attention", help="Train without the colour-attention block (the ablation).")
     ] = False,
-    steps: Annotated[int, typer.Option(min=20, help="Optimiser steps (12 crops of 160 px each).")] = 1600,
+    arch: Annotated[
+        str,
+        typer.Option(
+            help="Network: yolox (early layers of the YOLOX-nano vehicle detector, fine-tuned) "
+            "or small (a small network trained from scratch)."
+        ),
+    ] = "yolox",
+    steps: Annotated[int, typer.Option(min=20, help="Optimiser steps.")] = 1500,
+    crop: Annotated[int, typer.Option(min=32, help="Training crop side in pixels (multiple of 16).")] = 256,
+    batch: Annotated[int, typer.Option(min=1, help="Crops per optimiser step.")] = 8,
     seed: Annotated[int, typer.Option(help="Random seed.")] = 0,
-    threads: Annotated[int, typer.Option(min=1, help="torch threads.")] = 1,
+    threads: Annotated[int, typer.Option(min=1, help="CPU threads for training.")] = 2,
+    paste: Annotated[
+        float, typer.Option(help="Probability of pasting real lit-lamp patches into a crop.")
+    ] = 0.5,
+    night_lamps: Annotated[
+        float,
+        typer.Option(help="Probability of the day-to-night change (frame darkened, lamps kept bright)."),
+    ] = 0.3,
+    min_val_tp: Annotated[
+        int,
+        typer.Option(
+            min=1,
+            help="Lamps the validation clip must find before it may pick the kept step and "
+            "threshold (else the last step and threshold 0.3).",
+        ),
+    ] = 10,
     swap_red_blue: Annotated[
         float, typer.Option(help="Probability of exchanging red and blue channels (red lamps become blue).")
     ] = 0.0,
@@ -69,11 +93,17 @@ def lights_train(
     s = train_lights(
         out,
         attention=not no_attention,
+        arch=arch,
         steps=steps,
+        crop=crop,
+        batch=batch,
         seed=seed,
         threads=threads,
         swap_red_blue=swap_red_blue,
         night=night,
+        paste=paste,
+        night_lamps=night_lamps,
+        min_val_tp=min_val_tp,
         data=data,
         label_dir=labels,
     )
@@ -82,6 +112,7 @@ def lights_train(
         f"{s['train_frames']} train frames ({s['train_positive_frames']} with lights, "
         f"{s['train_boxes']} boxes), "
         f"{s['val_frames']} val frames ({s['val_boxes']} boxes); step {s['chosen_step']} kept; "
+        f"threshold {s['threshold']:.2f} ({s['threshold_from']}); "
         f"{s['train_seconds']:.0f} s training"
     )
     if s["left_out"]:

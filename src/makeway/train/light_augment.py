@@ -23,6 +23,13 @@ Transforms (each takes a :class:`numpy.random.Generator` so runs are reproducibl
   grey levels); boxes unchanged.
 * :func:`night` — a gamma curve ``255·(img/255)^γ``, γ ∈ [1.5, 3]: mid-tones go dark while clipped
   lamps stay bright, the look of a night camera; boxes unchanged.
+* :func:`night_lamps` — day → night: the frame darkened (gain 0.2–0.6 after a gamma 1.3–2.2) while
+  the labelled lamps (a soft ellipse 1.6× their box) and every clipped pixel (V ≥ 230, dilated:
+  headlights, tail lights, reflections stay bright at night too) keep or raise their brightness,
+  plus a halo (the lamps blurred and added); boxes unchanged.
+* :func:`paste_lamps` — copies real lit-lamp patches (a labelled box with its halo, from
+  :func:`lamp_patches`) onto the image with a feathered "lighten" blend, scaled 0.6–1.5×, the red
+  and blue channels swapped with probability 0.3; returns the new boxes appended.
 * :func:`swap_red_blue` — exchanges the red and blue channels, so a lit red lamp becomes a lit blue
   one (and the reverse) with its glow and clipped core; for a one-class lit-light detector this
   carries lamps of one colour to the other; boxes unchanged.
@@ -47,8 +54,11 @@ __all__ = [
     "augment",
     "default_fisheye_k",
     "fisheye",
+    "lamp_patches",
     "map_boxes",
     "night",
+    "night_lamps",
+    "paste_lamps",
     "perspective",
     "photometric",
     "swap_red_blue",
@@ -252,6 +262,122 @@ def night(
     return out
 
 
+def _soft_box_mask(shape: tuple[int, int], boxes: np.ndarray, grow: float) -> np.ndarray:
+    """``float32`` mask ``(h, w)``: 1 inside ellipses ``grow`` times each box, feathered by a blur."""
+    h, w = shape
+    m = np.zeros((h, w), np.float32)
+    for x1, y1, x2, y2 in boxes:
+        cx, cy = (x1 + x2) / 2, (y1 + y2) / 2
+        ax, ay = max(1.5, grow * (x2 - x1) / 2), max(1.5, grow * (y2 - y1) / 2)
+        cv2.ellipse(m, (round(cx), round(cy)), (round(ax), round(ay)), 0, 0, 360, 1.0, -1)
+    if len(boxes):
+        blurred: np.ndarray = cv2.GaussianBlur(m, (0, 0), 1.5)
+        return blurred
+    return m
+
+
+def night_lamps(
+    image: np.ndarray,
+    boxes: np.ndarray,
+    rng: np.random.Generator,
+    *,
+    gain: tuple[float, float] = (0.2, 0.6),
+    gamma: tuple[float, float] = (1.3, 2.2),
+) -> np.ndarray:
+    """Day → night (module docstring): everything darkened except the lamps in ``boxes`` and the
+    clipped pixels, which keep (×1–1.3) their brightness and get a blurred halo. ``uint8``."""
+    _check_image(image)
+    b = _as_boxes(boxes)
+    x = image.astype(np.float32)
+    g = rng.uniform(*gamma)
+    dark = 255.0 * rng.uniform(*gain) * (x / 255.0) ** g
+    v = image.max(axis=2)
+    bright = cv2.dilate((v >= 230).astype(np.uint8), np.ones((3, 3), np.uint8)).astype(np.float32)
+    m = np.maximum(_soft_box_mask(image.shape[:2], b, 1.6), cv2.GaussianBlur(bright, (0, 0), 1.0))
+    lit = np.minimum(x * rng.uniform(1.0, 1.3), 255.0) * m[..., None]
+    out = dark * (1.0 - m[..., None]) + lit
+    if len(b):
+        size = float(np.median(np.maximum(b[:, 2] - b[:, 0], b[:, 3] - b[:, 1])))
+        halo = cv2.GaussianBlur(lit, (0, 0), max(1.0, 0.6 * size))
+        out = out + rng.uniform(0.2, 0.6) * halo
+    return np.clip(out + 0.5, 0, 255).astype(np.uint8)
+
+
+def lamp_patches(
+    images: list[np.ndarray], boxes: list[np.ndarray], *, margin: float = 0.75, max_side: int = 64
+) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Lit-lamp patches for :func:`paste_lamps`: each labelled box of each image grown by ``margin``
+    times its size per side (at least 3 px: the halo), as ``(patch BGR uint8, box in the patch)``;
+    boxes whose patch would exceed ``max_side`` px or leave the image are skipped."""
+    out: list[tuple[np.ndarray, np.ndarray]] = []
+    for img, bs in zip(images, boxes, strict=True):
+        h, w = img.shape[:2]
+        for x1, y1, x2, y2 in _as_boxes(bs):
+            mx, my = max(3.0, margin * (x2 - x1)), max(3.0, margin * (y2 - y1))
+            a, c = int(np.floor(x1 - mx)), int(np.ceil(x2 + mx))
+            b_, d = int(np.floor(y1 - my)), int(np.ceil(y2 + my))
+            if (
+                a < 0
+                or b_ < 0
+                or c > w
+                or d > h
+                or max(c - a, d - b_) > max_side
+                or min(x2 - x1, y2 - y1) < 2
+            ):
+                continue
+            out.append((img[b_:d, a:c].copy(), np.array([x1 - a, y1 - b_, x2 - a, y2 - b_], np.float64)))
+    return out
+
+
+def paste_lamps(
+    image: np.ndarray,
+    boxes: np.ndarray,
+    patches: list[tuple[np.ndarray, np.ndarray]],
+    rng: np.random.Generator,
+    *,
+    count: tuple[int, int] = (1, 3),
+    scale: tuple[float, float] = (0.6, 1.5),
+) -> tuple[np.ndarray, np.ndarray]:
+    """``count`` random patches of ``patches`` pasted onto ``image`` (module docstring). Half of the
+    pastes go beside an existing lamp (same height ± its size, 1–4 of its widths left or right, as
+    on a light bar), the rest anywhere. Returns ``(image, boxes with the pasted lamps appended)``."""
+    _check_image(image)
+    b = _as_boxes(boxes).copy()
+    if not patches:
+        return image, b
+    img = image.astype(np.float32)
+    h, w = image.shape[:2]
+    new: list[np.ndarray] = []
+    for _ in range(int(rng.integers(count[0], count[1] + 1))):
+        patch, pbox = patches[int(rng.integers(len(patches)))]
+        f = rng.uniform(*scale)
+        ph, pw = max(3, round(patch.shape[0] * f)), max(3, round(patch.shape[1] * f))
+        if ph >= h or pw >= w:
+            continue
+        p = cv2.resize(patch, (pw, ph), interpolation=cv2.INTER_LINEAR)
+        if rng.random() < 0.3:
+            p = p[..., ::-1]
+        pb = pbox * np.array([pw / patch.shape[1], ph / patch.shape[0]] * 2)
+        if len(b) and rng.random() < 0.5:
+            ref = b[int(rng.integers(len(b)))]
+            rw = max(2.0, ref[2] - ref[0])
+            cx = (ref[0] + ref[2]) / 2 + rng.choice([-1.0, 1.0]) * rng.uniform(1.0, 4.0) * rw
+            cy = (ref[1] + ref[3]) / 2 + rng.uniform(-1.0, 1.0) * (ref[3] - ref[1])
+            x0, y0 = round(cx - pw / 2), round(cy - ph / 2)
+        else:
+            x0, y0 = int(rng.integers(0, w - pw + 1)), int(rng.integers(0, h - ph + 1))
+        x0, y0 = int(np.clip(x0, 0, w - pw)), int(np.clip(y0, 0, h - ph))
+        yy, xx = np.mgrid[0:ph, 0:pw].astype(np.float32)
+        r = np.sqrt(((xx + 0.5) / pw - 0.5) ** 2 + ((yy + 0.5) / ph - 0.5) ** 2) * 2.0
+        alpha = np.clip((1.0 - r) / 0.4, 0.0, 1.0)[..., None]
+        region = img[y0 : y0 + ph, x0 : x0 + pw]
+        img[y0 : y0 + ph, x0 : x0 + pw] = region * (1 - alpha) + np.maximum(region, p) * alpha
+        new.append(pb + np.array([x0, y0, x0, y0], np.float64))
+    if new:
+        b = np.concatenate([b.reshape(-1, 4), np.stack(new)])
+    return np.clip(img + 0.5, 0, 255).astype(np.uint8), b
+
+
 def swap_red_blue(image: np.ndarray) -> np.ndarray:
     """The image with its red and blue channels exchanged (BGR → RGB order)."""
     _check_image(image)
@@ -269,13 +395,15 @@ class AugmentConfig:
     p_flip: float = 0.5
     p_swap_red_blue: float = 0.0
     p_night: float = 0.0
+    p_night_lamps: float = 0.0
 
 
 def augment(
     image: np.ndarray, boxes: np.ndarray, rng: np.random.Generator, config: AugmentConfig | None = None
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """One random augmentation: horizontal flip, fisheye, affine, perspective (each with its
-    probability), then red↔blue swap, night gamma and photometric (each with its probability).
+    probability), then red↔blue swap, night gamma, night with lamps kept and photometric (each with
+    its probability).
     Returns ``(image, boxes, keep)``, ``keep`` indexing the input boxes that survive."""
     cfg = config or AugmentConfig()
     _check_image(image)
@@ -296,6 +424,8 @@ def augment(
         img = swap_red_blue(img)
     if cfg.p_night > 0 and rng.random() < cfg.p_night:
         img = night(img, rng)
+    if cfg.p_night_lamps > 0 and rng.random() < cfg.p_night_lamps:
+        img = night_lamps(img, b, rng)
     if rng.random() < cfg.p_photometric:
         img = photometric(img, rng)
     keep[:] = False

@@ -7,22 +7,33 @@ The split is by source (:data:`SPLITS`): no clip is in two splits; the ``ambulan
 train except those listed in ``src/makeway/data/ambulance_yolo_held_out.txt``, which are test. A
 label file of an unknown source is left out (and named in the run's log).
 
-**Network** (:class:`LightNet`): seed 004's colour-attention block (:class:`ColourAttention`: HSV masks
-of the emergency colours, ``x' = x + x·mask``; a switch turns it off for the ablation), a small
-convolutional backbone down to stride 16 with a top-down path back to stride 4, and a CenterNet-style
-head at stride 4: a centre heat map (one class: lit emergency light; the colour is read from the
-pixels at runtime, :func:`makeway.perceive.vision.light_cnn.box_colour` — the labels have 136 blue
-and 396 red boxes and no amber or white, too few to learn four classes, while a lit light's colour
-is plain in its halo), the box's log width and height, and the centre's sub-cell offset.
+**Networks** (:func:`build_net`, ``TrainConfig.arch``): seed 004's colour-attention block
+(:class:`ColourAttention`: HSV masks of the emergency colours, ``x' = x + x·mask``, on the image
+before the backbone; a switch turns it off for the ablation), then
+
+* ``yolox`` (:class:`YoloxLightNet`, the default): YOLOX-nano's stem, ``dark2`` (stride 4) and
+  ``dark3`` (stride 8) with their COCO weights (COCO has traffic lights and cars), run as a
+  trainable module (:class:`makeway.train.onnx_graph.OnnxGraph`) and fine-tuned at a lower
+  learning rate; ``dark3`` upsampled ×2 plus ``dark2`` feed the head;
+* ``small`` (:class:`LightNet`): a small convolutional backbone from scratch down to stride 16 with
+  a top-down path back to stride 4;
+
+and a CenterNet-style head at stride 4: a centre heat map (one class: lit emergency light; the
+colour is read from the pixels at runtime, :func:`makeway.perceive.vision.light_cnn.box_colour`),
+the box's log width and height, and the centre's sub-cell offset.
 
 **Loss**: the penalty-reduced focal loss of CenterNet on the heat map (Gaussian targets around each
 box centre, σ from the box size), L1 on log size and offset at the centre cells.
 
-**Training** (:func:`train`): random 160×160 crops of the letterboxed frames — half centred near a
-labelled light, a quarter on a labelled hard negative (a rejected proposal: paint, tail lights,
-signs), a quarter anywhere — through :func:`makeway.train.light_augment.augment`; Adam, cosine
-learning rate, a fixed number of steps. When the validation split has lit lights, the step with the
-best validation F1 (checked every ``eval_every`` steps) is kept; otherwise the last step.
+**Training** (:func:`train`): random square crops (``TrainConfig.crop``) of the letterboxed frames —
+half centred near a labelled light, a quarter on a labelled hard negative (a rejected proposal:
+paint, tail lights, signs), a quarter anywhere — optionally with real lit-lamp patches of the
+training frames pasted in (``paste``), through :func:`makeway.train.light_augment.augment` (with the
+day → night change ``night_lamps``); AdamW, one-cycle learning rate, a fixed number of steps. When
+the validation split has lit lights, the step with the best validation F1 (checked every
+``eval_every`` steps, at the best threshold of :data:`THRESHOLDS`) is kept with that threshold as
+the operating point; otherwise (or when no check reaches ``TrainConfig.min_val_tp`` true positives)
+the last step and the fixed ``TrainConfig.threshold``.
 """
 
 from __future__ import annotations
@@ -47,16 +58,20 @@ from makeway.errors import InputError
 from makeway.perceive.vision.light_cnn import LIGHTS_ONNX_FORMAT, decode
 from makeway.perceive.vision.light_colour import WIDE_HSV
 from makeway.train.cnn import write_onnx_metadata
-from makeway.train.light_augment import AugmentConfig, augment
+from makeway.train.light_augment import AugmentConfig, augment, lamp_patches, paste_lamps
 from makeway.train.light_split import SPLITS, LightFrame, label_files, load_split, split_of
 
 __all__ = [
+    "ARCHS",
     "ATTENTION_HSV",
     "SPLITS",
     "ColourAttention",
     "LightFrame",
     "LightNet",
     "TrainConfig",
+    "YoloxLightNet",
+    "best_f1_threshold",
+    "build_net",
     "export_onnx",
     "label_files",
     "load_split",
@@ -181,10 +196,77 @@ class LightNet(nn.Module):
         return self.heat(h), self.size(h), torch.sigmoid(self.offset(h))
 
 
+class YoloxLightNet(nn.Module):
+    """Colour attention → YOLOX-nano's stem, ``dark2`` (stride 4) and ``dark3`` (stride 8) with their
+    COCO weights (:class:`~makeway.train.onnx_graph.OnnxGraph`, fine-tuned) → ``dark3`` upsampled ×2
+    plus ``dark2`` → CenterNet head at stride 4 (as :class:`LightNet`).
+
+    Input RGB ``(n, 3, H, W)`` in [0, 1] (``H``, ``W`` multiples of 8); the attention block acts on
+    it, then the image is turned into what YOLOX expects (BGR 0–255; attended pixels up to 510).
+    Outputs as :class:`LightNet`. ``model_path``: the YOLOX-nano ONNX file (default: found like the
+    detectors' files, ``yolox_nano.onnx``)."""
+
+    stride = 4
+
+    def __init__(
+        self,
+        head_width: int = 48,
+        attention: bool = True,
+        attention_colours: Sequence[str] = ("blue", "red", "white"),
+        model_path: str | Path | None = None,
+    ) -> None:
+        from makeway.perceive.vision.backbone import BACKBONES, load_pruned_backbone
+        from makeway.perceive.vision.detectors import resolve_model_path
+        from makeway.train.onnx_graph import OnnxGraph
+
+        super().__init__()
+        spec = BACKBONES["yolox_nano"]
+        path = resolve_model_path(spec.filename, model_path)
+        names = [spec.layers["dark2"], spec.layers["dark3"]]
+        model = load_pruned_backbone(spec, path, names, 416)
+        try:
+            self.backbone = OnnxGraph(model, names)
+        except ValueError as exc:
+            raise InputError(path, str(exc)) from None
+        hw = head_width
+        self.attention = ColourAttention(attention_colours, enabled=attention)
+        self.lat8 = _cbr(64, hw)
+        self.lat4 = nn.Conv2d(32, hw, 1)
+        self.up4 = _cbr(hw, hw)
+        self.head = _cbr(hw, hw)
+        self.heat = nn.Conv2d(hw, 1, 1)
+        self.size = nn.Conv2d(hw, 2, 1)
+        self.offset = nn.Conv2d(hw, 2, 1)
+        assert self.heat.bias is not None and self.size.bias is not None
+        nn.init.constant_(self.heat.bias, -4.6)
+        nn.init.constant_(self.size.bias, math.log(8.0))
+
+    def forward(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        x = self.attention(x)
+        d2, d3 = self.backbone(x.flip(1) * 255.0)
+        p4 = self.up4(nnf.interpolate(self.lat8(d3), scale_factor=2.0, mode="nearest") + self.lat4(d2))
+        h = self.head(p4)
+        return self.heat(h), self.size(h), torch.sigmoid(self.offset(h))
+
+
+#: Network architectures of :class:`TrainConfig` ``arch``.
+ARCHS = ("yolox", "small")
+
+
+def build_net(cfg: TrainConfig) -> nn.Module:
+    """The untrained network of ``cfg.arch``: ``yolox`` (:class:`YoloxLightNet`, COCO-pretrained
+    backbone) or ``small`` (:class:`LightNet` from scratch)."""
+    if cfg.arch == "yolox":
+        return YoloxLightNet(cfg.head_width, cfg.attention, cfg.attention_colours)
+    if cfg.arch == "small":
+        return LightNet(cfg.width, cfg.attention, cfg.attention_colours)
+    raise ValueError(f"unknown arch {cfg.arch!r}; choose from {', '.join(ARCHS)}")
+
+
 class _Deploy(nn.Module):
     """The exported form: sigmoid heat reduced to its 3×3 local maxima, size, offset."""
 
-    def __init__(self, net: LightNet) -> None:
+    def __init__(self, net: nn.Module) -> None:
         super().__init__()
         self.net = net
 
@@ -196,7 +278,7 @@ class _Deploy(nn.Module):
         return heat, size, offset
 
 
-def deploy_outputs(net: LightNet, x: torch.Tensor) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def deploy_outputs(net: nn.Module, x: torch.Tensor) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """What the exported ONNX returns for ``x``, computed in torch (numpy arrays)."""
     with torch.no_grad():
         heat, size, offset = _Deploy(net.eval())(x)
@@ -246,17 +328,24 @@ def focal_loss(logits: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
 # ----------------------------------------------------------------------------------------- training
 @dataclass
 class TrainConfig:
-    """Settings of :func:`train`. ``steps`` optimiser steps of ``batch`` crops of ``crop`` px;
-    ``attention`` switches the colour-attention block (False: the ablation); ``threads`` torch
-    threads (1 by default: on a shared 2-core machine a second thread made steps ten times slower);
-    ``eval_every`` steps between validation checks (when val has lights)."""
+    """Settings of :func:`train`. ``arch`` the network (:data:`ARCHS`); ``steps`` optimiser steps of
+    ``batch`` crops of ``crop`` px; ``attention`` switches the colour-attention block (False: the
+    ablation); ``threads`` torch threads; ``eval_every`` steps between validation checks (when val
+    has lights); ``backbone_lr`` the pretrained backbone's learning rate as a fraction of ``lr``;
+    ``paste``, ``night_lamps``, ``swap_red_blue``, ``night`` the probabilities of those
+    augmentations (:mod:`makeway.train.light_augment`); ``threshold`` the operating threshold used
+    when validation cannot choose one: it has no lit lights, or no check reaches ``min_val_tp``
+    true positives (a choice resting on a handful of matches is noise)."""
 
-    steps: int = 1600
-    batch: int = 12
-    crop: int = 160
+    arch: str = "yolox"
+    steps: int = 1500
+    batch: int = 8
+    crop: int = 256
     lr: float = 2e-3
+    backbone_lr: float = 0.3
     weight_decay: float = 1e-4
     width: int = 16
+    head_width: int = 48
     attention: bool = True
     attention_colours: tuple[str, ...] = ("blue", "red", "white")
     input_width: int = 640
@@ -267,6 +356,9 @@ class TrainConfig:
     threshold: float = 0.3
     swap_red_blue: float = 0.0
     night: float = 0.0
+    paste: float = 0.0
+    night_lamps: float = 0.0
+    min_val_tp: int = 10
 
 
 def _sample_crop(frame: LightFrame, crop: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
@@ -301,7 +393,11 @@ def _sample_crop(frame: LightFrame, crop: int, rng: np.random.Generator) -> tupl
 
 
 def _batch(
-    frames: Sequence[LightFrame], cfg: TrainConfig, rng: np.random.Generator, aug: AugmentConfig
+    frames: Sequence[LightFrame],
+    cfg: TrainConfig,
+    rng: np.random.Generator,
+    aug: AugmentConfig,
+    patches: list[tuple[np.ndarray, np.ndarray]] | None = None,
 ) -> tuple[torch.Tensor, ...]:
     pos = [f for f in frames if len(f.boxes)]
     imgs, heats, sizes, offs, masks = [], [], [], [], []
@@ -309,6 +405,8 @@ def _batch(
         pool = pos if (pos and rng.random() < 0.6) else frames
         f = pool[int(rng.integers(len(pool)))]
         img, boxes = _sample_crop(f, cfg.crop, rng)
+        if patches and cfg.paste > 0 and rng.random() < cfg.paste:
+            img, boxes = paste_lamps(img, boxes, patches, rng)
         img, boxes, _ = augment(img, boxes, rng, aug)
         heat, size, off, mask = make_targets(boxes, cfg.crop, cfg.crop)
         imgs.append(img[..., ::-1].astype(np.float32).transpose(2, 0, 1) / 255.0)
@@ -320,7 +418,7 @@ def _batch(
 
 
 def predict_frames(
-    net: LightNet, frames: Sequence[LightFrame], threshold: float, stride: int = 4
+    net: nn.Module, frames: Sequence[LightFrame], threshold: float, stride: int = 4
 ) -> list[tuple[np.ndarray, np.ndarray]]:
     """Boxes (letterboxed input pixels) and scores per frame from the torch network."""
     out = []
@@ -332,16 +430,35 @@ def predict_frames(
     return out
 
 
-def _val_f1(net: LightNet, frames: Sequence[LightFrame], threshold: float) -> float:
+#: Thresholds tried on validation for the operating point (best F1).
+THRESHOLDS = tuple(round(0.05 * k, 2) for k in range(1, 19))
+
+
+def best_f1_threshold(
+    preds: Sequence[tuple[np.ndarray, np.ndarray]], gt: Sequence[np.ndarray]
+) -> tuple[float, float, float, float, int]:
+    """``(F1, threshold, precision, recall, true positives)`` at the threshold of
+    :data:`THRESHOLDS` with the best array-level F1 (IoU ≥ 0.5), ties to the highest (the same
+    validation detections with the stricter threshold); F1 0, threshold ``nan`` and 0 true
+    positives when no threshold has one."""
     from makeway.eval.detection import precision_recall
 
-    preds = predict_frames(net, frames, threshold)
-    p, r, _tp, _nd, _ng = precision_recall(
-        [b for b, _ in preds], [s for _, s in preds], [f.boxes for f in frames]
-    )
-    p = 0.0 if math.isnan(p) else p
-    r = 0.0 if math.isnan(r) else r
-    return 2 * p * r / (p + r) if p + r > 0 else 0.0
+    best: tuple[float, float, float, float, int] = (0.0, float("nan"), 0.0, 0.0, 0)
+    for t in THRESHOLDS:
+        p, r, tp, _nd, _ng = precision_recall(
+            [b for b, _ in preds], [s for _, s in preds], list(gt), score_threshold=t
+        )
+        if tp == 0:
+            continue
+        f1 = 2 * p * r / (p + r)
+        if f1 >= best[0]:
+            best = (f1, t, p, r, int(tp))
+    return best
+
+
+def _val_f1(net: nn.Module, frames: Sequence[LightFrame]) -> tuple[float, float, float, float, int]:
+    preds = predict_frames(net, frames, THRESHOLDS[0])
+    return best_f1_threshold(preds, [f.boxes for f in frames])
 
 
 def train(
@@ -350,9 +467,12 @@ def train(
     cfg: TrainConfig,
     *,
     progress: Callable[[int, int, float], None] | None = None,
-) -> tuple[LightNet, dict[str, Any]]:
-    """Train a :class:`LightNet` (module docstring); returns the model and a log dict (config, losses,
-    validation F1 per check, the chosen step, seconds)."""
+) -> tuple[nn.Module, dict[str, Any]]:
+    """Train the network of ``cfg.arch`` (:func:`build_net`; module docstring); returns the model and
+    a log dict (config, losses, validation F1 per check with its best threshold, the chosen step and
+    threshold, seconds). The operating threshold (``log["threshold"]``) is the best-F1 one on
+    validation at the chosen step, or ``cfg.threshold`` when validation has no lit lights or no true
+    positive at any threshold."""
     if not train_frames:
         raise InputError("lights labels", "no checked training frames (see docs/data_card_lights.md)")
     if not any(len(f.boxes) for f in train_frames):
@@ -361,12 +481,24 @@ def train(
     rng = np.random.default_rng(cfg.seed)
     old_threads = torch.get_num_threads()
     torch.set_num_threads(cfg.threads)
-    net = LightNet(cfg.width, cfg.attention, cfg.attention_colours)
-    opt = torch.optim.AdamW(net.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
+    net = build_net(cfg)
+    backbone = [p for n, p in net.named_parameters() if n.startswith("backbone.")]
+    rest = [p for n, p in net.named_parameters() if not n.startswith("backbone.")]
+    groups = [{"params": rest, "lr": cfg.lr}]
+    max_lr = [cfg.lr]
+    if backbone:
+        groups.append({"params": backbone, "lr": cfg.lr * cfg.backbone_lr})
+        max_lr.append(cfg.lr * cfg.backbone_lr)
+    opt = torch.optim.AdamW(groups, lr=cfg.lr, weight_decay=cfg.weight_decay)
     sched = torch.optim.lr_scheduler.OneCycleLR(
-        opt, max_lr=cfg.lr, total_steps=max(cfg.steps, 20), pct_start=0.1
+        opt, max_lr=max_lr, total_steps=max(cfg.steps, 20), pct_start=0.1
     )
-    aug = AugmentConfig(p_swap_red_blue=cfg.swap_red_blue, p_night=cfg.night)
+    aug = AugmentConfig(p_swap_red_blue=cfg.swap_red_blue, p_night=cfg.night, p_night_lamps=cfg.night_lamps)
+    patches = (
+        lamp_patches([f.image for f in train_frames], [f.boxes for f in train_frames])
+        if cfg.paste > 0
+        else None
+    )
     val_has_lights = any(len(f.boxes) for f in val_frames)
     log: dict[str, Any] = {
         "config": asdict(cfg),
@@ -374,13 +506,13 @@ def train(
         "val_f1": [],
         "val_has_lights": val_has_lights,
     }
-    best = (-1.0, 0, copy.deepcopy(net.state_dict()))
+    best = (-1.0, 0, copy.deepcopy(net.state_dict()), float("nan"))
     t0 = time.perf_counter()
     running = 0.0
     try:
         for step in range(1, cfg.steps + 1):
             net.train()
-            x, heat_t, size_t, off_t, mask_t = _batch(train_frames, cfg, rng, aug)
+            x, heat_t, size_t, off_t, mask_t = _batch(train_frames, cfg, rng, aug, patches)
             logits, size, off = net(x)
             n = mask_t.sum().clamp(min=1.0)
             loss = (
@@ -398,17 +530,27 @@ def train(
             if progress is not None:
                 progress(step, cfg.steps, running)
             if val_has_lights and (step % cfg.eval_every == 0 or step == cfg.steps):
-                f1 = _val_f1(net, val_frames, cfg.threshold)
-                log["val_f1"].append([step, round(f1, 4)])
-                if f1 > best[0]:
-                    best = (f1, step, copy.deepcopy(net.state_dict()))
+                f1, thr, p, r, tp = _val_f1(net, val_frames)
+                log["val_f1"].append(
+                    [step, round(f1, 4), thr if math.isfinite(thr) else None, round(p, 4), round(r, 4), tp]
+                )
+                if tp >= cfg.min_val_tp and f1 > best[0]:
+                    best = (f1, step, copy.deepcopy(net.state_dict()), thr)
     finally:
         torch.set_num_threads(old_threads)
-    if val_has_lights:
+    if val_has_lights and best[0] > 0:
         net.load_state_dict(best[2])
         log["chosen_step"] = best[1]
-    else:
+        log["threshold"] = best[3]
+        log["threshold_from"] = "validation best F1"
+    else:  # validation cannot choose: the last step and the fixed threshold
         log["chosen_step"] = cfg.steps
+        log["threshold"] = cfg.threshold
+        log["threshold_from"] = (
+            f"fixed (validation never reached {cfg.min_val_tp} true positives)"
+            if val_has_lights
+            else "fixed (no validation lights)"
+        )
     log["seconds"] = round(time.perf_counter() - t0, 1)
     net.eval()
     return net, log
@@ -416,13 +558,19 @@ def train(
 
 # ----------------------------------------------------------------------------------------- export
 def export_onnx(
-    net: LightNet, path: str | Path, cfg: TrainConfig, *, training: str = "", opset: int = 17
+    net: nn.Module,
+    path: str | Path,
+    cfg: TrainConfig,
+    *,
+    training: str = "",
+    opset: int = 17,
+    threshold: float | None = None,
 ) -> Path:
     """Export the deploy form (:class:`_Deploy`) as ONNX: input ``images`` float32
     ``(1, 3, input_height, input_width)`` RGB in [0, 1]; outputs ``heat``, ``size``, ``offset``
     (:mod:`makeway.perceive.vision.light_cnn`). Metadata: ``makeway.format``, ``input_width``,
-    ``input_height``, ``stride``, ``threshold``, ``attention`` (the colours, or ``off``),
-    ``training``. Written all-or-nothing."""
+    ``input_height``, ``stride``, ``threshold`` (``threshold``, else ``cfg.threshold``),
+    ``attention`` (the colours, or ``off``), ``arch``, ``training``. Written all-or-nothing."""
 
     path = Path(path)
     deploy = _Deploy(copy.deepcopy(net).cpu().eval())
@@ -445,7 +593,8 @@ def export_onnx(
                 "input_width": str(cfg.input_width),
                 "input_height": str(cfg.input_height),
                 "stride": str(LightNet.stride),
-                "threshold": repr(float(cfg.threshold)),
+                "threshold": repr(float(cfg.threshold if threshold is None else threshold)),
+                "arch": cfg.arch,
                 "attention": ",".join(cfg.attention_colours) if cfg.attention else "off",
                 "channel_order": "RGB",
                 "scale": repr(1.0 / 255.0),

@@ -20,6 +20,7 @@ backbones are registered in :data:`BACKBONES`:
 ========  ==========  ====  ======================================================================
 name      tensor      C     what
 ========  ==========  ====  ======================================================================
+dark2     input.67    32    backbone (CSPDarknet) stage 2 output, stride 4
 dark3     input.175   64    backbone (CSPDarknet) stage 3 output, stride 8 — the FPN's input
 dark4     input.283   128   backbone stage 4 output, stride 16
 dark5     input.359   256   backbone stage 5 output (after SPP + CSP), stride 32
@@ -126,6 +127,7 @@ class BackboneSpec:
 
 #: Short names of the useful YOLOX-nano tensors (see the module docstring).
 LAYERS: dict[str, str] = {
+    "dark2": "input.67",
     "dark3": "input.175",
     "dark4": "input.283",
     "dark5": "input.359",
