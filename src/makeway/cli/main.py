@@ -333,7 +333,10 @@ def evaluate_detector(
     ],
     framework: Annotated[
         str,
-        typer.Option(help="b: vehicle detector + the crop classifier per box; a: not built yet."),
+        typer.Option(
+            help="b: vehicle detector + the crop classifier per box; a: one detector with the "
+            "classes EV and other vehicle."
+        ),
     ] = "b",
     classifier: Annotated[
         str,
@@ -351,15 +354,22 @@ def evaluate_detector(
         typer.Option(help="Ranking score for AP: product (detector score × P(EV)) or classifier (P(EV))."),
     ] = "product",
     detector: Annotated[str, typer.Option(help="Vehicle detector: yolox_nano or nanodet_m.")] = "yolox_nano",
-    model: Annotated[Path | None, typer.Option(help="ONNX weights for the vehicle detector.")] = None,
+    model: Annotated[
+        Path | None,
+        typer.Option(
+            help="ONNX weights: of the vehicle detector (b), or of the EV detector (a; default: the "
+            "shipped ev_det_yolox.onnx)."
+        ),
+    ] = None,
     max_images: Annotated[int | None, typer.Option(min=1, help="Score the first N images only.")] = None,
 ) -> None:
     """Score an EV detector on YOLO images (boxes of class 0).
 
     With --framework b (the default): vehicle detector → square crop per box → crop classifier; each
     box is an EV detection ranked by its score, and the operating point is the classifier's own
-    threshold. A detection is
-    correct at IoU >= 0.5. Prints one JSON line: map50, map50_95, precision, recall (at the
+    threshold. With --framework a: one detector trained for two classes (emergency vehicle, other
+    vehicle); boxes ranked by their EV score, the operating point stored in the model. A detection
+    is correct at IoU >= 0.5. Prints one JSON line: map50, map50_95, precision, recall (at the
     operating point), n_images, n_boxes, framework, classifier, ms_per_image.
     """
     from makeway.apps.evaluate_detector import evaluate_detector as run

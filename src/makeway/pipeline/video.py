@@ -1,4 +1,6 @@
-"""Framework B on a video (SPEC §2): detector → SORT → per-track classifier → smoother.
+"""Framework B on a video (SPEC §2): detector → SORT → per-track classifier → smoother; and
+Framework A (seed 001): a one-stage EV detector → SORT → smoother fed by the detector's per-box
+P(EV) (:class:`~makeway.perceive.vision.ev_detector.EVDetector`, ``run_video(ev_detectors=…)``).
 
 :class:`VisionPipeline` turns one frame into a :class:`~makeway.messages.PerceptionFrame`;
 :func:`run_video` drives it over a file and writes, into an output folder:
@@ -38,13 +40,13 @@ from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 import cv2
 import numpy as np
 
 from makeway.atomic import atomic_path, check_writable, removed_on_error, write_text_atomic
-from makeway.messages import EVObservation, EVTrackState, LightDetection, PerceptionFrame
+from makeway.messages import EVObservation, EVTrackState, LightDetection, PerceptionFrame, Track
 from makeway.perceive.health import CameraHealth
 from makeway.perceive.vision.detectors import DETECTORS, Detector
 from makeway.perceive.vision.ev_classifier import TrackClassifier
@@ -68,6 +70,47 @@ from makeway.viz.foxglove import DetectRecorder
 from makeway.viz.video_writer import H264Writer
 
 STAGES = ("read", "detect", "track", "classify", "annotate", "encode")
+
+
+class FrameDetector(Protocol):
+    """What the pipeline needs of a detector: ``name`` and ``detect_arrays(image_bgr)`` returning
+    ``(boxes, scores, class_ids)`` — or, for a one-stage EV detector (Framework A), also a 4th array
+    ``p_ev`` (:meth:`~makeway.perceive.vision.ev_detector.EVDetector.detect_arrays`)."""
+
+    @property
+    def name(self) -> str: ...
+
+    def detect_arrays(self, image_bgr: np.ndarray) -> tuple[np.ndarray, ...]: ...
+
+
+def track_one_stage(tracker: Sort, arrays: tuple[np.ndarray, ...]) -> tuple[list[Track], dict[int, float]]:
+    """One SORT step over a one-stage EV detector's boxes (Framework A): all vehicles in one
+    tracker, whatever their class, so a class flip does not end a track.
+
+    ``arrays`` is ``(boxes, scores, class_ids, p_ev)``. Returns the confirmed tracks — with the
+    class (0 emergency vehicle, 1 other vehicle) and score of the detection SORT associated with
+    each this frame — and ``{track_id: p_ev}`` of that detection. The association is SORT's own:
+    each detection enters the tracker with its index as class id, read back from the track.
+    """
+    from dataclasses import replace
+
+    from makeway.messages import Box, Detection
+    from makeway.perceive.vision.ev_detector import EV_DET_CLASSES
+
+    boxes, scores, class_ids, p_ev = arrays[:4]
+    detections = [
+        Detection(box=Box(*b), score=float(sc), class_id=k, label="vehicle")
+        for k, (b, sc) in enumerate(zip(boxes.tolist(), scores.tolist(), strict=True))
+    ]
+    tracks: list[Track] = []
+    probs: dict[int, float] = {}
+    for t in tracker.update(detections):
+        k = t.class_id
+        cls = int(class_ids[k])
+        tracks.append(replace(t, class_id=cls, label=EV_DET_CLASSES[cls]))
+        probs[t.track_id] = float(p_ev[k])
+    return tracks, probs
+
 
 #: What ``lights`` means in :func:`run_video`: the light detector's registry name and colour set.
 DEFAULT_LIGHTS = (DEFAULT_LIGHT_DETECTOR, "eu")
@@ -101,7 +144,7 @@ class VisionPipeline:
 
     def __init__(
         self,
-        detector: Detector,
+        detector: FrameDetector,
         tracker: Sort | None = None,
         classifier: TrackClassifier | None = None,
         smoother: TrackSmoother | None = None,
@@ -143,14 +186,16 @@ class VisionPipeline:
         image_bgr: np.ndarray,
         frame_index: int,
         time_s: float,
-        arrays: tuple[np.ndarray, np.ndarray, np.ndarray],
+        arrays: tuple[np.ndarray, ...],
         lights: Sequence[LightDetection] = (),
     ) -> PerceptionFrame:
         """Track, classify and smooth one frame whose detections were computed elsewhere.
 
-        ``arrays`` is ``(boxes, scores, class_ids)`` as :meth:`Detector.detect_arrays` returns them;
-        ``lights`` the light detector's boxes in this frame (used by the lights rules); frames must
-        arrive in order, once each.
+        ``arrays`` is ``(boxes, scores, class_ids)`` as :meth:`Detector.detect_arrays` returns them,
+        or with a 4th array ``p_ev`` from a one-stage EV detector (Framework A): then the tracks'
+        class-flip-free P(EV) comes from their detections (:func:`track_one_stage`) in place of the
+        crop classifier's, under the same rules and smoother; ``lights`` the light detector's boxes
+        in this frame (used by the lights rules); frames must arrive in order, once each.
         """
         t1 = time.perf_counter()
         health = None
@@ -169,9 +214,11 @@ class VisionPipeline:
         if self._last_index is not None and frame_index - self._last_index > self.frame_step:
             self.tracker.coast((frame_index - self._last_index) // self.frame_step - 1)
         self._last_index = frame_index
-        boxes, scores, class_ids = arrays
-        detections = Detector.to_detections((boxes, scores, class_ids))
-        tracks = self.tracker.update(detections)
+        one_stage: dict[int, float] | None = None
+        if len(arrays) > 3:
+            tracks, one_stage = track_one_stage(self.tracker, arrays)
+        else:
+            tracks = self.tracker.update(Detector.to_detections((arrays[0], arrays[1], arrays[2])))
         evidence: dict[int, tuple[bool, bool]] = {}
         if self.light_tracker is not None:
             # white lights never make a vehicle active (headlights, street lamps): not tracked here
@@ -180,10 +227,12 @@ class VisionPipeline:
             evidence = vehicle_light_evidence(tracks, self.light_tracks)
         t2 = time.perf_counter()
         states: tuple[EVTrackState, ...] = ()
-        uses_crop = self.rule != "lights" and self.classifier is not None
+        uses_crop = self.rule != "lights" and (self.classifier is not None or one_stage is not None)
         if uses_crop or self.rule != "crop":
             crop: dict[int, float | None] = {}
-            if uses_crop:
+            if uses_crop and one_stage is not None:
+                crop.update(one_stage)
+            elif uses_crop:
                 assert self.classifier is not None
                 for obs in self.classifier.classify(image_bgr, tracks, frame_index, time_s):
                     crop[obs.track_id] = obs.probability
@@ -303,12 +352,12 @@ class _Prefetch:
         self._thread.join()
 
 
-_Arrays = tuple[np.ndarray, np.ndarray, np.ndarray]
+_Arrays = tuple[np.ndarray, ...]
 
 
 def _detect_in_order(
     frames: Iterator[tuple[int, float, np.ndarray]],
-    detectors: Sequence[Detector],
+    detectors: Sequence[FrameDetector],
     seconds: list[float],
     light_detectors: Sequence[LightDetector] | None = None,
 ) -> Iterator[tuple[int, float, np.ndarray, tuple[_Arrays, list[LightDetection]]]]:
@@ -326,7 +375,7 @@ def _detect_in_order(
         raise ValueError("one light detector per vehicle detector is needed")
 
     def both(
-        det: Detector, light: LightDetector | None, image: np.ndarray, index: int
+        det: FrameDetector, light: LightDetector | None, image: np.ndarray, index: int
     ) -> tuple[_Arrays, list[LightDetection]]:
         t0 = time.perf_counter()
         arrays = det.detect_arrays(image)
@@ -340,7 +389,7 @@ def _detect_in_order(
         for index, t_s, image in frames:
             yield index, t_s, image, both(detectors[0], lights[0], image, index)
         return
-    free: queue.Queue[tuple[Detector, LightDetector | None]] = queue.Queue()
+    free: queue.Queue[tuple[FrameDetector, LightDetector | None]] = queue.Queue()
     for pair in zip(detectors, lights, strict=True):
         free.put(pair)
 
@@ -457,8 +506,10 @@ def run_video(
     frame_filter: Callable[[Iterator[tuple[int, float, np.ndarray]]], Iterator[tuple[int, float, np.ndarray]]]
     | None = None,
     realtime: bool = False,
+    ev_detectors: Sequence[FrameDetector] | None = None,
 ) -> VideoRunSummary:
-    """Run Framework B over ``video``; write the annotated video, JSONL and summary to ``out_dir``.
+    """Run Framework B (or A, with ``ev_detectors``) over ``video``; write the annotated video,
+    JSONL and summary to ``out_dir``.
 
     Args:
         video: any file OpenCV/FFmpeg reads, or a robotics log (an MCAP file or a ROS 2 bag folder,
@@ -497,6 +548,10 @@ def run_video(
             the pipeline is busy, a newer frame replaces the one waiting (the oldest is dropped,
             never the newest; ``dropped_frames`` in the summary counts them). Without it every
             frame is processed, however long it takes.
+        ev_detectors: Framework A: ready one-stage EV detectors
+            (:class:`~makeway.perceive.vision.ev_detector.EVDetector`, one per concurrent worker)
+            used instead of ``detector``; each track's per-frame P(EV) is its detection's
+            (:func:`track_one_stage`) and ``classifier`` is not needed.
 
     Raises:
         InputError: the video or the model is missing or unreadable, or ``out_dir`` cannot be
@@ -511,7 +566,10 @@ def run_video(
     reader = open_frame_source(video, topic, stride=stride, max_frames=max_frames)
     start_ns = int(getattr(reader, "start_ns", 0))
     info = reader.info
-    if isinstance(detector, Detector):
+    detectors: list[FrameDetector]
+    if ev_detectors:
+        detectors = list(ev_detectors)
+    elif isinstance(detector, Detector):
         detectors = [detector]
     else:
         workers = detector_workers if detector_workers is not None else min(os.cpu_count() or 1, 4)

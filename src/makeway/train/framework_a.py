@@ -41,7 +41,6 @@ reads. The weights derive from YOLOX-nano (Megvii, Apache-2.0).
 from __future__ import annotations
 
 import hashlib
-import io
 import time
 import warnings
 from collections.abc import Callable, Sequence
@@ -102,12 +101,15 @@ class EVDetNet(nn.Module):
     ``H, W`` multiples of 32. :meth:`forward` returns per level ``(reg, obj_logit, cls_logits)``
     shaped ``(n, 4, h, w)``, ``(n, 1, h, w)``, ``(n, 2, h, w)``."""
 
-    def __init__(self, graph: nn.Module, cls_weight: Sequence[torch.Tensor], cls_bias: Sequence[torch.Tensor]):
+    def __init__(
+        self, graph: nn.Module, cls_weight: Sequence[torch.Tensor], cls_bias: Sequence[torch.Tensor]
+    ):
         super().__init__()
         self.graph = graph
         self.cls = nn.ModuleList()
         for w, b in zip(cls_weight, cls_bias, strict=True):
             conv = nn.Conv2d(w.shape[1], 2, 1)
+            assert conv.bias is not None
             with torch.no_grad():
                 conv.weight.copy_(w)
                 conv.bias.copy_(b)
@@ -248,7 +250,9 @@ def simota_assign(
     )
     gc = 0.5 * (gt[:, :2] + gt[:, 2:])
     r = radius * stride[None, :]
-    in_ctr = ((centre[None, :, 0] - gc[:, None, 0]).abs() < r) & ((centre[None, :, 1] - gc[:, None, 1]).abs() < r)
+    in_ctr = ((centre[None, :, 0] - gc[:, None, 0]).abs() < r) & (
+        (centre[None, :, 1] - gc[:, None, 1]).abs() < r
+    )
     cand = (in_box | in_ctr).any(dim=0)
     idx = torch.nonzero(cand).flatten()
     if idx.numel() == 0:
@@ -301,7 +305,9 @@ def yolox_loss(
     box_losses, cls_losses = [], []
     n_fg = 0
     for i, (gt, gt_cls) in enumerate(targets):
-        fg, matched, iou = simota_assign(boxes[i].detach(), raw[i, :, 4].detach(), raw[i, :, 5:].detach(), gt, gt_cls, xy, stride)
+        fg, matched, iou = simota_assign(
+            boxes[i].detach(), raw[i, :, 4].detach(), raw[i, :, 5:].detach(), gt, gt_cls, xy, stride
+        )
         if not fg.any():
             continue
         obj_t[i, fg] = 1.0
@@ -340,7 +346,9 @@ def in_validation(source: str, fraction: float = VAL_FRACTION) -> bool:
     return int.from_bytes(digest[:8], "big") / 2.0**64 < fraction
 
 
-def _overlaps(boxes: np.ndarray, amb: np.ndarray, iou_max: float = 0.3, inside_max: float = 0.5) -> np.ndarray:
+def _overlaps(
+    boxes: np.ndarray, amb: np.ndarray, iou_max: float = 0.3, inside_max: float = 0.5
+) -> np.ndarray:
     """Which of ``boxes`` overlap one of the ambulance boxes ``amb`` (IoU > ``iou_max`` or more
     than ``inside_max`` of the box inside one)."""
     if len(amb) == 0 or len(boxes) == 0:
@@ -409,7 +417,9 @@ def build_dataset(
     return train, val, counts
 
 
-def coco_class_of_ambulances(samples: Sequence[Sample], model_path: str | Path | None = None) -> dict[str, int]:
+def coco_class_of_ambulances(
+    samples: Sequence[Sample], model_path: str | Path | None = None
+) -> dict[str, int]:
     """How the shipped YOLOX-nano labels the ambulance boxes of ``samples``: for each class-0 box,
     the COCO vehicle class of the best-scoring detection at IoU ≥ 0.5 (score ≥ 0.1), counted by
     name (``none`` when nothing matches). The evidence for starting class 0 from ``truck``."""
@@ -456,7 +466,7 @@ def augment_sample(
     # placement: offset of the resized image on the canvas (negative: the image is cropped)
     ox = int(rng.integers(min(0, size - nw), max(0, size - nw) + 1))
     oy = int(rng.integers(min(0, size - nh), max(0, size - nh) + 1))
-    canvas = np.full((size, size, 3), 114, np.uint8)
+    canvas: np.ndarray = np.full((size, size, 3), 114, np.uint8)
     x0, y0 = max(ox, 0), max(oy, 0)
     x1, y1 = min(ox + nw, size), min(oy + nh, size)
     canvas[y0:y1, x0:x1] = resized[y0 - oy : y1 - oy, x0 - ox : x1 - ox]
@@ -483,8 +493,9 @@ def augment_sample(
         canvas = cv2.GaussianBlur(canvas, (k, k), 0)
     if rng.random() < 0.3:
         ok, enc = cv2.imencode(".jpg", canvas, [cv2.IMWRITE_JPEG_QUALITY, int(rng.integers(25, 90))])
-        if ok:
-            canvas = cv2.imdecode(enc, cv2.IMREAD_COLOR)
+        dec = cv2.imdecode(enc, cv2.IMREAD_COLOR) if ok else None
+        if dec is not None:
+            canvas = dec
     return canvas, boxes.astype(np.float32), classes
 
 
@@ -564,11 +575,10 @@ def export_ev_detector(net: EVDetNet, path: str | Path, *, threshold: float, tra
     dummy = torch.full((1, 3, INPUT_SIZE, INPUT_SIZE), _PAD)
     with atomic_path(path) as tmp, warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        buf = io.BytesIO()
         torch.onnx.export(
             wrapped,
             (dummy,),
-            buf,
+            str(tmp),
             input_names=["images"],
             output_names=["output"],
             dynamic_axes={"images": {2: "height", 3: "width"}, "output": {1: "cells"}},
@@ -577,12 +587,14 @@ def export_ev_detector(net: EVDetNet, path: str | Path, *, threshold: float, tra
         )
         import onnx
 
-        proto = onnx.load_from_string(buf.getvalue())
+        proto = onnx.load(str(tmp))
         # Declared 416×416 (what a plain session runs); the graph itself takes any multiple of 32
         # and the runtime relaxes these dims for 16:9 frames.
         dims = proto.graph.input[0].type.tensor_type.shape.dim
         dims[2].dim_value = dims[3].dim_value = INPUT_SIZE
-        proto.graph.output[0].type.tensor_type.shape.dim[1].dim_value = sum((INPUT_SIZE // s) ** 2 for s in STRIDES)
+        proto.graph.output[0].type.tensor_type.shape.dim[1].dim_value = sum(
+            (INPUT_SIZE // s) ** 2 for s in STRIDES
+        )
         onnx.save(proto, str(tmp))
         write_onnx_metadata(
             tmp,
@@ -669,7 +681,9 @@ def train_framework_a(
                 warm = min(1.0, (step + 1) / steps_per_epoch)
                 for g, lr0 in zip(opt.param_groups, base, strict=True):
                     g["lr"] = lr0 * warm * 0.5 * (1 + np.cos(np.pi * frac))
-                items = [augment_sample(train[i], rng, train_size) for i in order[b * batch : (b + 1) * batch]]
+                items = [
+                    augment_sample(train[i], rng, train_size) for i in order[b * batch : (b + 1) * batch]
+                ]
                 x = _to_tensor([it[0] for it in items])
                 targets = [(torch.from_numpy(it[1]), torch.from_numpy(it[2])) for it in items]
                 loss, parts = yolox_loss(_flatten(net(x)), targets, xy, st)
@@ -700,8 +714,9 @@ def train_framework_a(
                 break
     net.load_state_dict(best_state)
     training = (
-        f"framework_a epochs={epochs} best_epoch={best_epoch} batch={batch} size={train_size} lr={lr} head_lr={head_lr} "
-        f"seed={seed}; val mAP50={best['map50']:.4f} P={best['precision']:.4f} R={best['recall']:.4f}"
+        f"framework_a epochs={epochs} best_epoch={best_epoch} batch={batch} size={train_size} lr={lr} "
+        f"head_lr={head_lr} seed={seed}; val mAP50={best['map50']:.4f} P={best['precision']:.4f} "
+        f"R={best['recall']:.4f}"
     )
     export_ev_detector(net, out, threshold=float(best["threshold"]), training=training)
     return TrainResult(

@@ -32,7 +32,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import cv2
 import numpy as np
@@ -137,6 +137,8 @@ class EVDetector:
     Not thread-safe (one input buffer per instance).
     """
 
+    name: ClassVar[str] = "ev_det_yolox"
+
     def __init__(
         self,
         model_path: str | Path | None = None,
@@ -165,7 +167,8 @@ class EVDetector:
         fmt = self.metadata.get("makeway.format", "")
         if fmt != EV_DET_FORMAT:
             raise InputError(
-                self.model_path, f"EV detector format {fmt!r} is not the one this runtime reads ({EV_DET_FORMAT})"
+                self.model_path,
+                f"EV detector format {fmt!r} is not the one this runtime reads ({EV_DET_FORMAT})",
             )
         try:
             self.threshold = float(self.metadata["threshold"])
@@ -256,9 +259,10 @@ class EVDetector:
         ok = (boxes[:, 2] > boxes[:, 0]) & (boxes[:, 3] > boxes[:, 1])
         return EVDetections(boxes[ok], scores[ok], ev[ok], p_ev[ok])
 
-    def detect_arrays(self, image_bgr: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """As the COCO detectors' fast path: ``(boxes, scores, class_ids)`` with class 0 where
-        ``ev_score ≥ threshold`` (an EV at the operating point) and 1 otherwise."""
+    def detect_arrays(self, image_bgr: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """The video pipeline's fast path (:class:`~makeway.pipeline.video.FrameDetector`):
+        ``(boxes, scores, class_ids, p_ev)`` — the COCO detectors' three arrays (vehicle score;
+        class id the argmax of the two classes: 0 emergency vehicle where ``c0 ≥ c1``, else 1) and
+        the per-box P(EV) the smoother is fed."""
         d = self.detect(image_bgr)
-        return d.boxes, d.scores, np.where(d.ev_scores >= self.threshold, 0, 1).astype(np.int64)
-
+        return d.boxes, d.scores, np.where(d.p_ev >= 0.5, 0, 1).astype(np.int64), d.p_ev
