@@ -348,10 +348,13 @@ def train_detector(
             "--data", help="ambulance_yolo/valid (YOLO images/ + labels/); its held-out part is never read."
         ),
     ],
-    epochs: Annotated[int, typer.Option(min=1, help="Passes over the training images.")] = 12,
-    batch_size: Annotated[int, typer.Option(min=1, help="Images per step.")] = 8,
-    lr: Annotated[float, typer.Option(help="AdamW learning rate of the network.")] = 4e-4,
-    head_lr: Annotated[float, typer.Option(help="AdamW learning rate of the new class layers.")] = 4e-3,
+    epochs: Annotated[int, typer.Option(min=1, help="Passes over the augmented images.")] = 10,
+    views: Annotated[
+        int, typer.Option(min=1, help="Augmented copies of each training image (made once).")
+    ] = 6,
+    batch_size: Annotated[int, typer.Option(min=1, help="Images per step.")] = 16,
+    lr: Annotated[float, typer.Option(help="AdamW learning rate of the detector's head.")] = 1e-3,
+    head_lr: Annotated[float, typer.Option(help="AdamW learning rate of the new class layers.")] = 5e-3,
     train_size: Annotated[
         int, typer.Option(min=64, help="Square training image side in pixels, a multiple of 32.")
     ] = 320,
@@ -369,7 +372,8 @@ def train_detector(
 
     Starts from the YOLOX-nano COCO detector and learns two classes, emergency vehicle (the
     labelled boxes) and other vehicle (the COCO detector's cars, motorcycles, buses and trucks that
-    are not an ambulance). A part of the training photos picks the best epoch and the operating
+    are not an ambulance). The detector's backbone stays as it is; its head is trained, on 2 CPU
+    cores in about a quarter of an hour. A part of the training photos picks the best epoch and the operating
     point; the committed held-out images are never read. Prints the validation figures as one
     JSON line. Score the result with makeway evaluate-detector --framework a --model OUT.
     """
@@ -381,6 +385,7 @@ def train_detector(
         data,
         out,
         epochs=epochs,
+        views=views,
         batch=batch_size,
         lr=lr,
         head_lr=head_lr,

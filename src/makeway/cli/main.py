@@ -127,6 +127,14 @@ def detect(
             "pipeline falls behind, the oldest waiting frame is dropped, never the newest.",
         ),
     ] = False,
+    framework: Annotated[
+        str,
+        typer.Option(
+            help="b (the default): vehicle detector, then the crop classifier judges each track. "
+            "a: one detector that tells emergency vehicles from other vehicles by itself (its "
+            "per-box EV score feeds the smoother; --model is then that detector's file)."
+        ),
+    ] = "b",
     as_json: Annotated[bool, typer.Option("--json", help="Print the run summary as one JSON line.")] = False,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")] = False,
 ) -> None:
@@ -162,6 +170,7 @@ def detect(
         topic=topic,
         mcap=mcap,
         realtime=realtime,
+        framework=framework.strip().lower(),
     )
     table = Table(title=f"makeway detect — {video.name}", show_header=False)
     if summary.topic is not None:
