@@ -150,7 +150,8 @@ def main() -> int:
                 run = _speed(video, fw, args.model)
                 speed[f"{fw}:{clip}"] = {**run, "load_avg": load}
                 print(
-                    f"speed {fw.upper()} {clip}: {run['fps']:.1f} frames/s = {run['realtime_factor']:.2f}× real "
+                    f"speed {fw.upper()} {clip}: {run['fps']:.1f} frames/s = "
+                    f"{run['realtime_factor']:.2f}× real "
                     f"time (target for A: ≥ 2×); load average {load[0]:.2f}, {load[1]:.2f}, {load[2]:.2f}"
                 )
         out["speed"] = speed
