@@ -19,6 +19,8 @@ require_module("torch")
 import torch  # noqa: E402
 
 from makeway.cli.main import app  # noqa: E402
+from makeway.eval.actor_sweep import ClipRecord, TrackLabels  # noqa: E402
+from makeway.eval.framework_ab import class_flips, id_switches, label_by_overlap  # noqa: E402
 from makeway.perceive.vision.detectors import YoloxNano, _grid  # noqa: E402
 from makeway.perceive.vision.ev_detector import EV_DET_FILE, EVDetector  # noqa: E402
 from makeway.pipeline.video import track_one_stage  # noqa: E402
@@ -283,3 +285,36 @@ def test_bad_model_files_are_one_line(
     r = runner.invoke(app, [command, *target, "--framework", "a", "--model", str(yolox_path)])
     assert r.exit_code == 2 and "ev detector" in r.stderr and len(r.stderr.strip().splitlines()) == 1
     assert not (tmp_path / "o").exists()
+
+
+# ------------------------------------------------------------------------------- A against B on video
+
+
+def _record(clip: str, rows: list[tuple[int, int, float, float]]) -> ClipRecord:
+    """A record of ``(frame, track, x1, p)`` rows: 40×40 boxes at ``x1``, probability ``p``."""
+    arr = np.asarray(rows, dtype=np.float64)
+    boxes = np.stack([arr[:, 2], np.full(len(arr), 10.0), arr[:, 2] + 40, np.full(len(arr), 50.0)], axis=1)
+    return ClipRecord(clip, 25.0, int(arr[:, 0].max()) + 1, arr[:, 0].astype(np.int64),
+                      arr[:, 1].astype(np.int64), boxes, arr[:, 3])  # fmt: skip
+
+
+def test_overlap_labels_flips_and_id_switches() -> None:
+    # B (labelled): track 7 is the EV at x = 0, track 8 a car at x = 200, for frames 0-5
+    b = _record("clip", [(f, 7, 0.0, 0.9) for f in range(6)] + [(f, 8, 200.0, 0.1) for f in range(6)])
+    # A: the EV is track 1 on frames 0-2 and track 2 on frames 3-5 (one id switch), its class
+    # flipping once within track 1; the car is track 3; track 4 is far from anything B tracked
+    a = _record(
+        "clip",
+        [(0, 1, 1.0, 0.9), (1, 1, 1.0, 0.4), (2, 1, 2.0, 0.4)]
+        + [(f, 2, 2.0, 0.8) for f in range(3, 6)]
+        + [(f, 3, 201.0, 0.2) for f in range(6)]
+        + [(0, 4, 500.0, 0.6)],
+    )
+    labels = TrackLabels(Path("x"), explicit={("clip", 7): 1}, default={"clip": 0})
+    la, unmatched = label_by_overlap(a, b, labels)
+    assert la == {1: 1, 2: 1, 3: 0, 4: 0} and unmatched == 1
+    flips = class_flips(a, la)
+    assert (flips.tracks, flips.tracks_flipping, flips.flips) == (4, 1, 1)
+    assert (flips.ev_tracks, flips.ev_tracks_flipping, flips.ev_flips) == (2, 1, 1)
+    assert id_switches(a, b, {7: 1, 8: 0}) == (1, 1)  # A's id changes once while following B's EV
+    assert id_switches(b, a, la) == (0, 2)  # B follows A's two EV tracks with one id
