@@ -368,7 +368,7 @@ def train_detector(
     ] = None,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")] = False,
 ) -> None:
-    """Train the one-stage EV detector (Framework A) on road photos.
+    """Train the EV / other-vehicle detector.
 
     Starts from the YOLOX-nano COCO detector and learns two classes, emergency vehicle (the
     labelled boxes) and other vehicle (the COCO detector's cars, motorcycles, buses and trucks that
