@@ -45,13 +45,20 @@ def _fmt(x: float) -> str:
     return "  n/a" if math.isnan(x) else f"{x:.3f}"
 
 
-def _speed(video: Path, framework: str, model: Path) -> dict[str, float]:
-    from makeway.apps.detect import detect
+def _speed(video: Path, framework: str, model: Path, head: Path) -> dict[str, float]:
+    """Frames per second of the whole pipeline (decode → detect → track → judge → smooth, no
+    outputs written) with two detector workers, as ``makeway detect --rule crop`` runs it."""
+    from makeway.perceive.vision.ev_classifier import EVTrackClassifier, load_crop_classifier
+    from makeway.pipeline.video import run_video
 
-    s = detect(
-        video, None, framework=framework, model=model if framework == "a" else None, rule="crop",
-        write_video=False, progress=False, detector_workers=2,
-    )  # fmt: skip
+    if framework == "a":
+        dets = [EVDetector(model, num_threads=1) for _ in range(2)]
+        s = run_video(video, None, ev_detectors=dets, write_video=False, progress=False, rule="crop")
+    else:
+        clf = EVTrackClassifier(load_crop_classifier(head))
+        s = run_video(
+            video, None, classifier=clf, detector_workers=2, write_video=False, progress=False, rule="crop"
+        )
     return {"fps": s.frames / s.wall_seconds, "realtime_factor": s.realtime_factor, "frames": s.frames}
 
 
@@ -147,7 +154,7 @@ def main() -> int:
             video = root / "video" / f"{clip}.mp4"
             for fw in ("a", "b"):
                 load = os.getloadavg()
-                run = _speed(video, fw, args.model)
+                run = _speed(video, fw, args.model, args.head)
                 speed[f"{fw}:{clip}"] = {**run, "load_avg": load}
                 print(
                     f"speed {fw.upper()} {clip}: {run['fps']:.1f} frames/s = "
