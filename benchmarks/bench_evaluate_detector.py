@@ -30,6 +30,7 @@ import argparse
 import json
 import os
 import sys
+from typing import Any
 
 from makeway.apps.evaluate_detector import BoxJudgements, evaluate_detector, score_judgements
 from makeway.eval.detection import detection_metrics, precision_recall
@@ -61,7 +62,7 @@ def main(argv: list[str] | None = None) -> int:
         f"{'seed 001':<10} {'':<10} {'':<10} {'':>6} {'':>5} {SEED_001['map50']:>6.3f} {'':>8} "
         f"{SEED_001['precision']:>6.3f} {SEED_001['recall']:>6.3f} {'':>8}"
     )
-    rows = []
+    rows: list[dict[str, Any]] = []
     for clf in args.classifier or ["default", "fast"]:
         for split in ("validation", "held_out"):
             judged: list[BoxJudgements] = []
