@@ -348,10 +348,10 @@ def train_detector(
             "--data", help="ambulance_yolo/valid (YOLO images/ + labels/); its held-out part is never read."
         ),
     ],
-    epochs: Annotated[int, typer.Option(min=1, help="Passes over the augmented images.")] = 10,
+    epochs: Annotated[int, typer.Option(min=1, help="Passes over the augmented images.")] = 4,
     views: Annotated[
         int, typer.Option(min=1, help="Augmented copies of each training image (made once).")
-    ] = 6,
+    ] = 4,
     batch_size: Annotated[int, typer.Option(min=1, help="Images per step.")] = 16,
     lr: Annotated[float, typer.Option(help="AdamW learning rate of the detector's head.")] = 1e-3,
     head_lr: Annotated[float, typer.Option(help="AdamW learning rate of the new class layers.")] = 5e-3,
@@ -359,7 +359,9 @@ def train_detector(
         int, typer.Option(min=64, help="Square training image side in pixels, a multiple of 32.")
     ] = 320,
     seed: Annotated[int, typer.Option(help="Random seed.")] = 0,
-    threads: Annotated[int, typer.Option(min=1, help="Torch threads.")] = 2,
+    threads: Annotated[
+        int, typer.Option(min=1, help="Torch and ONNX Runtime threads (1 is fastest on a busy machine).")
+    ] = 1,
     yolox_model: Annotated[
         Path | None, typer.Option(help="yolox_nano.onnx to start from (default: the shared models folder).")
     ] = None,
