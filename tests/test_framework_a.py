@@ -23,7 +23,7 @@ from makeway.eval.actor_sweep import ClipRecord, TrackLabels  # noqa: E402
 from makeway.eval.framework_ab import class_flips, id_switches, label_by_overlap  # noqa: E402
 from makeway.perceive.vision.detectors import YoloxNano, _grid  # noqa: E402
 from makeway.perceive.vision.ev_detector import EV_DET_FILE, EVDetector  # noqa: E402
-from makeway.pipeline.video import track_one_stage  # noqa: E402
+from makeway.track.one_stage import track_one_stage  # noqa: E402
 from makeway.track.sort import Sort  # noqa: E402
 from makeway.train import framework_a as fa  # noqa: E402
 

@@ -35,6 +35,7 @@ import numpy as np
 
 from makeway.eval.actor_sweep import RECORD_CONFIG, ClipRecord, TrackLabels
 from makeway.eval.detection import box_iou_matrix
+from makeway.track.one_stage import track_one_stage
 from makeway.track.sort import Sort, associate
 
 __all__ = [
@@ -56,7 +57,6 @@ def record_framework_a(
     :class:`~makeway.perceive.vision.ev_detector.EVDetector`) → one SORT with
     :data:`RECORD_CONFIG`'s settings → every confirmed track's box and P(EV) per frame
     (``meta["class_id"]`` holds the argmax classes, row-aligned)."""
-    from makeway.pipeline.video import track_one_stage
     from makeway.progress import progress_bar
     from makeway.sense.video import VideoReader
 

@@ -46,7 +46,7 @@ import cv2
 import numpy as np
 
 from makeway.atomic import atomic_path, check_writable, removed_on_error, write_text_atomic
-from makeway.messages import EVObservation, EVTrackState, LightDetection, PerceptionFrame, Track
+from makeway.messages import EVObservation, EVTrackState, LightDetection, PerceptionFrame
 from makeway.perceive.health import CameraHealth
 from makeway.perceive.vision.detectors import DETECTORS, Detector
 from makeway.perceive.vision.ev_classifier import TrackClassifier
@@ -63,6 +63,7 @@ from makeway.track.lights import (
     build_light_detector,
     vehicle_light_evidence,
 )
+from makeway.track.one_stage import track_one_stage
 from makeway.track.smoother import TrackSmoother
 from makeway.track.sort import Sort
 from makeway.viz.annotate import draw_frame
@@ -81,35 +82,6 @@ class FrameDetector(Protocol):
     def name(self) -> str: ...
 
     def detect_arrays(self, image_bgr: np.ndarray) -> tuple[np.ndarray, ...]: ...
-
-
-def track_one_stage(tracker: Sort, arrays: tuple[np.ndarray, ...]) -> tuple[list[Track], dict[int, float]]:
-    """One SORT step over a one-stage EV detector's boxes (Framework A): all vehicles in one
-    tracker, whatever their class, so a class flip does not end a track.
-
-    ``arrays`` is ``(boxes, scores, class_ids, p_ev)``. Returns the confirmed tracks — with the
-    class (0 emergency vehicle, 1 other vehicle) and score of the detection SORT associated with
-    each this frame — and ``{track_id: p_ev}`` of that detection. The association is SORT's own:
-    each detection enters the tracker with its index as class id, read back from the track.
-    """
-    from dataclasses import replace
-
-    from makeway.messages import Box, Detection
-    from makeway.perceive.vision.ev_detector import EV_DET_CLASSES
-
-    boxes, scores, class_ids, p_ev = arrays[:4]
-    detections = [
-        Detection(box=Box(*b), score=float(sc), class_id=k, label="vehicle")
-        for k, (b, sc) in enumerate(zip(boxes.tolist(), scores.tolist(), strict=True))
-    ]
-    tracks: list[Track] = []
-    probs: dict[int, float] = {}
-    for t in tracker.update(detections):
-        k = t.class_id
-        cls = int(class_ids[k])
-        tracks.append(replace(t, class_id=cls, label=EV_DET_CLASSES[cls]))
-        probs[t.track_id] = float(p_ev[k])
-    return tracks, probs
 
 
 #: What ``lights`` means in :func:`run_video`: the light detector's registry name and colour set.

@@ -25,7 +25,7 @@ near its centre; each box takes its ``k`` cheapest cells, ``k`` = the sum of its
 (at least 1); a cell claimed by several boxes stays with the cheapest.
 
 **Data** (:func:`build_dataset`): ``ambulance_yolo/valid`` minus the committed held-out images
-(:data:`~makeway.apps.evaluate_detector.HELD_OUT_FILE`, never read here): class 0 from the YOLO
+(:data:`HELD_OUT_FILE`, never trained or tuned on): class 0 from the YOLO
 labels; class 1 pseudo-labels from the shipped YOLOX-nano (car, motorcycle, bus, truck, score ≥
 0.4, class-agnostic NMS) that do not overlap an ambulance box (IoU ≤ 0.3 and at most half of the
 pseudo box inside one). A validation part is taken out by source photo (Roboflow copies share the
@@ -82,6 +82,9 @@ __all__ = [
 INPUT_SIZE = 416
 STRIDES = (8, 16, 32)
 VAL_FRACTION = 0.2
+#: The committed held-out images of ``ambulance_yolo/valid`` (the file
+#: :mod:`makeway.apps.evaluate_detector` scores on): never read by training.
+HELD_OUT_FILE = Path(__file__).resolve().parents[1] / "data" / "ambulance_yolo_held_out.txt"
 _PAD = 114.0
 _COCO_CAR, _COCO_TRUCK = 2, 7
 
@@ -384,15 +387,23 @@ def build_dataset(
         InputError: the folder is not a YOLO set, or lacks the committed held-out images (it is not
             ``ambulance_yolo/valid``).
     """
-    from makeway.apps.evaluate_detector import select_split
     from makeway.perceive.vision.detectors import VEHICLE_CLASSES, YoloxNano
     from makeway.progress import progress_bar
-    from makeway.sense.crops import read_yolo_set, roboflow_source
+    from makeway.sense.crops import read_holdout, read_yolo_set, roboflow_source
 
     data = Path(data)
     if not data.is_dir():
         raise InputError(data, "YOLO folder not found (expected images/ and labels/)")
-    images = select_split(read_yolo_set(data), "validation", data)
+    all_images = read_yolo_set(data)
+    held = set(read_holdout(HELD_OUT_FILE).names)
+    missing = held - {img.path.name for img in all_images}
+    if missing:
+        raise InputError(
+            data,
+            f"{len(missing)} of the {len(held)} committed held-out images of ambulance_yolo/valid are not "
+            f"here (e.g. {sorted(missing)[0]!r}): this is not the set Framework A is trained on",
+        )
+    images = [img for img in all_images if img.path.name not in held]
     det = YoloxNano(model_path, score_threshold=pseudo_threshold, classes=VEHICLE_CLASSES,
                     class_agnostic=True, num_threads=threads)  # fmt: skip
     train: list[Sample] = []
