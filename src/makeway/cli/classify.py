@@ -374,8 +374,8 @@ def train_detector(
 
     Starts from the YOLOX-nano COCO detector and learns two classes, emergency vehicle (the
     labelled boxes) and other vehicle (the COCO detector's cars, motorcycles, buses and trucks that
-    are not an ambulance). The detector's backbone stays as it is; its head is trained (17 minutes
-    on a busy 2-core machine, mostly waiting for the cores). A part of the training photos picks
+    are not an ambulance). The detector's backbone stays as it is; its head is trained (under 2 minutes
+    on 2 quiet CPU cores). A part of the training photos picks
     the best epoch and the operating point; the committed held-out images are never read. Prints
     the validation figures as one JSON line. Score the result with makeway evaluate-detector
     --framework a --model OUT.
