@@ -348,10 +348,10 @@ def train_detector(
             "--data", help="ambulance_yolo/valid (YOLO images/ + labels/); its held-out part is never read."
         ),
     ],
-    epochs: Annotated[int, typer.Option(min=1, help="Passes over the augmented images.")] = 4,
+    epochs: Annotated[int, typer.Option(min=1, help="Passes over the augmented images.")] = 8,
     views: Annotated[
         int, typer.Option(min=1, help="Augmented copies of each training image (made once).")
-    ] = 4,
+    ] = 8,
     batch_size: Annotated[int, typer.Option(min=1, help="Images per step.")] = 16,
     lr: Annotated[float, typer.Option(help="AdamW learning rate of the detector's head.")] = 1e-3,
     head_lr: Annotated[float, typer.Option(help="AdamW learning rate of the new class layers.")] = 5e-3,
@@ -374,8 +374,8 @@ def train_detector(
 
     Starts from the YOLOX-nano COCO detector and learns two classes, emergency vehicle (the
     labelled boxes) and other vehicle (the COCO detector's cars, motorcycles, buses and trucks that
-    are not an ambulance). The detector's backbone stays as it is; its head is trained (under 2 minutes
-    on 2 quiet CPU cores). A part of the training photos picks
+    are not an ambulance). The detector's backbone stays as it is; its head is trained (about 5 minutes
+    on 2 CPU cores). A part of the training photos picks
     the best epoch and the operating point; the committed held-out images are never read. Prints
     the validation figures as one JSON line. Score the result with makeway evaluate-detector
     --framework a --model OUT.
