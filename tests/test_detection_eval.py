@@ -188,12 +188,6 @@ def test_evaluate_detector_on_real_images(ambulance_dir: Path, tmp_path: Path) -
     assert out["ms_per_image"] > 0
 
 
-def test_framework_a_is_refused(ambulance_dir: Path) -> None:
-    r = runner.invoke(app, ["evaluate-detector", "--data", str(ambulance_dir), "--framework", "a"])
-    assert r.exit_code == 2
-    assert "Framework A is not built yet" in r.stderr and len(r.stderr.strip().splitlines()) == 1
-
-
 def test_bad_input_is_one_line_naming_the_file(ambulance_dir: Path, tmp_path: Path) -> None:
     missing = tmp_path / "nowhere"
     r = runner.invoke(app, ["evaluate-detector", "--data", str(missing)])

@@ -4,13 +4,17 @@ per-second decisions (:mod:`makeway.pipeline.clip_sound`)."""
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 from makeway.pipeline.clip_sound import run_clip
 from makeway.pipeline.video import DEFAULT_LIGHTS, VideoRunSummary
 from makeway.track.lights import ACTIVE_RULES
 
-__all__ = ["DEFAULT_RULE", "detect"]
+__all__ = ["DEFAULT_RULE", "FRAMEWORKS", "detect"]
+
+#: ``b``: vehicle detector → SORT → crop classifier (the default); ``a``: one-stage EV detector → SORT.
+FRAMEWORKS = ("a", "b")
 
 #: The active-EV rule ``makeway detect`` uses when none is named (see :func:`detect`).
 DEFAULT_RULE = "lights+crop"
@@ -38,6 +42,8 @@ def detect(
     realtime: bool = False,
     audio: bool | None = None,
     duty: str = "audible_and_visual",
+    framework: str = "b",
+    detector_workers: int | None = None,
 ) -> VideoRunSummary:
     """Detect, track and judge the vehicles of ``video``; write the annotated video, ``tracks.jsonl``
     and ``summary.json`` to ``out`` (default ``makeway_out/<video stem>``).
@@ -68,6 +74,12 @@ def detect(
     outputs, and the summary's ``seconds`` holds the per-second counts. Without sound the seconds
     are decided on the lights alone.
 
+    ``framework="a"`` runs seed 001's Framework A instead of B: the one-stage EV detector
+    (:class:`~makeway.perceive.vision.ev_detector.EVDetector`; ``model`` its file, default the
+    shipped ``ev_det_yolox.onnx``; ``detector`` and ``classifier`` unused) → one SORT over all
+    vehicles → the smoother fed by each track's per-box P(EV), under the same ``rule``.
+    ``detector_workers``: frames detected at once (default: cores, at most 4).
+
     Raises:
         InputError: the video, the detector weights or the classifier cannot be read (names the file;
             an unknown classifier name lists the shipped ones); ``audio`` is asked for and the clip
@@ -76,6 +88,34 @@ def detect(
     """
     if rule not in ACTIVE_RULES:
         raise ValueError(f"unknown rule {rule!r}; choose from: {', '.join(ACTIVE_RULES)}")
+    if framework not in FRAMEWORKS:
+        raise ValueError(f"unknown framework {framework!r}; choose from: {', '.join(FRAMEWORKS)}")
+    out_dir = Path(out) if out is not None else Path("makeway_out") / Path(video).stem
+    if framework == "a":
+        from makeway.perceive.vision.ev_detector import EVDetector
+
+        workers = detector_workers if detector_workers is not None else min(os.cpu_count() or 1, 4)
+        ev_detectors = [
+            EVDetector(model, score_threshold=score_threshold, num_threads=None if workers == 1 else 1)
+            for _ in range(max(1, workers))
+        ]
+        return run_clip(
+            video,
+            out_dir,
+            audio=audio,
+            duty=duty,
+            stride=stride,
+            max_frames=max_frames,
+            write_video=write_video,
+            progress=progress,
+            rule=rule,
+            light_detector=light_detector,
+            light_colours=colours,
+            topic=topic,
+            mcap=mcap,
+            realtime=realtime,
+            ev_detectors=ev_detectors,
+        ).summary
     if rule == "lights+crop" and classifier.strip().lower() == "none":
         raise ValueError("the lights+crop rule needs a classifier; use --rule lights without one")
     track_classifier = None
@@ -85,7 +125,6 @@ def detect(
         crop_classifier = load_crop_classifier(classifier, single_view=single_view)
         track_classifier = EVTrackClassifier(crop_classifier, every=classify_every)
         getattr(track_classifier.classifier, "extractors", None)  # build them now: bad weights fail early
-    out_dir = Path(out) if out is not None else Path("makeway_out") / Path(video).stem
     return run_clip(
         video,
         out_dir,
@@ -105,4 +144,5 @@ def detect(
         topic=topic,
         mcap=mcap,
         realtime=realtime,
+        detector_workers=detector_workers,
     ).summary

@@ -12,6 +12,12 @@ crop and are dropped, as the pipeline gives them no judgement); the crop classif
 * **Operating point** (precision, recall): the boxes with ``p`` at or above the classifier's own
   threshold — what the video pipeline would call EV on this frame before smoothing.
 
+**Framework A as a detector on images** (``--framework a``, seed 001's one-stage detector;
+:mod:`makeway.perceive.vision.ev_detector`): the two-class detector's vehicle boxes (vehicle score
+≥ 0.05, class-agnostic NMS) ranked by their ``ev_score`` = objectness × EV class score; the
+operating point is ``ev_score`` at or above the threshold stored in the model file (chosen on the
+training's validation images, never on the held-out ones).
+
 Ground truth: the boxes of class 0 (ambulance in ``ambulance_yolo``); a detection is correct at
 IoU ≥ 0.5 (:mod:`makeway.eval.detection`).
 
@@ -58,6 +64,8 @@ HELD_OUT_FRACTION = 0.2
 FRAMEWORKS = ("a", "b")
 SPLITS = ("all", "held_out", "validation")
 SCORES = ("product", "classifier")
+#: Framework A: lowest vehicle score ``obj·max(c0, c1)`` of a box kept for the AP curve.
+FRAMEWORK_A_SCORE_THRESHOLD = 0.05
 
 
 def held_out_by_hash(stem: str, fraction: float = HELD_OUT_FRACTION) -> bool:
@@ -202,8 +210,14 @@ def evaluate_detector(
     time). ``max_images`` keeps the first images of the split (by name); ``judgements``, when a list,
     receives the per-image :class:`BoxJudgements` (to rescore without rerunning).
 
+    With ``framework="a"`` the one-stage EV detector
+    (:class:`~makeway.perceive.vision.ev_detector.EVDetector`, ``model`` its file, default the
+    shipped one) replaces detector + classifier: its vehicle boxes (vehicle score ≥ 0.05) ranked by
+    ``ev_score``, the operating point ``ev_score ≥`` the threshold stored in the model;
+    ``classifier`` then reports the model file and ``score`` is ``ev_score``.
+
     Raises:
-        InputError: Framework A (not built yet); the folder is not a YOLO set, an image does not decode
+        InputError: the folder is not a YOLO set, an image does not decode
             or a label line is malformed (names the file); the split does not fit the folder.
         UnknownNameError: an unknown detector or classifier name.
     """
@@ -215,10 +229,6 @@ def evaluate_detector(
 
     if framework not in FRAMEWORKS:
         raise ValueError(f"unknown framework {framework!r}; one of {', '.join(FRAMEWORKS)}")
-    if framework == "a":
-        raise InputError(
-            "--framework a", "Framework A is not built yet (issue 24, item 3); use --framework b"
-        )
     if score not in SCORES:
         raise ValueError(f"unknown score {score!r}; one of {', '.join(SCORES)}")
     if split not in SPLITS:
@@ -226,8 +236,13 @@ def evaluate_detector(
     data = Path(data)
     if not data.is_dir():
         raise InputError(data, "YOLO folder not found (expected images/ and labels/)")
-    det = DETECTORS[detector](model, class_agnostic=True, num_threads=threads)
-    clf = load_crop_classifier(classifier, num_threads=threads)
+    if framework == "a":
+        from makeway.perceive.vision.ev_detector import EVDetector
+
+        ev_det = EVDetector(model, score_threshold=FRAMEWORK_A_SCORE_THRESHOLD, num_threads=threads)
+    else:
+        det = DETECTORS[detector](model, class_agnostic=True, num_threads=threads)
+        clf = load_crop_classifier(classifier, num_threads=threads)
     images = select_split(read_yolo_set(data), split, data)
     if max_images is not None:
         images = images[:max_images]
@@ -238,12 +253,21 @@ def evaluate_detector(
             raise InputError(item.path, "OpenCV could not decode this image")
         gt = np.asarray([[b.x1, b.y1, b.x2, b.y2] for b in item.boxes_of(0)], dtype=np.float64)
         start = time.perf_counter()
-        boxes, det_scores, probs = framework_b_judgements(image, det, clf)
+        if framework == "a":
+            found = ev_det.detect(image)
+            boxes, det_scores, probs = found.boxes, found.scores, found.ev_scores.astype(np.float64)
+        else:
+            boxes, det_scores, probs = framework_b_judgements(image, det, clf)
         seconds = time.perf_counter() - start
         judged.append(BoxJudgements(boxes, det_scores, probs, gt.reshape(-1, 4), seconds))
     if judgements is not None:
         judgements.extend(judged)
-    out = score_judgements(judged, float(clf.threshold), score)
+    if framework == "a":  # probs hold ev_score: ranked by it alone, operating point on it
+        out = score_judgements(judged, float(ev_det.threshold), "classifier")
+        out["score"] = "ev_score"
+        classifier = str(ev_det.model_path)
+    else:
+        out = score_judgements(judged, float(clf.threshold), score)
     out.update(
         framework=framework,
         classifier=str(classifier),

@@ -142,6 +142,14 @@ def detect(
             "lights for 2 s, mean yield; a siren alone means prepare), germany or uk."
         ),
     ] = "audible_and_visual",
+    framework: Annotated[
+        str,
+        typer.Option(
+            help="b (the default): vehicle detector, then the crop classifier judges each track. "
+            "a: one detector that tells emergency vehicles from other vehicles by itself (its "
+            "per-box EV score feeds the smoother; --model is then that detector's file)."
+        ),
+    ] = "b",
     as_json: Annotated[bool, typer.Option("--json", help="Print the run summary as one JSON line.")] = False,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")] = False,
 ) -> None:
@@ -185,6 +193,7 @@ def detect(
         realtime=realtime,
         audio=audio,
         duty=duty,
+        framework=framework.strip().lower(),
     )
     table = Table(title=f"makeway detect — {video.name}", show_header=False)
     if summary.topic is not None:
@@ -372,7 +381,10 @@ def evaluate_detector(
     ],
     framework: Annotated[
         str,
-        typer.Option(help="b: vehicle detector + the crop classifier per box; a: not built yet."),
+        typer.Option(
+            help="b: vehicle detector + the crop classifier per box; a: one detector with the "
+            "classes EV and other vehicle."
+        ),
     ] = "b",
     classifier: Annotated[
         str,
@@ -390,15 +402,22 @@ def evaluate_detector(
         typer.Option(help="Ranking score for AP: product (detector score × P(EV)) or classifier (P(EV))."),
     ] = "product",
     detector: Annotated[str, typer.Option(help="Vehicle detector: yolox_nano or nanodet_m.")] = "yolox_nano",
-    model: Annotated[Path | None, typer.Option(help="ONNX weights for the vehicle detector.")] = None,
+    model: Annotated[
+        Path | None,
+        typer.Option(
+            help="ONNX weights: of the vehicle detector (b), or of the EV detector (a; default: the "
+            "shipped ev_det_yolox.onnx)."
+        ),
+    ] = None,
     max_images: Annotated[int | None, typer.Option(min=1, help="Score the first N images only.")] = None,
 ) -> None:
     """Score an EV detector on YOLO images (boxes of class 0).
 
     With --framework b (the default): vehicle detector → square crop per box → crop classifier; each
     box is an EV detection ranked by its score, and the operating point is the classifier's own
-    threshold. A detection is
-    correct at IoU >= 0.5. Prints one JSON line: map50, map50_95, precision, recall (at the
+    threshold. With --framework a: one detector trained for two classes (emergency vehicle, other
+    vehicle); boxes ranked by their EV score, the operating point stored in the model. A detection
+    is correct at IoU >= 0.5. Prints one JSON line: map50, map50_95, precision, recall (at the
     operating point), n_images, n_boxes, framework, classifier, ms_per_image.
     """
     from makeway.apps.evaluate_detector import evaluate_detector as run

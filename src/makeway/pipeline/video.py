@@ -1,4 +1,6 @@
-"""Framework B on a video (SPEC §2): detector → SORT → per-track classifier → smoother.
+"""Framework B on a video (SPEC §2): detector → SORT → per-track classifier → smoother; and
+Framework A (seed 001): a one-stage EV detector → SORT → smoother fed by the detector's per-box
+P(EV) (:class:`~makeway.perceive.vision.ev_detector.EVDetector`, ``run_video(ev_detectors=…)``).
 
 :class:`VisionPipeline` turns one frame into a :class:`~makeway.messages.PerceptionFrame`;
 :func:`run_video` drives it over a file and writes, into an output folder:
@@ -38,7 +40,7 @@ from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 import cv2
 import numpy as np
@@ -61,6 +63,7 @@ from makeway.track.lights import (
     build_light_detector,
     vehicle_light_evidence,
 )
+from makeway.track.one_stage import track_one_stage
 from makeway.track.smoother import TrackSmoother
 from makeway.track.sort import Sort
 from makeway.viz.annotate import draw_frame
@@ -68,6 +71,18 @@ from makeway.viz.foxglove import DetectRecorder
 from makeway.viz.video_writer import H264Writer
 
 STAGES = ("read", "detect", "track", "classify", "annotate", "encode")
+
+
+class FrameDetector(Protocol):
+    """What the pipeline needs of a detector: ``name`` and ``detect_arrays(image_bgr)`` returning
+    ``(boxes, scores, class_ids)`` — or, for a one-stage EV detector (Framework A), also a 4th array
+    ``p_ev`` (:meth:`~makeway.perceive.vision.ev_detector.EVDetector.detect_arrays`)."""
+
+    @property
+    def name(self) -> str: ...
+
+    def detect_arrays(self, image_bgr: np.ndarray) -> tuple[np.ndarray, ...]: ...
+
 
 #: What ``lights`` means in :func:`run_video`: the light detector's registry name and colour set.
 DEFAULT_LIGHTS = (DEFAULT_LIGHT_DETECTOR, "eu")
@@ -101,7 +116,7 @@ class VisionPipeline:
 
     def __init__(
         self,
-        detector: Detector,
+        detector: FrameDetector,
         tracker: Sort | None = None,
         classifier: TrackClassifier | None = None,
         smoother: TrackSmoother | None = None,
@@ -143,14 +158,16 @@ class VisionPipeline:
         image_bgr: np.ndarray,
         frame_index: int,
         time_s: float,
-        arrays: tuple[np.ndarray, np.ndarray, np.ndarray],
+        arrays: tuple[np.ndarray, ...],
         lights: Sequence[LightDetection] = (),
     ) -> PerceptionFrame:
         """Track, classify and smooth one frame whose detections were computed elsewhere.
 
-        ``arrays`` is ``(boxes, scores, class_ids)`` as :meth:`Detector.detect_arrays` returns them;
-        ``lights`` the light detector's boxes in this frame (used by the lights rules); frames must
-        arrive in order, once each.
+        ``arrays`` is ``(boxes, scores, class_ids)`` as :meth:`Detector.detect_arrays` returns them,
+        or with a 4th array ``p_ev`` from a one-stage EV detector (Framework A): then the tracks'
+        class-flip-free P(EV) comes from their detections (:func:`track_one_stage`) in place of the
+        crop classifier's, under the same rules and smoother; ``lights`` the light detector's boxes
+        in this frame (used by the lights rules); frames must arrive in order, once each.
         """
         t1 = time.perf_counter()
         health = None
@@ -169,9 +186,11 @@ class VisionPipeline:
         if self._last_index is not None and frame_index - self._last_index > self.frame_step:
             self.tracker.coast((frame_index - self._last_index) // self.frame_step - 1)
         self._last_index = frame_index
-        boxes, scores, class_ids = arrays
-        detections = Detector.to_detections((boxes, scores, class_ids))
-        tracks = self.tracker.update(detections)
+        one_stage: dict[int, float] | None = None
+        if len(arrays) > 3:
+            tracks, one_stage = track_one_stage(self.tracker, arrays)
+        else:
+            tracks = self.tracker.update(Detector.to_detections((arrays[0], arrays[1], arrays[2])))
         evidence: dict[int, tuple[bool, bool]] = {}
         if self.light_tracker is not None:
             # white lights never make a vehicle active (headlights, street lamps): not tracked here
@@ -180,10 +199,12 @@ class VisionPipeline:
             evidence = vehicle_light_evidence(tracks, self.light_tracks)
         t2 = time.perf_counter()
         states: tuple[EVTrackState, ...] = ()
-        uses_crop = self.rule != "lights" and self.classifier is not None
+        uses_crop = self.rule != "lights" and (self.classifier is not None or one_stage is not None)
         if uses_crop or self.rule != "crop":
             crop: dict[int, float | None] = {}
-            if uses_crop:
+            if uses_crop and one_stage is not None:
+                crop.update(one_stage)
+            elif uses_crop:
                 assert self.classifier is not None
                 for obs in self.classifier.classify(image_bgr, tracks, frame_index, time_s):
                     crop[obs.track_id] = obs.probability
@@ -306,12 +327,12 @@ class _Prefetch:
         self._thread.join()
 
 
-_Arrays = tuple[np.ndarray, np.ndarray, np.ndarray]
+_Arrays = tuple[np.ndarray, ...]
 
 
 def _detect_in_order(
     frames: Iterator[tuple[int, float, np.ndarray]],
-    detectors: Sequence[Detector],
+    detectors: Sequence[FrameDetector],
     seconds: list[float],
     light_detectors: Sequence[LightDetector] | None = None,
 ) -> Iterator[tuple[int, float, np.ndarray, tuple[_Arrays, list[LightDetection]]]]:
@@ -329,7 +350,7 @@ def _detect_in_order(
         raise ValueError("one light detector per vehicle detector is needed")
 
     def both(
-        det: Detector, light: LightDetector | None, image: np.ndarray, index: int
+        det: FrameDetector, light: LightDetector | None, image: np.ndarray, index: int
     ) -> tuple[_Arrays, list[LightDetection]]:
         t0 = time.perf_counter()
         arrays = det.detect_arrays(image)
@@ -343,7 +364,7 @@ def _detect_in_order(
         for index, t_s, image in frames:
             yield index, t_s, image, both(detectors[0], lights[0], image, index)
         return
-    free: queue.Queue[tuple[Detector, LightDetector | None]] = queue.Queue()
+    free: queue.Queue[tuple[FrameDetector, LightDetector | None]] = queue.Queue()
     for pair in zip(detectors, lights, strict=True):
         free.put(pair)
 
@@ -466,8 +487,10 @@ def run_video(
     | None = None,
     realtime: bool = False,
     finish: Callable[[Path | None, float], tuple[dict[str, Any], dict[str, str]]] | None = None,
+    ev_detectors: Sequence[FrameDetector] | None = None,
 ) -> VideoRunSummary:
-    """Run Framework B over ``video``; write the annotated video, JSONL and summary to ``out_dir``.
+    """Run Framework B (or A, with ``ev_detectors``) over ``video``; write the annotated video,
+    JSONL and summary to ``out_dir``.
 
     Args:
         video: any file OpenCV/FFmpeg reads, or a robotics log (an MCAP file or a ROS 2 bag folder,
@@ -511,6 +534,10 @@ def run_video(
             folder (atomically) and returns ``(seconds, outputs)``: what the summary's ``seconds``
             holds and the files it wrote (name → path). An error in it leaves nothing behind, as
             an error in the run does.
+        ev_detectors: Framework A: ready one-stage EV detectors
+            (:class:`~makeway.perceive.vision.ev_detector.EVDetector`, one per concurrent worker)
+            used instead of ``detector``; each track's per-frame P(EV) is its detection's
+            (:func:`track_one_stage`) and ``classifier`` is not needed.
 
     Raises:
         InputError: the video or the model is missing or unreadable, or ``out_dir`` cannot be
@@ -525,7 +552,10 @@ def run_video(
     reader = open_frame_source(video, topic, stride=stride, max_frames=max_frames)
     start_ns = int(getattr(reader, "start_ns", 0))
     info = reader.info
-    if isinstance(detector, Detector):
+    detectors: list[FrameDetector]
+    if ev_detectors:
+        detectors = list(ev_detectors)
+    elif isinstance(detector, Detector):
         detectors = [detector]
     else:
         workers = detector_workers if detector_workers is not None else min(os.cpu_count() or 1, 4)

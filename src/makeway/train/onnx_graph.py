@@ -156,10 +156,24 @@ class OnnxGraph(nn.Module):
         self.weights[key] = nn.Parameter(torch.from_numpy(np.array(value, dtype=np.float32)))
         self._keys[name] = key
 
+    def param_key(self, name: str) -> str:
+        """The key in :attr:`weights` of the ONNX initializer ``name`` (``""`` if it is none)."""
+        return self._keys.get(name, "")
+
     def forward(self, x: torch.Tensor) -> list[torch.Tensor]:
-        env: dict[str, torch.Tensor] = {self.input_name: x}
+        return self.forward_from({self.input_name: x})
+
+    def forward_from(self, env: dict[str, torch.Tensor]) -> list[torch.Tensor]:
+        """Run the graph from known tensors: ``env`` maps tensor names to values (the input, or
+        intermediate tensors such as a detector's neck outputs); steps whose inputs are not all
+        known are skipped, so starting from intermediate tensors runs only what lies after them.
+        Returns :attr:`outputs`."""
+        env = dict(env)
         w = self.weights
         for op, inputs, outputs, spec in self._steps:
+            data = inputs[:1] if op == "Conv" else inputs
+            if any(name and name not in env for name in data):
+                continue
             if op == "Split":
                 for name, part in zip(
                     outputs, torch.split(env[inputs[0]], spec["sizes"], spec["axis"]), strict=True
