@@ -8,7 +8,7 @@ OUT    ?= reports/demo
 
 .PHONY: venv demo test lint typecheck bench bench-sort bench-video bench-crops bench-detection bench-pull-over \
 	bench-siren-loop bench-audio bench-rig bench-v2x bench-fusion bench-roadside bench-lights bench-active-rule \
-	bench-rsu bench-fusion-ablation bench-mcap bench-engine bench-robust bench-faults bench-overload bench-overload-listener bench-range bench-clip-fusion fuzz clean
+	bench-rsu bench-fusion-ablation bench-mcap bench-engine bench-robust bench-faults bench-overload bench-overload-listener bench-range bench-clip-fusion bench-framework-ab fuzz clean
 
 # `make demo` installs the runtime only; `make test` and the benchmarks add the dev extra (linters,
 # scikit-learn, XGBoost, torch for the training tests).
@@ -133,6 +133,10 @@ bench-overload: venv
 bench-overload-listener: venv
 	$(BIN)/python benchmarks/bench_overload.py --stages listener --rates 0.5,2,10
 
+# Framework A against B on the labelled road clips (per actor, class flips, ID switches, speed)
+bench-framework-ab: venv
+	$(BIN)/python benchmarks/bench_framework_ab.py
+
 # lights and siren per second on the real clips with sound (issue 26 item 6)
 bench-clip-fusion: venv
 	$(BIN)/python benchmarks/bench_clip_fusion.py
@@ -149,7 +153,7 @@ fuzz: venv
 bench: bench-sort bench-video bench-crops bench-detection bench-pull-over bench-siren-loop bench-audio bench-rig \
 	bench-v2x bench-fusion bench-roadside bench-lights bench-active-rule bench-rsu \
 	bench-fusion-ablation bench-mcap bench-engine bench-robust bench-faults bench-overload bench-overload-listener \
-	bench-range bench-clip-fusion
+	bench-range bench-clip-fusion bench-framework-ab
 
 clean:
 	rm -rf $(VENV) reports .pytest_cache .mypy_cache .ruff_cache
