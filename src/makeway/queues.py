@@ -46,6 +46,22 @@ class QueueClosedError(Exception):
     """:meth:`LatestQueue.get` on a closed queue with nothing left in it."""
 
 
+def _wait_ready(
+    cond: threading.Condition, ready: Callable[[], bool], closed: Callable[[], bool], timeout: float | None
+) -> None:
+    """With ``cond`` held: wait until ``ready()``, up to ``timeout`` seconds (``None``: for ever).
+    Raises :class:`QueueClosedError` when ``closed()`` and nothing is ready, :class:`TimeoutError`
+    when the time is up."""
+    deadline = None if timeout is None else time.monotonic() + timeout
+    while not ready():
+        if closed():
+            raise QueueClosedError("queue closed")
+        left = None if deadline is None else deadline - time.monotonic()
+        if left is not None and left <= 0:
+            raise TimeoutError("no item within the timeout")
+        cond.wait(left)
+
+
 class LatestQueue(Generic[T]):
     """A thread-safe FIFO of at most ``maxsize`` items that drops the oldest when full.
 
@@ -80,15 +96,8 @@ class LatestQueue(Generic[T]):
 
     def get(self, timeout: float | None = None) -> T:
         """The oldest item held, waiting up to ``timeout`` seconds (``None``: for ever)."""
-        deadline = None if timeout is None else time.monotonic() + timeout
         with self._cond:
-            while not self._items:
-                if self._closed:
-                    raise QueueClosedError("queue closed")
-                left = None if deadline is None else deadline - time.monotonic()
-                if left is not None and left <= 0:
-                    raise TimeoutError("no item within the timeout")
-                self._cond.wait(left)
+            _wait_ready(self._cond, lambda: bool(self._items), lambda: self._closed, timeout)
             return self._items.popleft()
 
     def close(self) -> None:
@@ -179,15 +188,8 @@ class KeyedLatestQueue(Generic[K, T]):
     def get(self, timeout: float | None = None) -> T:
         """The oldest item of the key that has waited longest, waiting up to ``timeout`` seconds
         (``None``: for ever)."""
-        deadline = None if timeout is None else time.monotonic() + timeout
         with self._cond:
-            while not self._keys:
-                if self._closed:
-                    raise QueueClosedError("queue closed")
-                left = None if deadline is None else deadline - time.monotonic()
-                if left is not None and left <= 0:
-                    raise TimeoutError("no item within the timeout")
-                self._cond.wait(left)
+            _wait_ready(self._cond, lambda: bool(self._keys), lambda: self._closed, timeout)
             key, held = self._keys.popitem(last=False)
             item = held.popleft()
             self._size -= 1

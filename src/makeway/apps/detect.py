@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
+from typing import Any
 
 from makeway.pipeline.clip_sound import run_clip
 from makeway.pipeline.video import DEFAULT_LIGHTS, VideoRunSummary
@@ -91,6 +92,20 @@ def detect(
     if framework not in FRAMEWORKS:
         raise ValueError(f"unknown framework {framework!r}; choose from: {', '.join(FRAMEWORKS)}")
     out_dir = Path(out) if out is not None else Path("makeway_out") / Path(video).stem
+    common: dict[str, Any] = {
+        "audio": audio,
+        "duty": duty,
+        "stride": stride,
+        "max_frames": max_frames,
+        "write_video": write_video,
+        "progress": progress,
+        "rule": rule,
+        "light_detector": light_detector,
+        "light_colours": colours,
+        "topic": topic,
+        "mcap": mcap,
+        "realtime": realtime,
+    }
     if framework == "a":
         from makeway.perceive.vision.ev_detector import EVDetector
 
@@ -99,23 +114,7 @@ def detect(
             EVDetector(model, score_threshold=score_threshold, num_threads=None if workers == 1 else 1)
             for _ in range(max(1, workers))
         ]
-        return run_clip(
-            video,
-            out_dir,
-            audio=audio,
-            duty=duty,
-            stride=stride,
-            max_frames=max_frames,
-            write_video=write_video,
-            progress=progress,
-            rule=rule,
-            light_detector=light_detector,
-            light_colours=colours,
-            topic=topic,
-            mcap=mcap,
-            realtime=realtime,
-            ev_detectors=ev_detectors,
-        ).summary
+        return run_clip(video, out_dir, ev_detectors=ev_detectors, **common).summary
     if rule == "lights+crop" and classifier.strip().lower() == "none":
         raise ValueError("the lights+crop rule needs a classifier; use --rule lights without one")
     track_classifier = None
@@ -128,21 +127,10 @@ def detect(
     return run_clip(
         video,
         out_dir,
-        audio=audio,
-        duty=duty,
         detector=detector,
         model=model,
         score_threshold=score_threshold,
-        stride=stride,
-        max_frames=max_frames,
-        write_video=write_video,
         classifier=track_classifier,
-        progress=progress,
-        rule=rule,
-        light_detector=light_detector,
-        light_colours=colours,
-        topic=topic,
-        mcap=mcap,
-        realtime=realtime,
         detector_workers=detector_workers,
+        **common,
     ).summary
