@@ -111,6 +111,15 @@ def video_dir(data_root: Path) -> Path:
 
 
 @pytest.fixture(scope="session")
+def ambulance_dir(data_root: Path) -> Path:
+    """The ambulance YOLO photo folder (``images/``, ``labels/``)."""
+    root = data_root / "vision" / "ambulance_yolo" / "valid"
+    if not root.is_dir():
+        pytest.fail(f"{root} missing from the shared data")
+    return root
+
+
+@pytest.fixture(scope="session")
 def ev_crops(data_root: Path) -> CropSet:
     """The labelled ev_crops folder (1246 crops), read once per test session."""
     from makeway.sense.crops import read_crop_folder

@@ -135,11 +135,6 @@ def test_framework_b_scores_rank_by_product_and_operate_on_the_classifier() -> N
 # --------------------------------------------------------------------------------------------- split
 
 
-@pytest.fixture(scope="module")
-def ambulance_dir(data_root: Path) -> Path:
-    return data_root / "vision" / "ambulance_yolo" / "valid"
-
-
 def test_committed_held_out_file_follows_the_hash_rule(ambulance_dir: Path) -> None:
     names = sorted(p.name for p in (ambulance_dir / "images").iterdir())
     committed = read_holdout(HELD_OUT_FILE)

@@ -44,14 +44,6 @@ TRAIN_SIDE = [
 
 
 @pytest.fixture(scope="module")
-def ambulance_dir(data_root: Path) -> Path:
-    root = data_root / "vision" / "ambulance_yolo" / "valid"
-    if not root.is_dir():
-        pytest.fail(f"{root} missing from the shared data")
-    return root
-
-
-@pytest.fixture(scope="module")
 def yolox_path(data_root: Path) -> Path:
     path = data_root / "models" / "yolox_nano.onnx"
     if not path.is_file():
