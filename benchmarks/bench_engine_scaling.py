@@ -2,7 +2,8 @@
 Dask workers, per-task costs, scheduler overhead, and a projection for N workers.
 Target: 2 workers ≥ 1.8× the throughput of 1 worker.
 
-    PYTHONPATH=src .venv/bin/python benchmarks/bench_engine_scaling.py [--stride 2] [--json FILE]
+    PYTHONPATH=src .venv/bin/python benchmarks/bench_engine_scaling.py [--stride 2] [--workers 1,2]
+        [--json FILE]
 
 The job: the five shared road clips cut into 16 frame ranges of about equal length (one task each)
 plus 4 simulated 8-channel siren recordings (8 s, seeded) = 20 inputs, mined with the default crop
@@ -155,7 +156,15 @@ def main() -> None:
     ap.add_argument("--stride", type=int, default=2, help="process every N-th frame (default 2)")
     ap.add_argument("--classifier", default="default")
     ap.add_argument("--json", type=Path, default=None, help="also write the figures here")
+    ap.add_argument(
+        "--workers",
+        default="1,2",
+        help="worker counts to run, comma-separated; must include 1 and 2 (default 1,2)",
+    )
     args = ap.parse_args()
+    counts = sorted({int(w) for w in args.workers.split(",") if w.strip()})
+    if 1 not in counts or 2 not in counts or min(counts) < 1:
+        raise SystemExit(f"--workers must list 1 and 2 (and any more counts ≥ 1), not {args.workers!r}")
     data = data_dir()
     if data is None:
         raise SystemExit("shared data not found; set MAKEWAY_DATA")
@@ -167,7 +176,7 @@ def main() -> None:
         simulate_recordings(root / "recs", 4, duration_s=8.0, seed=11, split="test", progress=False)
         names, sizes = job_inputs(data, root / "recs")
         print(f"{len(names)} inputs: 16 clip frame ranges (stride {args.stride}) + 4 recordings of 8 s")
-        runs = {w: run_once(names, w, config, root / f"out{w}") for w in (1, 2)}
+        runs = {w: run_once(names, w, config, root / f"out{w}") for w in counts}
     one, two = runs[1], runs[2]
     for r in runs.values():
         print(
@@ -180,6 +189,9 @@ def main() -> None:
     speedup = two["throughput_inputs_per_s"] / one["throughput_inputs_per_s"]
     ok = "meets" if speedup >= TARGET_SPEEDUP else "misses"
     print(f"speed-up 2 vs 1 worker: {speedup:.2f}× (target ≥ {TARGET_SPEEDUP}×: {ok})")
+    for w in counts[2:]:
+        more = runs[w]["throughput_inputs_per_s"] / one["throughput_inputs_per_s"]
+        print(f"speed-up {w} vs 1 worker: {more:.2f}× (cores the tasks got: {runs[w]['cores_used']:.2f})")
     got = two["cores_used"] / one["cores_used"]
     print(
         f"cores the tasks got (CPU s / task-phase wall s): {one['cores_used']:.2f} with 1 worker, "

@@ -73,6 +73,18 @@ def test_stride_and_max_frames(night: Path) -> None:
         assert np.array_equal(frame, every[i][2]), f"strided frame {i} differs from the plain read"
 
 
+def test_one_decoder_thread_gives_the_same_frames(night: Path) -> None:
+    """A data-engine worker decodes on one thread; the frames must not change."""
+    with VideoReader(night, stride=2, max_frames=8) as reader:
+        plain = [f.copy() for _, _, f in reader]
+    with VideoReader(night, stride=2, max_frames=8, threads=1) as reader:
+        one = [f.copy() for _, _, f in reader]
+        again = [f.copy() for _, _, f in reader]  # a second pass reopens with the same setting
+    assert len(plain) == len(one) == len(again) == 8
+    for a, b, c in zip(plain, one, again, strict=True):
+        assert np.array_equal(a, b) and np.array_equal(a, c)
+
+
 def _take(reader: VideoReader, n: int) -> list[tuple[int, float, np.ndarray]]:
     out = []
     for i, t, f in reader:
@@ -97,7 +109,7 @@ def test_whole_clip_and_second_pass(video_dir: Path) -> None:
 
 
 def test_bad_arguments(night: Path) -> None:
-    for kwargs in ({"stride": 0}, {"stride": -2}, {"max_frames": 0}, {"max_frames": -1}):
+    for kwargs in ({"stride": 0}, {"stride": -2}, {"max_frames": 0}, {"max_frames": -1}, {"threads": 0}):
         with pytest.raises(ValueError):
             VideoReader(night, **kwargs)  # type: ignore[arg-type]
 
@@ -173,7 +185,7 @@ class _NoFpsCapture:
 
 @pytest.mark.parametrize("bad_fps", [0.0, math.nan, -1.0])
 def test_missing_fps_falls_back(video_dir: Path, monkeypatch: pytest.MonkeyPatch, bad_fps: float) -> None:
-    monkeypatch.setattr(video_mod, "_open_capture", lambda p: _NoFpsCapture(p, bad_fps))
+    monkeypatch.setattr(video_mod, "_open_capture", lambda p, threads=None: _NoFpsCapture(p, bad_fps))
     with VideoReader(video_dir / "traffic_no_ev.mp4", stride=5, max_frames=3) as reader:
         assert reader.info.fps == DEFAULT_FPS
         assert reader.info.fps_assumed

@@ -177,7 +177,8 @@ def mine_video(inp: EngineInput, config: MineConfig, folder: Path) -> list[dict[
     from makeway.sense.video import VideoReader
 
     limit = None if inp.end is None else -(-inp.end // config.stride)
-    with VideoReader(inp.path, stride=config.stride, max_frames=limit) as reader:
+    # One decoder thread, as the models run on one: a worker owns one core of the cluster.
+    with VideoReader(inp.path, stride=config.stride, max_frames=limit, threads=1) as reader:
         samples, processed = _mine_frames(inp, config, folder, reader, "crops")
     if processed == 0:
         raise InputError(inp.path, f"no frames in the range @{inp.start}:{inp.end or ''}")

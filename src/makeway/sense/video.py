@@ -50,7 +50,7 @@ class VideoInfo:
     fps_assumed: bool = False
 
 
-def _open_capture(path: Path) -> cv2.VideoCapture:
+def _open_capture(path: Path, threads: int | None = None) -> cv2.VideoCapture:
     # FFmpeg's own messages about damaged input ("moov atom not found", "Invalid NAL unit size" …)
     # would be printed around the one-line InputError; OpenCV reads this when it first opens a
     # file, and a user who wants them can set OPENCV_FFMPEG_LOGLEVEL (e.g. 16 = errors) themselves.
@@ -59,8 +59,9 @@ def _open_capture(path: Path) -> cv2.VideoCapture:
     # sequences or open devices. OpenCV's "can't be used to capture by name" warning is muted too.
     level = cv2.utils.logging.getLogLevel()
     cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)
+    params = [] if threads is None else [cv2.CAP_PROP_N_THREADS, int(threads)]
     try:
-        return cv2.VideoCapture(str(path), cv2.CAP_FFMPEG)
+        return cv2.VideoCapture(str(path), cv2.CAP_FFMPEG, params)
     finally:
         cv2.utils.logging.setLogLevel(level)
 
@@ -73,11 +74,14 @@ class VideoReader:
         stride: keep every ``stride``-th frame (source indices ``0, stride, 2·stride, …``); the
             frames in between are grabbed without colour conversion.
         max_frames: stop after yielding this many frames (``None``: read to the end).
+        threads: decoder threads (``None``: FFmpeg's default, one per core). A process that owns
+            one core — a data-engine worker — decodes on one thread, so that workers sharing a
+            machine do not compete for each other's cores.
 
     Raises:
         InputError: the path is missing, is a folder, cannot be opened as a video, or its first
             frame does not decode.
-        ValueError: ``stride < 1`` or ``max_frames < 1``.
+        ValueError: ``stride < 1``, ``max_frames < 1`` or ``threads < 1``.
 
     Attributes:
         info: the :class:`VideoInfo` of the file.
@@ -95,14 +99,24 @@ class VideoReader:
     second pass); two loops over one reader at the same time are not supported.
     """
 
-    def __init__(self, path: str | Path, *, stride: int = 1, max_frames: int | None = None) -> None:
+    def __init__(
+        self,
+        path: str | Path,
+        *,
+        stride: int = 1,
+        max_frames: int | None = None,
+        threads: int | None = None,
+    ) -> None:
         if isinstance(stride, bool) or not isinstance(stride, int) or stride < 1:
             raise ValueError(f"stride must be an integer >= 1, got {stride!r}")
         if max_frames is not None and (
             isinstance(max_frames, bool) or not isinstance(max_frames, int) or max_frames < 1
         ):
             raise ValueError(f"max_frames must be an integer >= 1 or None, got {max_frames!r}")
+        if threads is not None and (isinstance(threads, bool) or not isinstance(threads, int) or threads < 1):
+            raise ValueError(f"threads must be an integer >= 1 or None, got {threads!r}")
         self.path = Path(path)
+        self.threads = threads
         self.stride = stride
         self.max_frames = max_frames
         self.frames_read = 0
@@ -120,7 +134,7 @@ class VideoReader:
         if not self.path.is_file():
             raise InputError(self.path, "is not a regular file")
 
-        cap = _open_capture(self.path)
+        cap = _open_capture(self.path, threads)
         if not cap.isOpened():
             cap.release()
             raise InputError(self.path, "cannot be opened as a video (not a video file, or damaged)")
@@ -160,7 +174,7 @@ class VideoReader:
             # A later pass: the capture was used up, so open the file again from the start.
             if cap is not None:
                 cap.release()
-            cap = _open_capture(self.path)
+            cap = _open_capture(self.path, self.threads)
             self._cap = cap
             ok, first = cap.read() if cap.isOpened() else (False, None)
             if not ok:
