@@ -5,7 +5,8 @@ fleet records (:func:`makeway.sense.log_writer.make_test_log`): JPEG frames
 (``sensor_msgs/msg/CompressedImage`` in an MCAP file, ``foxglove.CompressedImage`` in a
 Foxglove-profile MCAP file, and in a ROS 2 bag folder with SQLite storage) and uncompressed
 ``bgr8`` frames (``sensor_msgs/msg/Image`` and ``foxglove.RawImage`` in MCAP, ``Image`` in a
-SQLite bag). MCAP chunks are
+SQLite bag), and H.264 frames as a camera's encoder streams them (``foxglove.CompressedVideo``, at
+the mp4's bit rate, no B-frames). MCAP chunks are
 zstd-compressed, as the ``mcap`` writer does by default; the raw ROS 2 frames also with lz4 and
 with uncompressed chunks (zstd decompression of 2.7 MB per 1280×720 frame is what raw frames
 cost). Each source is then read whole, the way ``makeway detect`` reads it (open, then every frame
@@ -55,6 +56,7 @@ SOURCES = (
     ("mcap-ros2", "raw", "none", "MCAP, ROS 2 Image (bgr8), plain chunks"),
     ("mcap-foxglove", "raw", "zstd", "MCAP, Foxglove RawImage (bgr8), zstd chunks"),
     ("ros2-bag", "raw", "none", "ROS 2 bag (SQLite), Image (bgr8)"),
+    ("mcap-foxglove", "video", "zstd", "MCAP, Foxglove CompressedVideo (H.264)"),
 )
 RAW_ZSTD = "MCAP, ROS 2 Image (bgr8), zstd chunks"
 GENERAL = "  the same, by mcap's own reader + mcap_ros2"
@@ -140,6 +142,14 @@ def _timed(read: Callable[[], int]) -> tuple[float, float, int]:
     return time.perf_counter() - w0, time.process_time() - c0, n
 
 
+def _codec(path: Path) -> str:
+    """The video stream's codec as FFmpeg names it (``h264``, ``mpeg4`` …)."""
+    import av
+
+    with av.open(str(path)) as container:
+        return str(container.streams.video[0].codec_context.name)
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument(
@@ -153,10 +163,11 @@ def main() -> int:
         print("shared data folder not found; set MAKEWAY_DATA", file=sys.stderr)
         return 2
     clip = root / "video" / args.clip
+    mp4_label = f"mp4 ({_codec(clip)})"
 
     with tempfile.TemporaryDirectory(prefix="bench_mcap.") as tmp:
         logs: dict[str, Path] = {}
-        sizes: dict[str, int] = {"mp4 (H.264)": clip.stat().st_size}
+        sizes: dict[str, int] = {mp4_label: clip.stat().st_size}
         for fmt, image, compression, label in SOURCES:
             out = Path(tmp) / (
                 f"{fmt}_{image}_{compression}" + ("" if fmt.startswith("ros2-bag") else ".mcap")
@@ -178,7 +189,7 @@ def main() -> int:
 
             return read
 
-        readers: dict[str, Callable[[], int]] = {"mp4 (H.264)": read_mp4}
+        readers: dict[str, Callable[[], int]] = {mp4_label: read_mp4}
         for label, path in logs.items():
             readers[label] = reader_of(path)
             if label == RAW_ZSTD:
@@ -213,8 +224,8 @@ def main() -> int:
             recorder.close()
             record_cpu.append(1000.0 * (time.process_time() - c0) / len(frames))
 
-    base_w = statistics.median(wall["mp4 (H.264)"])
-    base_c = statistics.median(cpu["mp4 (H.264)"])
+    base_w = statistics.median(wall[mp4_label])
+    base_c = statistics.median(cpu[mp4_label])
     print(f"{args.clip}: {args.frames} frames, {args.reps} reps; load average {os.getloadavg()} (2 cores)")
     print(f"{'source':46s} {'MB':>7s} {'wall ms/f':>9s} {'ratio':>6s} {'CPU ms/f':>9s} {'ratio':>6s}  target")
     rows = []

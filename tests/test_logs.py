@@ -839,3 +839,84 @@ def test_chunks_that_overlap_in_time_come_out_in_log_time_order(
         _both_paths(log, "/bgr", stride=2)
     for (_, _, got), k in zip(frames, np.argsort(logged), strict=True):
         np.testing.assert_array_equal(got, crops[k])
+
+
+# ------------------------------------------------------------------- H.264 video camera topics
+
+
+@pytest.fixture(scope="module")
+def video_log(clip: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """30 frames of the clip as foxglove.CompressedVideo (H.264, a keyframe every 25 frames)."""
+    out = tmp_path_factory.mktemp("video") / "video.mcap"
+    written = make_test_log(
+        out, video=clip, fmt="mcap-foxglove", image="video", max_frames=30, start_ns=START_NS
+    )
+    assert written["topics"] == {"/camera/image": 30}
+    return out
+
+
+def test_video_topic_decodes_to_the_clip_frames(video_log: Path, clip: Path) -> None:
+    with VideoReader(clip, max_frames=30) as reader:
+        want = [f.copy() for _, _, f in reader]
+    with open_log(video_log) as log:
+        assert log.topics()["/camera/image"].schema == "foxglove.CompressedVideo"
+        assert log.topics()["/camera/image"].kind == "camera"
+        frames = list(log.frames("/camera/image"))
+        strided = list(log.frames("/camera/image", stride=4, max_frames=5))
+    assert [i for i, _, _ in frames] == list(range(30))
+    assert [s for _, s, _ in frames] == [START_NS + k * 40_000_000 for k in range(30)]
+    for (_, _, got), frame in zip(frames, want, strict=True):
+        assert got.shape == frame.shape and got.dtype == np.uint8
+        assert cv2.PSNR(got, frame) > 30.0  # lossy at the mp4's own bit rate, but the same picture
+    # a strided read decodes every frame and hands out the same images as the full read
+    assert [i for i, _, _ in strided] == [0, 4, 8, 12, 16]
+    for i, _, got in strided:
+        np.testing.assert_array_equal(got, frames[i][2])
+
+
+def test_video_log_drives_detect_like_the_clip(video_log: Path, tmp_path: Path) -> None:
+    r = runner.invoke(app, ["detect", str(video_log), "-o", str(tmp_path / "out"), "--json", "--no-video"])
+    assert r.exit_code == 0, (r.output, r.exception)
+    summary = json.loads(r.stdout.strip().splitlines()[-1])
+    assert summary["frames"] == 30
+
+
+def test_video_topic_faults_are_one_line(clip: Path, tmp_path: Path) -> None:
+    from foxglove_schemas_protobuf.CompressedVideo_pb2 import CompressedVideo
+
+    from makeway.sense.log_writer import FoxgloveMcapWriter, H264MessageEncoder
+
+    with VideoReader(clip, max_frames=8) as reader:
+        images = [f.copy() for _, _, f in reader]
+    enc = H264MessageEncoder(images[0].shape[1], images[0].shape[0], 25.0, keyframe_s=100.0)
+    units = [u for im in images for u in enc.encode(im)] + enc.flush()
+    assert len(units) == len(images)
+
+    def write(path: Path, payloads: list[tuple[str, bytes]]) -> Path:
+        with FoxgloveMcapWriter(path) as w:
+            for k, (fmt, data) in enumerate(payloads):
+                msg = CompressedVideo(frame_id="cam", format=fmt, data=data)
+                msg.timestamp.FromNanoseconds(START_NS + k * 40_000_000)
+                w.write("/cam", START_NS + k * 40_000_000, msg)
+        return path
+
+    # a recording that starts inside a group of pictures: the frames before a keyframe are skipped
+    # and, with no keyframe at all, nothing decodes: one line
+    no_key = write(tmp_path / "nokey.mcap", [("h264", d) for _, d in units[1:]])
+    _one_error_line(runner.invoke(app, ["detect", str(no_key), "-o", str(tmp_path / "o1")]), "no keyframe")
+    # an unknown codec name: one line naming it
+    vp = write(tmp_path / "vp9.mcap", [("vp9", d) for _, d in units])
+    _one_error_line(runner.invoke(app, ["detect", str(vp), "-o", str(tmp_path / "o2")]), "vp9", "h264")
+    # the keyframe intact, a later frame replaced by garbage: damaged, on its message
+    bad = [("h264", d) for _, d in units]
+    bad[3] = ("h264", b"\x00\x00\x00\x01" + bytes(range(7, 250)))
+    with open_log(write(tmp_path / "bad.mcap", bad)) as log, pytest.raises(InputError, match="message 3"):
+        list(log.frames("/cam"))
+    for name in ("o1", "o2"):
+        assert not (tmp_path / name).exists()
+
+
+def test_video_is_foxglove_only(clip: Path, tmp_path: Path) -> None:
+    with pytest.raises(ValueError, match="mcap-foxglove"):
+        make_test_log(tmp_path / "x.mcap", video=clip, fmt="mcap-ros2", image="video")
+    assert not (tmp_path / "x.mcap").exists()

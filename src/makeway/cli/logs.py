@@ -70,7 +70,11 @@ def make_test(
         ),
     ] = "mcap-ros2",
     image: Annotated[
-        str, typer.Option(help="Camera messages: compressed (JPEG) or raw (uncompressed bgr8 pixels).")
+        str,
+        typer.Option(
+            help="Camera messages: compressed (JPEG), raw (uncompressed bgr8 pixels) or video "
+            "(H.264 frames, --format mcap-foxglove only)."
+        ),
     ] = "compressed",
     max_frames: Annotated[int, typer.Option(min=1, help="At most this many camera frames.")] = 50,
     stride: Annotated[int, typer.Option(min=1, help="Keep every N-th video frame.")] = 1,

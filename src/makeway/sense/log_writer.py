@@ -26,6 +26,7 @@ import os
 import shutil
 import tempfile
 from collections.abc import Iterator
+from fractions import Fraction
 from pathlib import Path
 from types import TracebackType
 from typing import Any
@@ -39,9 +40,11 @@ from makeway.errors import InputError
 from makeway.sense.logs import ARRAY_SUFFIX, ROS_RAW_AUDIO_MSGDEF
 
 __all__ = [
+    "CAMERA_IMAGES",
     "CHUNK_COMPRESSIONS",
     "LOG_FORMATS",
     "FoxgloveMcapWriter",
+    "H264MessageEncoder",
     "Ros2LogWriter",
     "make_test_log",
 ]
@@ -49,6 +52,9 @@ __all__ = [
 #: The kinds of log :func:`make_test_log` writes: a ROS 2 MCAP file, a Foxglove-schema MCAP file,
 #: a ROS 2 bag folder with SQLite storage (ROS 2 Humble's default), one with MCAP storage (Jazzy's).
 LOG_FORMATS = ("mcap-ros2", "mcap-foxglove", "ros2-bag", "ros2-bag-mcap")
+
+#: What a camera message holds: a JPEG image, raw ``bgr8`` pixels, or one frame of an H.264 stream.
+CAMERA_IMAGES = ("compressed", "raw", "video")
 
 #: MCAP chunk compressions (the ``mcap`` writer's default is zstd).
 CHUNK_COMPRESSIONS = ("zstd", "lz4", "none")
@@ -364,7 +370,9 @@ def make_test_log(
 
     ``fmt`` is one of :data:`LOG_FORMATS`. The camera topic holds ``sensor_msgs/msg/CompressedImage``
     (JPEG, ``image="compressed"``) or ``sensor_msgs/msg/Image`` (``bgr8``, ``image="raw"``) in ROS 2
-    logs, ``foxglove.CompressedImage`` or ``foxglove.RawImage`` in Foxglove MCAP files. The audio
+    logs, ``foxglove.CompressedImage`` or ``foxglove.RawImage`` in Foxglove MCAP files, and in
+    Foxglove MCAP files also ``foxglove.CompressedVideo`` (``image="video"``: H.264 as a camera's
+    encoder streams it, :class:`H264MessageEncoder`, at the source video's bit rate). The audio
     goes out in ``audio_block_s`` blocks of interleaved ``pcm-s16`` (``makeway_msgs/msg/RawAudio`` or
     ``foxglove.RawAudio``) with the array description on ``<audio_topic>/array``; the ego path as
     ``nav_msgs/msg/Odometry`` or ``foxglove.PoseInFrame`` at its logged rate. Times are
@@ -383,8 +391,10 @@ def make_test_log(
         raise ValueError(
             f"unknown chunk compression {compression!r}; choose from: {', '.join(CHUNK_COMPRESSIONS)}"
         )
-    if image not in ("compressed", "raw"):
-        raise ValueError(f"image must be 'compressed' or 'raw', got {image!r}")
+    if image not in CAMERA_IMAGES:
+        raise ValueError(f"image must be one of {', '.join(CAMERA_IMAGES)}, got {image!r}")
+    if image == "video" and fmt != "mcap-foxglove":
+        raise ValueError("image='video' (foxglove.CompressedVideo) is written to mcap-foxglove logs only")
     if video is None and recording is None:
         raise ValueError("give a video, a recording, or both")
     target = Path(out)
@@ -428,6 +438,9 @@ def _write_camera(
     quality: int,
     start_ns: int,
 ) -> int:
+    if image == "video":
+        assert isinstance(writer, FoxgloveMcapWriter)
+        return _write_video(writer, video, topic, max_frames, stride, start_ns)
     n = 0
     if isinstance(writer, Ros2LogWriter):
         writer.channel(
@@ -468,6 +481,115 @@ def _write_camera(
             pmsg.timestamp.FromNanoseconds(stamp)
             writer.write(topic, stamp, pmsg)
         n += 1
+    return n
+
+
+class H264MessageEncoder:
+    """Encode BGR frames into H.264 access units, one per frame, as ``foxglove.CompressedVideo``
+    wants them: Annex B byte stream, no B-frames (each message decodes to exactly its own frame, in
+    order), the sequence and picture parameter sets repeated on every keyframe (a reader can start
+    at any keyframe), a keyframe every ``keyframe_s`` seconds.
+
+    Args:
+        width, height: frame size in pixels (odd sizes are padded to even by replication).
+        fps: frame rate (frames/s), for the rate control and the keyframe interval.
+        bit_rate: target bit rate (bit/s); ``None``: constant quality (x264 CRF 23).
+        keyframe_s: seconds between keyframes.
+    """
+
+    def __init__(
+        self, width: int, height: int, fps: float, *, bit_rate: int | None = None, keyframe_s: float = 1.0
+    ) -> None:
+        import av
+
+        from makeway.viz.video_writer import pick_h264_encoder
+
+        self.width, self.height = int(width), int(height)
+        self._pad = (self.height % 2, self.width % 2)
+        ctx: Any = av.CodecContext.create(pick_h264_encoder(), "w")
+        ctx.width = self.width + self._pad[1]
+        ctx.height = self.height + self._pad[0]
+        ctx.pix_fmt = "yuv420p"
+        rate = max(1, round(float(fps)))
+        ctx.time_base = Fraction(1, rate)
+        ctx.framerate = Fraction(rate, 1)
+        ctx.thread_count = 1
+        keyint = max(1, round(keyframe_s * float(fps)))
+        if ctx.name == "libx264":
+            options = {"preset": "veryfast", "tune": "zerolatency"}
+            options["x264-params"] = f"bframes=0:keyint={keyint}:min-keyint={keyint}:repeat-headers=1"
+            if bit_rate is None:
+                options["crf"] = "23"
+            ctx.options = options
+        ctx.gop_size = keyint
+        ctx.max_b_frames = 0
+        if bit_rate is not None or ctx.name != "libx264":
+            ctx.bit_rate = int(bit_rate or 0.1 * ctx.width * ctx.height * float(fps))
+        ctx.open()
+        self._ctx = ctx
+        self._pts = 0
+
+    def encode(self, frame_bgr: np.ndarray) -> list[tuple[int, bytes]]:
+        """Encode one frame; returns the finished access units as ``(frame_number, bytes)`` (one
+        per frame with the zero-latency settings; none where an encoder holds frames back)."""
+        import av
+
+        if frame_bgr.shape != (self.height, self.width, 3) or frame_bgr.dtype != np.uint8:
+            raise ValueError(f"frame must be uint8 {(self.height, self.width, 3)}, got {frame_bgr.shape}")
+        if any(self._pad):
+            frame_bgr = cv2.copyMakeBorder(frame_bgr, 0, self._pad[0], 0, self._pad[1], cv2.BORDER_REPLICATE)
+        i420 = np.ascontiguousarray(cv2.cvtColor(frame_bgr, cv2.COLOR_BGR2YUV_I420), dtype=np.uint8)
+        frame = av.VideoFrame.from_ndarray(i420, format="yuv420p")
+        frame.pts = self._pts
+        self._pts += 1
+        return [(int(p.pts), bytes(p)) for p in self._ctx.encode(frame)]
+
+    def flush(self) -> list[tuple[int, bytes]]:
+        """The access units still held by the encoder."""
+        return [(int(p.pts), bytes(p)) for p in self._ctx.encode(None)]
+
+
+def _write_video(
+    writer: FoxgloveMcapWriter,
+    video: Path,
+    topic: str,
+    max_frames: int | None,
+    stride: int,
+    start_ns: int,
+) -> int:
+    """The frames of ``video`` as ``foxglove.CompressedVideo`` messages (H.264) at the source's bit
+    rate (where the container states it)."""
+    import av
+    from foxglove_schemas_protobuf.CompressedVideo_pb2 import CompressedVideo
+
+    from makeway.sense.video import probe_video
+
+    info = probe_video(video)
+    bit_rate = None
+    with contextlib.suppress(Exception), av.open(str(video)) as container:
+        bit_rate = int(container.streams.video[0].bit_rate or 0) or None
+    encoder: H264MessageEncoder | None = None
+    stamps: dict[int, int] = {}
+    n = 0
+
+    def emit(units: list[tuple[int, bytes]]) -> None:
+        nonlocal n
+        for pts, data in units:
+            stamp = stamps.pop(pts)
+            msg = CompressedVideo(frame_id="camera", format="h264", data=data)
+            msg.timestamp.FromNanoseconds(stamp)
+            writer.write(topic, stamp, msg)
+            n += 1
+
+    for k, (t_s, frame) in enumerate(_video_frames(video, max_frames, stride)):
+        if encoder is None:
+            encoder = H264MessageEncoder(
+                frame.shape[1], frame.shape[0], info.fps / stride, bit_rate=bit_rate and bit_rate // stride
+            )
+        stamps[k] = start_ns + int(round(t_s * 1e9))
+        emit(encoder.encode(frame))
+    if encoder is not None:
+        emit(encoder.flush())
     return n
 
 
