@@ -207,9 +207,10 @@ def test_fuzz_road_points(work: Path) -> None:
 def test_fuzz_roadside_pixels(work: Path) -> None:
     seed = "u,v\n640,360\n100.5,700\n# a comment\n1279,0\n"
     boxes = "x1,y1,x2,y2\n10,20,110,220\n500,300,560,400\n"
+    labelled = "x1,y1,x2,y2,class\n10,20,110,220,car\n500,300,560,400,truck\n"
 
     @budget()
-    @given(data=file_contents(seed) | file_contents(boxes))
+    @given(data=file_contents(seed) | file_contents(boxes) | file_contents(labelled))
     def run(data: bytes) -> None:
         path = _write(work / "pixels", "pixels.csv", data)
         got = check_reader("roadside pixels CSV", lambda: read_pixel_rows(path), inside=path)

@@ -20,6 +20,7 @@ from makeway.roadside.simulated import SIM_ORIGIN, sim_observations, sim_pairs, 
 from makeway.roadside.transform import (
     box_ground_pixel,
     read_transform_calibration,
+    typical_length_m,
     write_transform_calibration,
 )
 from makeway.sim.traffic import TrafficConfig
@@ -176,3 +177,52 @@ def test_cli_fit_and_locate_both_methods(tmp_path: Path) -> None:
         assert math.hypot(row["x_m"] + 1.75, row["y_m"] - 60.0) < tol, row
         lat, lon, _ = SIM_ORIGIN.to_geodetic([row["x_m"], row["y_m"]])
         assert row["lat"] == pytest.approx(float(lat), abs=1e-9) and row["lon"] == pytest.approx(float(lon))
+
+
+def test_class_length_places_long_vehicles_at_their_centre(tmp_path: Path) -> None:
+    """Trucks and buses are longer than the probe car: their centre lies farther beyond the box's
+    bottom edge. Their typical length moves both methods' points there (truth: footprint centres)."""
+    from makeway.sim.traffic import EV_KINDS, VEHICLE_KINDS
+
+    pixels, xy = sim_pairs()
+    ref = LocationReference(pixels, xy, SIM_ORIGIN)
+    cam = sim_road_camera()
+    obs = sim_observations(TrafficConfig(seed=2))
+    long_ = obs.select(np.isin(obs.kind, ["truck", "bus"]))
+    labels = [(VEHICLE_KINDS.get(k) or EV_KINDS[k]).label for k in long_.kind]
+    length = typical_length_m(labels)
+    assert set(length) == {8.0, 12.0}
+    px = box_ground_pixel(long_.boxes)
+    inside = ref.inside(px)
+
+    def median(est: np.ndarray, mask: np.ndarray | None = None) -> float:
+        err = np.linalg.norm(est - long_.truth_xy, axis=1)
+        return float(np.median(err if mask is None else err[mask]))
+
+    assert median(ref.locate(px, length), inside) < 0.6 * median(ref.locate(px), inside)
+    assert median(cam.locate(px, 0.5 * length)) < 0.5 * median(cam.locate(px, 2.25))
+    # a vehicle the probe car's length is not moved; unknown classes count as cars
+    np.testing.assert_allclose(ref.locate(px, ref.probe_length_m), ref.locate(px), atol=1e-12)
+    assert typical_length_m(["bicycle", "car"]).tolist() == [4.5, 4.5]
+    # the probe length travels with the saved reference
+    path = tmp_path / "ref.npz"
+    LocationReference(pixels, xy, SIM_ORIGIN, probe_length_m=4.0).save(path)
+    from makeway.roadside.reference import load_reference
+
+    assert load_reference(path).probe_length_m == 4.0
+
+
+def test_cli_locate_reads_a_class_column(tmp_path: Path) -> None:
+    boxes = tmp_path / "boxes.csv"
+    boxes.write_text("x1,y1,x2,y2,class\n600,300,700,380,Truck\n600,300,700,380,car\n")
+    res = runner.invoke(app, ["roadside", "locate", str(_yaml(tmp_path)), "--pixels", str(boxes)])
+    assert res.exit_code == 0, res.output
+    truck, car = (json.loads(line) for line in res.output.splitlines())
+    assert (truck["class"], truck["length_m"], car["length_m"]) == ("truck", 8.0, 4.5)
+    # same box: the truck's centre is (8 − 4.5)/2 m farther from the camera
+    gap = math.hypot(truck["x_m"] - car["x_m"], truck["y_m"] - car["y_m"])
+    assert gap == pytest.approx(1.75, abs=1e-6)
+    bad = tmp_path / "bad.csv"
+    bad.write_text("600,300,700,380,truck\n600,300,700,380\n")
+    res = runner.invoke(app, ["roadside", "locate", str(_yaml(tmp_path)), "--pixels", str(bad)])
+    assert res.exit_code == 2 and "line 2" in res.stderr

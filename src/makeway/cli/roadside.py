@@ -60,6 +60,15 @@ def fit_reference(
     smoothing: Annotated[
         float, typer.Option(min=0.0, help="Spline smoothing (0: through every pair).")
     ] = 1e-3,
+    probe_length_m: Annotated[
+        float,
+        typer.Option(
+            "--probe-length-m",
+            min=0.5,
+            help="Length of the car that drove the pairs (m); other vehicles' centres are placed by "
+            "their class's typical length.",
+        ),
+    ] = 4.5,
 ) -> None:
     """Fit a location reference to pixel ↔ GNSS pairs.
 
@@ -71,7 +80,7 @@ def fit_reference(
     """
     from makeway.roadside.locate import fit_reference as run
 
-    print_json_line(run(pairs, out, folds=folds, smoothing=smoothing))
+    print_json_line(run(pairs, out, folds=folds, smoothing=smoothing, probe_length_m=probe_length_m))
 
 
 @roadside_app.command()
@@ -81,7 +90,12 @@ def locate(
         Path, typer.Argument(help="A transformation calibration (.yaml) or a location reference (.npz).")
     ],
     pixels: Annotated[
-        Path, typer.Option("--pixels", help="CSV of pixels u,v or boxes x1,y1,x2,y2 (header optional).")
+        Path,
+        typer.Option(
+            "--pixels",
+            help="CSV of pixels u,v, boxes x1,y1,x2,y2, or boxes with their detector class "
+            "x1,y1,x2,y2,class (car, truck, bus, motorcycle); header optional.",
+        ),
     ],
     behind_m: Annotated[
         float,
@@ -94,7 +108,8 @@ def locate(
 ) -> None:
     """Road positions of pixels or boxes.
 
-    A box is located by its bottom centre, the point where it meets the road.
+    A box is located by its bottom centre, the point where it meets the road. With a class column,
+    each box is placed at the vehicle's centre, half its class's typical length beyond its near face.
 
     Prints one JSON line per row: u, v, x_m, y_m (metres east and north of the origin; null when the
     pixel looks above the horizon), lat and lon when the origin is known, and for a reference whether

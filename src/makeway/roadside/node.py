@@ -4,12 +4,13 @@ Each frame's :class:`~makeway.messages.PerceptionFrame` (Framework B: boxes, tra
 per-track EV state the pipeline reports, whichever rule flagged it) goes to :meth:`RoadsideNode.update`.
 Every track's box is located on the road by its ground-contact point (bottom centre,
 :func:`~makeway.roadside.transform.box_ground_pixel`) through the calibrated
-:class:`~makeway.roadside.transform.RoadCamera`, pushed ``behind_m`` farther along the viewing
-direction to aim at the footprint's centre, and filtered by a constant-velocity Kalman filter in the
-road frame (state ``x, y, v_x, v_y``: metres, m/s; :func:`makeway.fuse.kalman.cv_predict`). The
-measurement noise comes from the pixel noise of the contact point (``contact_sigma`` × box height,
-pixels) carried through the camera: the road-plane Jacobian of the pixel, so far vehicles, where a
-pixel spans metres, weigh less.
+:class:`~makeway.roadside.transform.RoadCamera`, pushed farther along the viewing direction to aim
+at the footprint's centre — half the typical length of the track's detector class
+(:func:`~makeway.roadside.transform.typical_length_m`), or a fixed ``behind_m`` — and filtered by a
+constant-velocity Kalman filter in the road frame (state ``x, y, v_x, v_y``: metres, m/s;
+:func:`makeway.fuse.kalman.cv_predict`). The measurement noise comes from the pixel noise of the
+contact point (``contact_sigma`` × box height, pixels) carried through the camera: the road-plane
+Jacobian of the pixel, so far vehicles, where a pixel spans metres, weigh less.
 
 :meth:`RoadsideNode.due_alerts` is called with the video time; on each tick of the alert clock
 (``rate_hz``) it returns one :class:`EVReport` per track the pipeline currently flags as an active EV
@@ -30,7 +31,7 @@ import numpy as np
 
 from makeway.fuse.kalman import cv_predict
 from makeway.messages import PerceptionFrame
-from makeway.roadside.transform import RoadCamera, box_ground_pixel
+from makeway.roadside.transform import RoadCamera, box_ground_pixel, typical_length_m
 from makeway.v2x.message import Alert
 from makeway.v2x.security import Identity, sign_alert
 
@@ -40,8 +41,6 @@ __all__ = ["EVReport", "RoadFilter", "RoadsideNode", "sign_report"]
 ACCEL_NOISE_MPS2 = 3.0
 #: Pixel noise of a box's ground-contact point, as a fraction of the box height.
 CONTACT_SIGMA = 0.05
-#: Half a typical vehicle length (m): moves the near-face road point to the footprint's centre.
-HALF_VEHICLE_M = 2.25
 #: Tracks not updated for this long (s) are dropped.
 STALE_S = 1.0
 
@@ -107,7 +106,8 @@ class RoadsideNode:
     Args:
         camera: the calibrated camera (its ``origin`` gives WGS-84; without one, lat/lon are None).
         rate_hz: alert rate while an EV is active.
-        behind_m: metres pushed beyond the near-face road point (default half a vehicle length).
+        behind_m: metres pushed beyond the near-face road point; ``None`` (default): half the
+            typical length of each track's detector class.
         min_updates: located boxes a track needs before it is reported.
         max_range_m: boxes located farther than this from the pole's foot (m) are ignored: beyond
             the calibrated area a pixel spans many metres.
@@ -118,7 +118,7 @@ class RoadsideNode:
         camera: RoadCamera,
         *,
         rate_hz: float = 10.0,
-        behind_m: float = HALF_VEHICLE_M,
+        behind_m: float | None = None,
         min_updates: int = 3,
         max_range_m: float = 150.0,
     ) -> None:
@@ -133,13 +133,14 @@ class RoadsideNode:
         self.active: set[int] = set()
         self._next_tick: float | None = None
 
-    def _measure(self, box: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
-        """A box ``x1, y1, x2, y2`` (pixels) → its road point and that point's covariance (m²), or
-        None off the road or beyond ``max_range_m``."""
+    def _measure(self, box: np.ndarray, label: str) -> tuple[np.ndarray, np.ndarray] | None:
+        """A box ``x1, y1, x2, y2`` (pixels) of a vehicle of detector class ``label`` → its road
+        point and that point's covariance (m²), or None off the road or beyond ``max_range_m``."""
         px = box_ground_pixel(box)
         sigma = max(1.0, CONTACT_SIGMA * float(box[3] - box[1]))
         nudged = px + np.array([[0.0, 0.0], [sigma, 0.0], [0.0, sigma]])
-        pts = self.camera.locate(nudged, behind_m=self.behind_m)
+        behind = 0.5 * float(typical_length_m(label)) if self.behind_m is None else self.behind_m
+        pts = self.camera.locate(nudged, behind_m=behind)
         if not np.isfinite(pts).all():
             return None
         if np.linalg.norm(pts[0] - self.camera.position_m[:2]) > self.max_range_m:
@@ -151,7 +152,7 @@ class RoadsideNode:
         """Take one frame's tracks and EV states."""
         t = frame.time_s
         for track in frame.tracks:
-            m = self._measure(track.box.as_array())
+            m = self._measure(track.box.as_array(), track.label)
             if m is None:
                 continue
             f = self.filters.get(track.track_id)

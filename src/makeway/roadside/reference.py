@@ -8,7 +8,10 @@ frame (:class:`~makeway.roadside.geodesy.LocalFrame`: ENU metres at the referenc
 interpolated with scipy's :class:`~scipy.interpolate.RBFInterpolator`: thin-plate spline kernel, a
 linear polynomial tail, and a little smoothing (the pairs are noisy). Pixels enter in units of
 100 px. Because the GNSS antenna reports the car's own position, the map learns the offset from the
-box's bottom edge to a car's centre as well — for vehicles the size of the probe car.
+box's bottom edge to a car's centre as well — for vehicles the size of the probe car. A vehicle of
+another length ``L`` (e.g. :func:`~makeway.roadside.transform.typical_length_m` of its detector
+class) is moved ``(L − probe_length_m)/2`` farther along the road as the image sees it: the
+direction the map takes a pixel when it moves up the image (:meth:`LocationReference.locate`).
 
 No camera model is needed, but the map is only good inside the region the drive covered:
 :meth:`LocationReference.inside` says whether a pixel lies in the convex hull of the pairs' pixels.
@@ -43,6 +46,7 @@ from makeway.errors import InputError
 from makeway.roadside.geodesy import LocalFrame
 
 __all__ = [
+    "DEFAULT_PROBE_LENGTH_M",
     "MIN_PAIRS",
     "LocationReference",
     "Pairs",
@@ -57,6 +61,10 @@ __all__ = [
 MIN_PAIRS = 10
 #: Pixels are divided by this before the spline (so ``smoothing`` is in sensible units).
 PIXEL_SCALE = 100.0
+#: Default length (m) of the calibration drive's probe car: a mid-size car.
+DEFAULT_PROBE_LENGTH_M = 4.5
+#: Pixels up the image over which :meth:`LocationReference.locate` reads the road direction.
+_UP_PX = 4.0
 #: Default smoothing of the spline (scipy's ``smoothing``; 0 interpolates every pair exactly).
 DEFAULT_SMOOTHING = 1e-3
 _COLLINEAR = 1e-3  # smallest/largest singular value of the centred points below which they are on a line
@@ -168,12 +176,14 @@ def write_pairs(path: str | Path, pixels: Any, xy: Any, origin: LocalFrame) -> N
 @dataclass
 class LocationReference:
     """The thin-plate-spline map pixel → road frame fitted to ``pixels`` ``(n, 2)`` and ``xy``
-    ``(n, 2)`` metres; ``origin`` is the road frame's WGS-84 origin."""
+    ``(n, 2)`` metres; ``origin`` is the road frame's WGS-84 origin; ``probe_length_m`` the length
+    of the calibration drive's car (m), whose centre the pairs' positions are."""
 
     pixels: np.ndarray
     xy: np.ndarray
     origin: LocalFrame
     smoothing: float = DEFAULT_SMOOTHING
+    probe_length_m: float = DEFAULT_PROBE_LENGTH_M
     _rbf: RBFInterpolator = field(init=False, repr=False)
     _hull: Delaunay = field(init=False, repr=False)
 
@@ -183,11 +193,23 @@ class LocationReference:
         self._rbf = _fit(self.pixels, self.xy, self.smoothing)
         self._hull = Delaunay(self.pixels)
 
-    def locate(self, pixels: Any) -> np.ndarray:
-        """Pixels ``(..., 2)`` → road points ``(..., 2)`` (``x`` east, ``y`` north, metres)."""
+    def locate(self, pixels: Any, length_m: Any = None) -> np.ndarray:
+        """Pixels ``(..., 2)`` → road points ``(..., 2)`` (``x`` east, ``y`` north, metres).
+
+        ``length_m`` (metres, scalar or one per pixel): the length of the vehicle whose box's bottom
+        centre each pixel is; its centre is then ``(length_m − probe_length_m)/2`` farther along the
+        direction the map moves as the pixel moves :data:`_UP_PX` up the image (away from the
+        camera, along the road as it is seen). ``None``: vehicles the probe car's size."""
         px = np.asarray(pixels, np.float64)
         flat = px.reshape(-1, 2)
-        return self._rbf(flat / PIXEL_SCALE).reshape(px.shape)
+        xy = self._rbf(flat / PIXEL_SCALE)
+        if length_m is not None:
+            extra = 0.5 * (np.broadcast_to(np.asarray(length_m, np.float64), px.shape[:-1]).reshape(-1)
+                           - self.probe_length_m)  # fmt: skip
+            away = self._rbf((flat - [0.0, _UP_PX]) / PIXEL_SCALE) - xy
+            norm = np.linalg.norm(away, axis=1, keepdims=True)
+            xy = xy + extra[:, None] * np.divide(away, norm, out=np.zeros_like(away), where=norm > 0)
+        return xy.reshape(px.shape)
 
     def inside(self, pixels: Any) -> np.ndarray:
         """Whether each pixel ``(..., 2)`` lies inside the convex hull of the pairs' pixels."""
@@ -205,6 +227,7 @@ class LocationReference:
             xy=self.xy,
             origin=np.array([o.lat0_deg, o.lon0_deg, o.h0_m]),
             smoothing=np.array(self.smoothing),
+            probe_length_m=np.array(self.probe_length_m),
             **arrays,
         )
 
@@ -223,23 +246,26 @@ def load_reference(path: str | Path) -> LocationReference:
     try:
         with np.load(path, allow_pickle=False) as z:
             pixels, xy, origin, smoothing = (z[k] for k in ("pixels", "xy", "origin", "smoothing"))
+            probe = z["probe_length_m"] if "probe_length_m" in z.files else np.array(DEFAULT_PROBE_LENGTH_M)
     except Exception as exc:  # zipfile, numpy and the OS raise several types on a damaged file
         raise InputError(
             path, f"is not a location reference from 'fit-reference' ({type(exc).__name__}: {exc})"
         ) from None
-    if any(a.dtype.kind not in "fiu" for a in (pixels, xy, origin, smoothing)):
+    if any(a.dtype.kind not in "fiu" for a in (pixels, xy, origin, smoothing, probe)):
         raise InputError(path, "is not a location reference: its arrays must hold numbers")
     if pixels.ndim != 2 or pixels.shape[1:] != (2,) or xy.shape != pixels.shape or origin.shape != (3,):
         raise InputError(path, "is not a location reference: pixels/xy must be (n, 2), origin 3 numbers")
     if smoothing.shape != () or not (np.isfinite(smoothing) and smoothing >= 0):
         raise InputError(path, "is not a location reference: smoothing must be one number >= 0")
+    if probe.shape != () or not (np.isfinite(probe) and probe > 0):
+        raise InputError(path, "is not a location reference: probe_length_m must be one number > 0")
     check_pairs(pixels, xy, path)
     try:
         frame = LocalFrame(*(float(v) for v in origin))
     except ValueError as exc:
         raise InputError(path, str(exc)) from None
     try:
-        ref = LocationReference(pixels, xy, frame, float(smoothing))
+        ref = LocationReference(pixels, xy, frame, float(smoothing), float(probe))
         finite = bool(np.isfinite(ref.locate(pixels)).all())
     except (ValueError, RuntimeError) as exc:  # a singular fit (LinAlgError), a degenerate hull (Qhull)
         raise InputError(path, f"its pairs make no map ({type(exc).__name__})") from None

@@ -60,16 +60,36 @@ from makeway.sense.fields import (
 )
 
 __all__ = [
+    "DEFAULT_LENGTH_M",
     "ORTHONORMAL_TOLERANCE",
+    "TYPICAL_LENGTH_M",
     "RoadCamera",
     "box_ground_pixel",
     "read_transform_calibration",
+    "typical_length_m",
     "write_transform_calibration",
 ]
 
 #: Largest ``|RᵀR − I|`` entry a calibration's rotation may have.
 _REQUIRED = ("model", "width", "height", "fx", "fy", "cx", "cy", "rotation", "position_m")
 _KNOWN = {*_REQUIRED, "k", "origin"}
+
+
+#: Typical length (m) of a vehicle by the class a COCO detector gives it: a mid-size car (EU new cars
+#: average about 4.4–4.6 m), a motorcycle (2.0–2.3 m), a two-axle city bus (12 m, the EU limit for a
+#: rigid two-axle bus), a rigid delivery truck (7–10 m). A box's bottom edge is the vehicle's near
+#: face; its centre lies half a length farther along the road.
+TYPICAL_LENGTH_M: dict[str, float] = {"car": 4.5, "motorcycle": 2.2, "bus": 12.0, "truck": 8.0}
+#: Length (m) assumed for a class not in :data:`TYPICAL_LENGTH_M` (a car's).
+DEFAULT_LENGTH_M = 4.5
+
+
+def typical_length_m(labels: Any) -> np.ndarray:
+    """The :data:`TYPICAL_LENGTH_M` of each detector class label (``str`` or a sequence of them),
+    :data:`DEFAULT_LENGTH_M` for other labels; metres, shaped like ``labels``."""
+    arr = np.asarray(labels, dtype=object)
+    out = np.array([TYPICAL_LENGTH_M.get(str(v), DEFAULT_LENGTH_M) for v in arr.reshape(-1)], np.float64)
+    return out.reshape(arr.shape)
 
 
 def box_ground_pixel(boxes: Any, point: str = "bottom_centre") -> np.ndarray:
