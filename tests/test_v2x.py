@@ -515,3 +515,37 @@ def test_belief_holds_through_ten_percent_packet_loss(keys: dict) -> None:
     assert lapses_held == 0
     leading = next(k for k, d in enumerate(drop) if not d) > 0  # drops before the first delivered alert
     assert lapses_control == runs - leading
+
+
+def test_replay_cache_is_a_window_per_signer(tmp_path: Path) -> None:
+    """Each signer's accepted sequences in a sliding window: duplicates and out-of-window
+    sequences count as seen, late arrivals inside the window are accepted once, idle signers are
+    forgotten, and the size does not grow with the number of alerts."""
+    from makeway.v2x.security import REPLAY_WINDOW, ReplayCache
+
+    a, b = b"\x01" * 8, b"\x02" * 8
+    cache = ReplayCache()
+    for q in range(0, 50_000, 1):  # 50,000 alerts of one unit (83 min at 10 Hz), and a second unit
+        cache.add(a, q, 1_000 + q * 100)
+    cache.add(b, 7, 5_000_000)
+    assert cache.signers == 2 and len(cache) == REPLAY_WINDOW + 1
+    assert cache.seen(a, 49_999) and cache.seen(a, 49_999 - REPLAY_WINDOW + 1)
+    assert cache.seen(a, 49_999 - REPLAY_WINDOW)  # too far behind to tell: a replay
+    assert not cache.seen(a, 50_000) and not cache.seen(b, 8) and not cache.seen(b"\x03" * 8, 0)
+    # a late alert inside the window: new once, seen after
+    cache.add(a, 50_010, 6_001_000)
+    assert not cache.seen(a, 50_005)
+    cache.add(a, 50_005, 6_000_500)
+    assert cache.seen(a, 50_005) and not cache.seen(a, 50_006)
+    # save and load keep exactly the remembered pairs
+    path = tmp_path / "replay.json"
+    cache.save(path)
+    again = ReplayCache.load(path)
+    assert len(again) == len(cache) and again.signers == 2
+    for q in (50_010, 50_005, 49_999, 50_006, 50_011):
+        assert again.seen(a, q) == cache.seen(a, q)
+    # a signer whose newest alert is stale is forgotten: a unit that restarted its count is heard
+    cache.prune(oldest_ms=5_500_000)
+    assert cache.signers == 1 and not cache.seen(b, 7)
+    cache.prune(oldest_ms=7_000_000)
+    assert cache.signers == 0 and not cache.seen(a, 0)

@@ -66,6 +66,9 @@ SIGNED_SIZE = ALERT_SIZE + 8 + 64
 DEFAULT_MAX_AGE_S = 10.0
 """Freshness window (s): older alerts are stale. Alerts repeat at 10 Hz, so a car never needs an
 old one; the window also bounds how long the replay cache remembers a sequence number."""
+REPLAY_WINDOW = 1024
+"""Sequences per signer below its newest that the replay cache tells apart (:class:`ReplayCache`)."""
+_WINDOW_MASK = (1 << REPLAY_WINDOW) - 1
 DEFAULT_MAX_FUTURE_S = 1.0
 """Clock-skew allowance (s): an alert generated further ahead of the car's clock is rejected."""
 
@@ -321,23 +324,59 @@ def revoke(trust_dir: str | Path, cert_path: str | Path) -> str:
 
 # ---------------------------------------------------------------------------------------- replay
 class ReplayCache:
-    """Signer and sequence pairs accepted within the freshness window, with their generation time."""
+    """The sequences each signer has had accepted, for replay detection.
+
+    Sequences increase by one per alert of a station (:mod:`makeway.v2x.message`), so per signer the
+    cache keeps the newest accepted sequence, a bit for each of the :data:`REPLAY_WINDOW` sequences
+    below it (set: accepted), and the newest generation time (ms) — the sliding window of IPsec's
+    and DTLS's anti-replay checks. Its size is a few hundred bytes per signer, whatever the alert
+    rate (a set of every accepted pair within the freshness window grows with the rate: at ten
+    times the usual load the listener's memory grew 8 %). A sequence more than the window behind the
+    signer's newest counts as seen: it cannot be told from a replay (at 10 Hz it is 100 s old, far
+    beyond the freshness window). :meth:`prune` forgets signers whose newest alert is stale; a
+    unit that restarts its count is accepted again once that happens."""
 
     def __init__(self, entries: Iterable[tuple[bytes, int, int]] = ()) -> None:
-        self._seen: dict[tuple[bytes, int], int] = {(s, q): g for s, q, g in entries}
+        # signer → [newest sequence, bit k = sequence (newest − k) accepted, newest generation ms]
+        self._windows: dict[bytes, list[int]] = {}
+        for signer, sequence, generation_ms in sorted(entries, key=lambda e: e[1]):
+            self.add(signer, sequence, generation_ms)
 
     def __len__(self) -> int:
-        return len(self._seen)
+        """Accepted (signer, sequence) pairs remembered."""
+        return sum(w[1].bit_count() for w in self._windows.values())
+
+    @property
+    def signers(self) -> int:
+        """Signers with a window."""
+        return len(self._windows)
 
     def seen(self, signer: bytes, sequence: int) -> bool:
-        return (signer, sequence) in self._seen
+        """Whether ``signer``'s ``sequence`` was accepted already (or is too far behind to tell)."""
+        w = self._windows.get(signer)
+        if w is None or sequence > w[0]:
+            return False
+        back = w[0] - sequence
+        return back >= REPLAY_WINDOW or bool((w[1] >> back) & 1)
 
     def add(self, signer: bytes, sequence: int, generation_time_ms: int) -> None:
-        self._seen[(signer, sequence)] = generation_time_ms
+        """Record ``signer``'s accepted ``sequence``, generated at ``generation_time_ms``."""
+        w = self._windows.get(signer)
+        if w is None:
+            self._windows[signer] = [sequence, 1, generation_time_ms]
+            return
+        if sequence > w[0]:
+            shift = sequence - w[0]
+            w[1] = ((w[1] << shift) | 1) & _WINDOW_MASK if shift < REPLAY_WINDOW else 1
+            w[0] = sequence
+        elif w[0] - sequence < REPLAY_WINDOW:
+            w[1] |= 1 << (w[0] - sequence)
+        w[2] = max(w[2], generation_time_ms)
 
     def prune(self, oldest_ms: int) -> None:
-        """Forget pairs generated before ``oldest_ms`` (they are stale anyway)."""
-        self._seen = {k: g for k, g in self._seen.items() if g >= oldest_ms}
+        """Forget signers whose newest accepted alert was generated before ``oldest_ms``: every
+        alert of theirs that the cache holds is stale anyway."""
+        self._windows = {k: w for k, w in self._windows.items() if w[2] >= oldest_ms}
 
     @staticmethod
     def load(path: str | Path) -> ReplayCache:
@@ -358,7 +397,12 @@ class ReplayCache:
     def save(self, path: str | Path) -> None:
         from makeway.atomic import write_text_atomic
 
-        rows = [[s.hex(), q, g] for (s, q), g in sorted(self._seen.items())]
+        rows = [
+            [signer.hex(), w[0] - k, w[2]]
+            for signer, w in sorted(self._windows.items())
+            for k in range(min(REPLAY_WINDOW, w[0] + 1))
+            if (w[1] >> k) & 1
+        ]
         write_text_atomic(path, json.dumps({"seen": rows}) + "\n")
 
 
@@ -403,7 +447,7 @@ class Verifier:
         self.max_age_ms = round(max_age_s * 1000)
         self.max_future_ms = round(max_future_s * 1000)
         self.replay = ReplayCache() if replay is None else replay
-        self._prune_at = 4096
+        self._pruned_ms: int | None = None
 
     def verify(self, data: bytes, now_s: float) -> Verdict:
         """Check one message received at ``now_s`` (Unix s, the car's clock); an accepted alert's
@@ -444,10 +488,10 @@ class Verifier:
             return Verdict(False, f"stale: generated {age:.3f} s ago", alert, signer)
         if not valid_from * 1000 <= gen_ms <= valid_to * 1000:
             return Verdict(False, "signer certificate not valid at the generation time", alert, signer)
+        if self._pruned_ms is None or now_ms - self._pruned_ms >= 1000:  # idle signers, once a second
+            self.replay.prune(now_ms - self.max_age_ms)
+            self._pruned_ms = now_ms
         if self.replay.seen(signer, alert.sequence):
             return Verdict(False, "replay: this signer's sequence was already accepted", alert, signer)
         self.replay.add(signer, alert.sequence, gen_ms)
-        if len(self.replay) >= self._prune_at:
-            self.replay.prune(now_ms - self.max_age_ms)
-            self._prune_at = max(4096, 2 * len(self.replay))
         return Verdict(True, "ok", alert, signer)
