@@ -71,12 +71,12 @@ from vehiclemodels.parameters_vehicle2 import parameters_vehicle2
 from vehiclemodels.parameters_vehicle3 import parameters_vehicle3
 from vehiclemodels.utils.vehicle_dynamics_ks_cog import vehicle_dynamics_ks_cog
 from vehiclemodels.vehicle_dynamics_ks import vehicle_dynamics_ks
-from vehiclemodels.vehicle_dynamics_mb import vehicle_dynamics_mb
 from vehiclemodels.vehicle_dynamics_st import vehicle_dynamics_st
 from vehiclemodels.vehicle_dynamics_std import vehicle_dynamics_std
 
 from makeway.messages import ControlCommand, VehicleState
 from makeway.registry import Registry
+from makeway.sim.multibody import multibody_rhs
 from makeway.sim.vehicle import SingleTrackModel
 from makeway.vehicle import VehicleParams
 
@@ -228,12 +228,27 @@ class LinearPlant:
         return self._state
 
 
-# model name → its derivative f(x, u, p)
-_MODELS: dict[str, Callable[[list[float], list[float], Any], list[float]]] = {
-    "kinematic": vehicle_dynamics_ks,
-    "single_track": vehicle_dynamics_st,
-    "single_track_drift": vehicle_dynamics_std,
-    "multi_body": vehicle_dynamics_mb,
+Derivative = Callable[[list[float], list[float]], list[float]]
+"""A model's right-hand side ``f(x, u) -> ẋ`` for one parameter set."""
+
+
+def _bound(model: Callable[[list[float], list[float], Any], list[float]]) -> Callable[[Any], Derivative]:
+    """CommonRoad's ``vehicle_dynamics_*(x, u, p)`` with ``p`` bound (it may write into ``x``, so
+    it gets a copy)."""
+
+    def build(p: Any) -> Derivative:
+        return lambda x, u: model(list(x), u, p)
+
+    return build
+
+
+# model name → its derivative for a parameter set; the multi-body model is our faster writing-out
+# of the package's equations (makeway.sim.multibody; identical to rounding)
+_MODELS: dict[str, Callable[[Any], Derivative]] = {
+    "kinematic": _bound(vehicle_dynamics_ks),
+    "single_track": _bound(vehicle_dynamics_st),
+    "single_track_drift": _bound(vehicle_dynamics_std),
+    "multi_body": multibody_rhs,
 }
 
 
@@ -266,8 +281,9 @@ class CommonRoadPlant:
         self.max_substep_s = max_substep_s
         self.handover_low_mps = handover_low_mps
         self.handover_high_mps = handover_high_mps
-        self._f = _MODELS[model]
         p = self.p
+        self._f = _MODELS[model](p)
+        self._f_kinematic = _bound(vehicle_dynamics_ks_cog)(p)
         # static wheel load and the wheel-spin mode's step bound per m/s (module docstring)
         fz = p.m * G * max(p.a, p.b) / (p.a + p.b)
         fz_wheel = fz if model == "single_track_drift" else 0.5 * fz
@@ -414,8 +430,7 @@ class CommonRoadPlant:
         """One RK4 step of length ``h`` of the model with the actuator states held over it."""
         act = self.actuators
         sp = self.p.steering
-        f = vehicle_dynamics_ks_cog if self._kinematic else self._f
-        p = self.p
+        f = self._f_kinematic if self._kinematic else self._f
         x = self._x
         # actuators: servo rate (the model clips it to its published limit) and a_x's lag
         steer_rate = (steer_target - x[2]) / act.steer_time_constant_s
@@ -431,10 +446,10 @@ class CommonRoadPlant:
         if at_rest and a <= 0.0:
             a = 0.0
         u = [steer_rate, a]
-        k1 = f(list(x), u, p)
-        k2 = f([xi + 0.5 * h * ki for xi, ki in zip(x, k1, strict=True)], u, p)
-        k3 = f([xi + 0.5 * h * ki for xi, ki in zip(x, k2, strict=True)], u, p)
-        k4 = f([xi + h * ki for xi, ki in zip(x, k3, strict=True)], u, p)
+        k1 = f(x, u)
+        k2 = f([xi + 0.5 * h * ki for xi, ki in zip(x, k1, strict=True)], u)
+        k3 = f([xi + 0.5 * h * ki for xi, ki in zip(x, k2, strict=True)], u)
+        k4 = f([xi + h * ki for xi, ki in zip(x, k3, strict=True)], u)
         new = [
             xi + h / 6.0 * (a1 + 2.0 * a2 + 2.0 * a3 + a4)
             for xi, a1, a2, a3, a4 in zip(x, k1, k2, k3, k4, strict=True)

@@ -1,0 +1,91 @@
+"""Our writing-out of CommonRoad's multi-body model (makeway.sim.multibody) against the package's
+own ``vehicle_dynamics_mb``: the same derivative to rounding on random states of every car and road."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from vehiclemodels.init_mb import init_mb
+from vehiclemodels.vehicle_dynamics_mb import vehicle_dynamics_mb
+
+from makeway.sim.multibody import multibody_rhs
+from makeway.sim.plants import VEHICLES, vehicle_parameters
+
+# spread of each state about the package's own initial state (init_mb) for a random motion:
+# body roll/pitch and their rates, heights, unsprung masses, wheel speeds (±3 rad/s: slip of a few
+# per cent up to wheel spin and lock-up) and the compliant joints
+SPREAD = [0, 0, 0, 0, 0, 0, 0.03, 0.2, 0.02, 0.1, 0.5, 0.02, 0.1]
+SPREAD += [0.02, 0.2, 0.5, 0.005, 0.1] * 2 + [3.0] * 4 + [0.002, 0.002]
+
+
+def _random_states(p: object, rng: np.random.Generator, n: int) -> list[list[float]]:
+    out = []
+    for _ in range(n):
+        core = [
+            rng.uniform(-100, 100),
+            rng.uniform(-100, 100),
+            rng.uniform(-0.4, 0.4),  # wheel angle
+            rng.uniform(0.5, 40.0),  # speed
+            rng.uniform(-math.pi, math.pi),
+            rng.uniform(-0.8, 0.8),  # yaw rate
+            rng.uniform(-0.3, 0.3),  # slip angle
+        ]
+        x = np.asarray(init_mb(core, p), dtype=float) + rng.normal(size=29) * np.asarray(SPREAD)
+        out.append([float(v) for v in x])
+    return out
+
+
+def _agree(ref: list[float], ours: list[float]) -> float:
+    """Worst difference relative to the component's own size (and an absolute 1e-12 in SI units
+    below that: a derivative that cancels to ~1e-15 on one side may be exactly 0 on the other)."""
+    return max(abs(a - b) / (abs(a) + 1e-3) for a, b in zip(ref, ours, strict=True))
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+@pytest.mark.parametrize("vehicle", list(VEHICLES))
+def test_the_derivative_is_commonroad_s_on_random_states(vehicle: str, seed: int) -> None:
+    mu = (1.0, 0.5)[seed]  # dry, wet
+    p = vehicle_parameters(vehicle, mu)
+    f = multibody_rhs(p)
+    rng = np.random.default_rng([seed, list(VEHICLES).index(vehicle)])
+    worst = 0.0
+    for x in _random_states(p, rng, 150):
+        u = [float(rng.uniform(-0.8, 0.8)), float(rng.uniform(-14.0, 14.0))]  # beyond both limits
+        before = list(x)
+        ours = f(x, u)
+        assert x == before  # the state is not written into
+        ref = vehicle_dynamics_mb(list(x), u, p)
+        assert len(ours) == 29
+        worst = max(worst, _agree(ref, ours))
+    assert worst <= 1e-9
+
+
+def test_the_limits_and_corner_cases_are_commonroad_s() -> None:
+    p = vehicle_parameters("bmw320i", 1.0)
+    f = multibody_rhs(p)
+    base = init_mb([0.0, 0.0, 0.0, 20.0, 0.3, 0.1, 0.02], p)
+    cases = []
+    for delta, rate in ((p.steering.max, 0.3), (p.steering.min, -0.3), (p.steering.max, -0.3)):
+        x = list(base)
+        x[2] = delta  # at the steering lock, turning further or back
+        cases.append((x, [rate, 1.0]))
+    x = list(base)
+    x[23], x[26] = -1.0, -0.5  # wheels spinning backwards: their derivative is held at zero
+    cases.append((x, [0.0, -3.0]))
+    x = list(base)
+    x[3] = p.longitudinal.v_max + 1.0  # above the top speed: no more drive
+    cases.append((x, [0.0, 2.0]))
+    x = list(base)
+    x[3], x[10] = 0.05, 0.01  # below 0.1 m/s: the kinematic branch
+    cases.append((x, [0.1, 1.0]))
+    for x, u in cases:
+        assert _agree(vehicle_dynamics_mb(list(x), u, p), f(x, u)) <= 1e-9, (x[:4], u)
+    # reversing spins the wheels backwards through a zero wheel speed: both divide by zero
+    x = list(base)
+    x[3] = -5.0
+    with pytest.raises(ZeroDivisionError):
+        vehicle_dynamics_mb(list(x), [0.0, 0.0], p)
+    with pytest.raises(ZeroDivisionError):
+        f(x, [0.0, 0.0])
