@@ -106,20 +106,13 @@ def multibody_rhs(p: Any) -> Callable[[Sequence[float], Sequence[float]], list[f
         # combined slip: weighting functions G_xα and G_yκ
         z = rbx1 / sqrt(1.0 + (rbx2 * slip) ** 2)  # B_xα
         z0, z1 = z * rhx, z * (alpha + rhx)
-        fx = (
-            fx0
-            / cos(rcx * atan(z0 - rex * (z0 - atan(z0))))
-            * cos(rcx * atan(z1 - rex * (z1 - atan(z1))))
-        )
+        fx = fx0 / cos(rcx * atan(z0 - rex * (z0 - atan(z0)))) * cos(rcx * atan(z1 - rex * (z1 - atan(z1))))
         z = rby1 / sqrt(1.0 + (rby2 * (alpha - rby3)) ** 2)  # B_yκ
         z0, z1 = z * rhy, z * (slip + rhy)
-        svk = (
-            mu_y * fz * (rvy1 + rvy3 * gamma) / sqrt(1.0 + (rvy4 * alpha) ** 2) * sin(rvy5 * atan(rvy6 * slip))
-        )
+        d_vk = mu_y * fz * (rvy1 + rvy3 * gamma) / sqrt(1.0 + (rvy4 * alpha) ** 2)
+        svk = d_vk * sin(rvy5 * atan(rvy6 * slip))
         fy = (
-            fy0
-            / cos(rcy * atan(z0 - rey * (z0 - atan(z0))))
-            * cos(rcy * atan(z1 - rey * (z1 - atan(z1))))
+            fy0 / cos(rcy * atan(z0 - rey * (z0 - atan(z0)))) * cos(rcy * atan(z1 - rey * (z1 - atan(z1))))
             + svk
         )
         return fx, fy
@@ -227,10 +220,16 @@ def multibody_rhs(p: Any) -> Callable[[Sequence[float], Sequence[float]], list[f
         defl_f = gap_f * sphi - dy_f * cphi - arm_f * sin(roll_f)
         defl_r = gap_r * sphi - dy_r * cphi - arm_r * sin(roll_r)
         ddefl_f = (
-            (gap_f * cphi + dy_f * sphi) * dphi + (dz_f - dz) * sphi - ddy_f * cphi - arm_f * cos(roll_f) * droll_f
+            (gap_f * cphi + dy_f * sphi) * dphi
+            + (dz_f - dz) * sphi
+            - ddy_f * cphi
+            - arm_f * cos(roll_f) * droll_f
         )
         ddefl_r = (
-            (gap_r * cphi + dy_r * sphi) * dphi + (dz_r - dz) * sphi - ddy_r * cphi - arm_r * cos(roll_r) * droll_r
+            (gap_r * cphi + dy_r * sphi) * dphi
+            + (dz_r - dz) * sphi
+            - ddy_r * cphi
+            - arm_r * cos(roll_r) * droll_r
         )
         f_raf = defl_f * kras + ddefl_f * krad
         f_rar = defl_r * kras + ddefl_r * krad
