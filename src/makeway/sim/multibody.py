@@ -79,6 +79,10 @@ def multibody_rhs(p: Any) -> Callable[[Sequence[float], Sequence[float]], list[f
     rbx1, rbx2, rcx, rex, rhx = t.r_bx1, t.r_bx2, t.r_cx1, t.r_ex1, t.r_hx1
     rby1, rby2, rby3, rcy, rey, rhy = t.r_by1, t.r_by2, t.r_by3, t.r_cy1, t.r_ey1, t.r_hy1
     rvy1, rvy3, rvy4, rvy5, rvy6 = t.r_vy1, t.r_vy3, t.r_vy4, t.r_vy5, t.r_vy6
+    # without a camber term (p_dx3 = 0, as in all three published sets) μ_x and B_x are constants
+    camber_free_x = dx3 == 0.0
+    mu_x0 = dx1 * (1.0 - dx3 * 0.0)
+    bx0 = kx / (cx * mu_x0)
     atan, cos, sin, sqrt = math.atan, math.cos, math.sin, math.sqrt
 
     def tyre(slip: float, alpha: float, gamma: float, fz: float) -> tuple[float, float]:
@@ -86,8 +90,11 @@ def multibody_rhs(p: Any) -> Callable[[Sequence[float], Sequence[float]], list[f
         slip angle ``alpha`` (rad), camber ``gamma`` (rad), wheel load ``fz`` (N)."""
         g2 = gamma * gamma
         # pure longitudinal slip (the package's sign convention: κ = −slip)
-        mu_x = dx1 * (1.0 - dx3 * g2)
-        bx = kx / (cx * mu_x)
+        if camber_free_x:
+            mu_x, bx = mu_x0, bx0
+        else:
+            mu_x = dx1 * (1.0 - dx3 * g2)
+            bx = kx / (cx * mu_x)
         zx = bx * (hx - slip)
         fx0 = mu_x * fz * sin(cx * atan(zx - ex * (zx - atan(zx))) + fz * vx1)
         # pure lateral slip; horizontal and vertical shifts grow with |γ| and take its sign
@@ -104,12 +111,15 @@ def multibody_rhs(p: Any) -> Callable[[Sequence[float], Sequence[float]], list[f
         zy = ky / (cy * mu_y) * ay
         fy0 = mu_y * fz * sin(cy * atan(zy - ey * (zy - atan(zy)))) + svy
         # combined slip: weighting functions G_xα and G_yκ
-        z = rbx1 / sqrt(1.0 + (rbx2 * slip) ** 2)  # B_xα
+        z = rbx2 * slip
+        z = rbx1 / sqrt(1.0 + z * z)  # B_xα
         z0, z1 = z * rhx, z * (alpha + rhx)
         fx = fx0 / cos(rcx * atan(z0 - rex * (z0 - atan(z0)))) * cos(rcx * atan(z1 - rex * (z1 - atan(z1))))
-        z = rby1 / sqrt(1.0 + (rby2 * (alpha - rby3)) ** 2)  # B_yκ
+        z = rby2 * (alpha - rby3)
+        z = rby1 / sqrt(1.0 + z * z)  # B_yκ
         z0, z1 = z * rhy, z * (slip + rhy)
-        d_vk = mu_y * fz * (rvy1 + rvy3 * gamma) / sqrt(1.0 + (rvy4 * alpha) ** 2)
+        z = rvy4 * alpha
+        d_vk = mu_y * fz * (rvy1 + rvy3 * gamma) / sqrt(1.0 + z * z)
         svk = d_vk * sin(rvy5 * atan(rvy6 * slip))
         fy = (
             fy0 / cos(rcy * atan(z0 - rey * (z0 - atan(z0)))) * cos(rcy * atan(z1 - rey * (z1 - atan(z1))))
@@ -181,8 +191,14 @@ def multibody_rhs(p: Any) -> Callable[[Sequence[float], Sequence[float]], list[f
         u_lf = (vx + hf * r) * cd + v_front * sd
         u_rf = (vx - hf * r) * cd + v_front * sd
         u_lr, u_rr = vx + hr * r, vx - hr * r
-        u_lf, u_rf = max(u_lf, 0.0), max(u_rf, 0.0)
-        u_lr, u_rr = max(u_lr, 0.0), max(u_rr, 0.0)
+        if u_lf < 0.0:
+            u_lf = 0.0
+        if u_rf < 0.0:
+            u_rf = 0.0
+        if u_lr < 0.0:
+            u_lr = 0.0
+        if u_rr < 0.0:
+            u_rr = 0.0
         s_lf, s_rf = 1.0 - R * w_lf / u_lf, 1.0 - R * w_rf / u_rf
         s_lr, s_rr = 1.0 - R * w_lr / u_lr, 1.0 - R * w_rr / u_rr
         # slip angles
