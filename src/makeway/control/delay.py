@@ -54,6 +54,10 @@ from makeway.vehicle import VehicleParams
 
 __all__ = ["PREDICTORS", "DelayCompensated", "predict_state"]
 
+KINEMATIC_BELOW_MPS = 3.0
+"""Below this speed the ``design`` predictor uses the kinematic bicycle (the tyre model's
+``1/v_x`` terms grow without bound at standstill)."""
+
 PREDICTORS: tuple[str, ...] = ("mean", "design", "kinematic")
 """The predictors :class:`DelayCompensated` offers (module docstring); the first is the default."""
 
@@ -64,15 +68,31 @@ def predict_state(
     params: VehicleParams,
     dt: float,
     *,
-    kinematic_below_mps: float = 3.0,
+    kinematic_below_mps: float = KINEMATIC_BELOW_MPS,
     substeps: int = 2,
 ) -> VehicleState:
     """``state`` advanced by ``len(pending)·dt`` on the design model, the steering commands
     ``pending`` (oldest first) each applied for ``dt`` through its steering lag and rate limit;
     the kinematic bicycle below ``kinematic_below_mps`` (``math.inf``: everywhere)."""
+    return _predict(state, pending, params, dt, kinematic_below_mps, substeps, False)[0]
+
+
+def _predict(
+    state: VehicleState,
+    pending: list[float] | deque[float],
+    params: VehicleParams,
+    dt: float,
+    kinematic_below_mps: float,
+    substeps: int,
+    with_bicycle: bool,
+) -> tuple[VehicleState, VehicleState | None]:
+    """:func:`predict_state`, and with ``with_bicycle`` beside it the kinematic bicycle's prediction
+    (``kinematic_below_mps = inf``) from the same state: both share the steering angle and the
+    speed, so the ``mean`` predictor integrates them in one pass (each exactly as on its own)."""
     p = params
     x, y, psi = state.x_m, state.y_m, state.yaw_rad
     vx, vy, r, delta, ax = state.vx_mps, state.vy_mps, state.yaw_rate_radps, state.steer_rad, state.ax_mps2
+    kx, ky, kpsi, kvy, kr = x, y, psi, vy, r  # the bicycle's
     m, iz, a, b, cf, cr = p.mass_kg, p.yaw_inertia_kgm2, p.a_m, p.b_m, p.cf_npr, p.cr_npr
     # the model's coefficients, grouped as the equations below group them (the same rounding)
     c_sum, c_moment, acf, c_inertia = cf + cr, a * cf - b * cr, a * cf, a * a * cf + b * b * cr
@@ -90,26 +110,30 @@ def predict_state(
                 d_r = (acf * delta - c_moment / vx * vy - c_inertia / vx * r) / iz
                 vy += h * d_vy
                 r += h * d_r
+                if with_bicycle:
+                    kr = vx * tan(delta) / L
+                    kvy = b * kr
             else:
                 r = vx * tan(delta) / L
                 vy = b * r
+                kr, kvy = r, vy
             c, s = cos(psi), sin(psi)
             x += h * (vx * c - vy * s)
             y += h * (vx * s + vy * c)
             psi += h * r
+            if with_bicycle:
+                c, s = cos(kpsi), sin(kpsi)
+                kx += h * (vx * c - kvy * s)
+                ky += h * (vx * s + kvy * c)
+                kpsi += h * kr
             vx = max(0.0, vx + h * ax)
             delta += h * d_delta
-    return VehicleState(
-        state.time_s + dt * len(pending),
-        x,
-        y,
-        math.remainder(psi, 2.0 * math.pi),
-        vx,
-        vy,
-        r,
-        delta,
-        state.ax_mps2,
-    )
+    t = state.time_s + dt * len(pending)
+    two_pi = 2.0 * math.pi
+    main = VehicleState(t, x, y, math.remainder(psi, two_pi), vx, vy, r, delta, state.ax_mps2)
+    if not with_bicycle:
+        return main, None
+    return main, VehicleState(t, kx, ky, math.remainder(kpsi, two_pi), vx, kvy, kr, delta, state.ax_mps2)
 
 
 def _mean_state(a: VehicleState, b: VehicleState) -> VehicleState:
@@ -160,10 +184,10 @@ class DelayCompensated:
         if len(pending) < self.steps:  # before the first commands: the wheel holds its angle
             pending = [state.steer_rad] * (self.steps - len(pending)) + pending
         if self.model != "mean":
-            below = math.inf if self.model == "kinematic" else 3.0
+            below = math.inf if self.model == "kinematic" else KINEMATIC_BELOW_MPS
             return predict_state(state, pending, self.params, self.dt, kinematic_below_mps=below)
-        tyres = predict_state(state, pending, self.params, self.dt)
-        bicycle = predict_state(state, pending, self.params, self.dt, kinematic_below_mps=math.inf)
+        tyres, bicycle = _predict(state, pending, self.params, self.dt, KINEMATIC_BELOW_MPS, 2, True)
+        assert bicycle is not None
         return _mean_state(tyres, bicycle)
 
     def steer(

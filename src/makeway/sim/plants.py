@@ -388,12 +388,16 @@ class CommonRoadPlant:
         steer = _clip(steer, sp.min, sp.max)
         accel_cmd = _clip(command.accel_mps2, -act.max_decel_mps2, act.max_accel_mps2)
         t_left = dt
+        always_kinematic = self.model == "kinematic"
+        low, high = self.handover_low_mps, self.handover_high_mps
         while t_left > 1e-12:
-            self._switch_mode()
-            v = self._speed()
+            v = self._x[3]
+            if not always_kinematic and ((v > high) if self._kinematic else (v < low)):
+                self._switch_mode()
+                v = self._x[3]
             h = self.max_substep_s
-            if not self._kinematic and self.model != "kinematic":
-                h = min(h, self._h_per_mps * max(v, self.handover_low_mps))
+            if not self._kinematic and not always_kinematic:
+                h = min(h, self._h_per_mps * max(v, low))
             h = min(h, t_left)
             try:
                 self._substep(steer, accel_cmd, h)
@@ -432,26 +436,24 @@ class CommonRoadPlant:
         sp = self.p.steering
         f = self._f_kinematic if self._kinematic else self._f
         x = self._x
+        ax0 = self._ax
         # actuators: servo rate (the model clips it to its published limit) and a_x's lag
-        steer_rate = (steer_target - x[2]) / act.steer_time_constant_s
-        steer_rate = _clip(steer_rate, sp.v_min, sp.v_max)
-        d_ax = _clip(
-            (accel_cmd - self._ax) / act.accel_time_constant_s, -act.max_jerk_mps3, act.max_jerk_mps3
-        )
-        ax0, ax1 = self._ax, self._ax + h * d_ax
-        ax1 = _clip(ax1, -act.max_decel_mps2, act.max_accel_mps2)
-        at_rest = x[3] <= 0.0
+        steer_rate = _clip((steer_target - x[2]) / act.steer_time_constant_s, sp.v_min, sp.v_max)
+        jerk = act.max_jerk_mps3
+        d_ax = _clip((accel_cmd - ax0) / act.accel_time_constant_s, -jerk, jerk)
+        ax1 = _clip(ax0 + h * d_ax, -act.max_decel_mps2, act.max_accel_mps2)
         # hold the acceleration at the sub-step's mid value; the brake cannot reverse the car
         a = 0.5 * (ax0 + ax1)
-        if at_rest and a <= 0.0:
+        if x[3] <= 0.0 and a <= 0.0:
             a = 0.0
         u = [steer_rate, a]
+        half, sixth = 0.5 * h, h / 6.0
         k1 = f(x, u)
-        k2 = f([xi + 0.5 * h * ki for xi, ki in zip(x, k1, strict=True)], u)
-        k3 = f([xi + 0.5 * h * ki for xi, ki in zip(x, k2, strict=True)], u)
+        k2 = f([xi + half * ki for xi, ki in zip(x, k1, strict=True)], u)
+        k3 = f([xi + half * ki for xi, ki in zip(x, k2, strict=True)], u)
         k4 = f([xi + h * ki for xi, ki in zip(x, k3, strict=True)], u)
         new = [
-            xi + h / 6.0 * (a1 + 2.0 * a2 + 2.0 * a3 + a4)
+            xi + sixth * (a1 + 2.0 * a2 + 2.0 * a3 + a4)
             for xi, a1, a2, a3, a4 in zip(x, k1, k2, k3, k4, strict=True)
         ]
         if new[3] < 0.0:  # came to rest inside the sub-step: stay at rest
