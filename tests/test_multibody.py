@@ -89,3 +89,21 @@ def test_the_limits_and_corner_cases_are_commonroad_s() -> None:
         vehicle_dynamics_mb(list(x), [0.0, 0.0], p)
     with pytest.raises(ZeroDivisionError):
         f(x, [0.0, 0.0])
+
+
+def test_a_runge_kutta_stage_is_the_derivative_at_the_stage_state() -> None:
+    p = vehicle_parameters("vw_vanagon", 0.5)
+    f = multibody_rhs(p)
+    rng = np.random.default_rng(3)
+    for x in _random_states(p, rng, 40):
+        u = [float(rng.uniform(-0.3, 0.3)), float(rng.uniform(-3.0, 3.0))]
+        k = f(x, u)
+        for c in (0.0005, 0.001):
+            stage = [xi + c * ki for xi, ki in zip(x, k, strict=True)]
+            assert f(x, u, k, c) == f(stage, u)  # the same arithmetic: bit for bit
+    x = _random_states(p, rng, 1)[0]
+    x[3] = 0.05  # the kinematic branch takes the stage's state as well
+    k = [0.0] * 29
+    k[3], k[0] = 10.0, 1.0
+    stage = [xi + 0.001 * ki for xi, ki in zip(x, k, strict=True)]
+    assert f(x, [0.0, 0.5], k, 0.001) == f(stage, [0.0, 0.5])

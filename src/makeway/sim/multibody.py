@@ -31,19 +31,23 @@ from typing import Any
 
 from vehiclemodels.vehicle_dynamics_mb import vehicle_dynamics_mb
 
-__all__ = ["KINEMATIC_BELOW_MPS", "multibody_rhs"]
+__all__ = ["KINEMATIC_BELOW_MPS", "Derivative", "multibody_rhs"]
 
 G = 9.81
 """Gravity (m/s²), the package's value."""
+
+Derivative = Callable[..., list[float]]
+"""A model's right-hand side for one parameter set: ``f(x, u)`` is ``ẋ`` at state ``x`` with inputs
+``u``; ``f(x, u, k, c)`` is ``ẋ`` at the state ``x + c·k`` (a Runge–Kutta stage)."""
 
 KINEMATIC_BELOW_MPS = 0.1
 """Below this ``|v_x|`` the model's equations switch to the kinematic single track."""
 
 
-def multibody_rhs(p: Any) -> Callable[[Sequence[float], Sequence[float]], list[float]]:
+def multibody_rhs(p: Any) -> Derivative:
     """The multi-body model's derivative ``f(x, u) -> ẋ`` (29 states, 2 inputs; module docstring)
     for the CommonRoad parameter set ``p`` (``vehiclemodels.parameters_vehicle*``, possibly with
-    scaled tyre friction). ``x`` is not modified."""
+    scaled tyre friction); ``f(x, u, k, c)`` is ẋ at ``x + c·k``. ``x`` is not modified."""
     sp, lp, t = p.steering, p.longitudinal, p.tire
     # steering and acceleration limits
     d_min, d_max, dd_min, dd_max = sp.min, sp.max, sp.v_min, sp.v_max
@@ -127,8 +131,11 @@ def multibody_rhs(p: Any) -> Callable[[Sequence[float], Sequence[float]], list[f
         )
         return fx, fy
 
-    def rhs(x: Sequence[float], u: Sequence[float]) -> list[float]:
-        """ẋ of the multi-body model at state ``x`` (29) with inputs ``u`` (steering rate, a_x)."""
+    def rhs(
+        x: Sequence[float], u: Sequence[float], k: Sequence[float] | None = None, c: float = 0.0
+    ) -> list[float]:
+        """ẋ of the multi-body model at state ``x`` (29) with inputs ``u`` (steering rate, a_x);
+        with ``k``, at the state ``x + c·k`` (a Runge–Kutta stage, without building it)."""
         (
             _,
             _,
@@ -160,8 +167,19 @@ def multibody_rhs(p: Any) -> Callable[[Sequence[float], Sequence[float]], list[f
             dy_f,
             dy_r,
         ) = x
+        if k is not None:  # the stage's state (positions do not enter the derivative)
+            delta, vx, psi, r = delta + c * k[2], vx + c * k[3], psi + c * k[4], r + c * k[5]
+            phi, dphi, theta, dtheta = phi + c * k[6], dphi + c * k[7], theta + c * k[8], dtheta + c * k[9]
+            vy, z, dz = vy + c * k[10], z + c * k[11], dz + c * k[12]
+            phi_f, dphi_f, vy_f = phi_f + c * k[13], dphi_f + c * k[14], vy_f + c * k[15]
+            z_f, dz_f = z_f + c * k[16], dz_f + c * k[17]
+            phi_r, dphi_r, vy_r = phi_r + c * k[18], dphi_r + c * k[19], vy_r + c * k[20]
+            z_r, dz_r = z_r + c * k[21], dz_r + c * k[22]
+            w_lf, w_rf, w_lr, w_rr = w_lf + c * k[23], w_rf + c * k[24], w_lr + c * k[25], w_rr + c * k[26]
+            dy_f, dy_r = dy_f + c * k[27], dy_r + c * k[28]
         if abs(vx) < KINEMATIC_BELOW_MPS:
-            return list(vehicle_dynamics_mb(list(x), list(u), p))
+            y = list(x) if k is None else [xi + c * ki for xi, ki in zip(x, k, strict=True)]
+            return list(vehicle_dynamics_mb(y, list(u), p))
         # input limits (the package's steering_constraints and acceleration_constraints)
         d_rate, acc = u[0], u[1]
         if (delta <= d_min and d_rate <= 0.0) or (delta >= d_max and d_rate >= 0.0):

@@ -76,7 +76,7 @@ from vehiclemodels.vehicle_dynamics_std import vehicle_dynamics_std
 
 from makeway.messages import ControlCommand, VehicleState
 from makeway.registry import Registry
-from makeway.sim.multibody import multibody_rhs
+from makeway.sim.multibody import Derivative, multibody_rhs
 from makeway.sim.vehicle import SingleTrackModel
 from makeway.vehicle import VehicleParams
 
@@ -228,16 +228,16 @@ class LinearPlant:
         return self._state
 
 
-Derivative = Callable[[list[float], list[float]], list[float]]
-"""A model's right-hand side ``f(x, u) -> ẋ`` for one parameter set."""
-
-
 def _bound(model: Callable[[list[float], list[float], Any], list[float]]) -> Callable[[Any], Derivative]:
-    """CommonRoad's ``vehicle_dynamics_*(x, u, p)`` with ``p`` bound (it may write into ``x``, so
-    it gets a copy)."""
+    """CommonRoad's ``vehicle_dynamics_*(x, u, p)`` as a :data:`~makeway.sim.multibody.Derivative`
+    for parameter set ``p`` (it may write into ``x``, so it gets a copy)."""
 
     def build(p: Any) -> Derivative:
-        return lambda x, u: model(list(x), u, p)
+        def f(x: list[float], u: list[float], k: list[float] | None = None, c: float = 0.0) -> list[float]:
+            y = list(x) if k is None else [xi + c * ki for xi, ki in zip(x, k, strict=True)]
+            return model(y, u, p)
+
+        return f
 
     return build
 
@@ -449,9 +449,9 @@ class CommonRoadPlant:
         u = [steer_rate, a]
         half, sixth = 0.5 * h, h / 6.0
         k1 = f(x, u)
-        k2 = f([xi + half * ki for xi, ki in zip(x, k1, strict=True)], u)
-        k3 = f([xi + half * ki for xi, ki in zip(x, k2, strict=True)], u)
-        k4 = f([xi + h * ki for xi, ki in zip(x, k3, strict=True)], u)
+        k2 = f(x, u, k1, half)
+        k3 = f(x, u, k2, half)
+        k4 = f(x, u, k3, h)
         new = [
             xi + sixth * (a1 + 2.0 * a2 + 2.0 * a3 + a4)
             for xi, a1, a2, a3, a4 in zip(x, k1, k2, k3, k4, strict=True)
