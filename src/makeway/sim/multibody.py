@@ -113,7 +113,8 @@ def multibody_rhs(p: Any) -> Derivative:
             ay = alpha
             svy = 0.0
         zy = ky / (cy * mu_y) * ay
-        fy0 = mu_y * fz * sin(cy * atan(zy - ey * (zy - atan(zy)))) + svy
+        peak_y = mu_y * fz
+        fy0 = peak_y * sin(cy * atan(zy - ey * (zy - atan(zy)))) + svy
         # combined slip: weighting functions G_xα and G_yκ
         z = rbx2 * slip
         z = rbx1 / sqrt(1.0 + z * z)  # B_xα
@@ -123,7 +124,7 @@ def multibody_rhs(p: Any) -> Derivative:
         z = rby1 / sqrt(1.0 + z * z)  # B_yκ
         z0, z1 = z * rhy, z * (slip + rhy)
         z = rvy4 * alpha
-        d_vk = mu_y * fz * (rvy1 + rvy3 * gamma) / sqrt(1.0 + z * z)
+        d_vk = peak_y * (rvy1 + rvy3 * gamma) / sqrt(1.0 + z * z)
         svk = d_vk * sin(rvy5 * atan(rvy6 * slip))
         fy = (
             fy0 / cos(rcy * atan(z0 - rey * (z0 - atan(z0)))) * cos(rcy * atan(z1 - rey * (z1 - atan(z1))))
@@ -205,10 +206,10 @@ def multibody_rhs(p: Any) -> Derivative:
         fz_lf, fz_rf = (base_f - hf * spf) * kzt, (base_f + hf * spf) * kzt
         fz_lr, fz_rr = (base_r - hr * spr) * kzt, (base_r + hr * spr) * kzt
         # wheel-centre speeds along each wheel (never negative)
-        v_front = vy + a * r
-        u_lf = (vx + hf * r) * cd + v_front * sd
-        u_rf = (vx - hf * r) * cd + v_front * sd
-        u_lr, u_rr = vx + hr * r, vx - hr * r
+        v_front, v_rear = vy + a * r, vy - b * r  # lateral speed at the axles
+        vl_f, vr_f, vl_r, vr_r = vx + hf * r, vx - hf * r, vx + hr * r, vx - hr * r  # at each wheel
+        across = v_front * sd
+        u_lf, u_rf, u_lr, u_rr = vl_f * cd + across, vr_f * cd + across, vl_r, vr_r
         if u_lf < 0.0:
             u_lf = 0.0
         if u_rf < 0.0:
@@ -221,11 +222,11 @@ def multibody_rhs(p: Any) -> Derivative:
         s_lr, s_rr = 1.0 - R * w_lr / u_lr, 1.0 - R * w_rr / u_rr
         # slip angles
         lat_f = v_front - dphi_f * (R - z_f)
-        lat_r = vy - b * r - dphi_r * (R - z_r)
-        al_lf = atan(lat_f / (vx + hf * r)) - delta
-        al_rf = atan(lat_f / (vx - hf * r)) - delta
-        al_lr = atan(lat_r / (vx + hr * r))
-        al_rr = atan(lat_r / (vx - hr * r))
+        lat_r = v_rear - dphi_r * (R - z_r)
+        al_lf = atan(lat_f / vl_f) - delta
+        al_rf = atan(lat_f / vr_f) - delta
+        al_lr = atan(lat_r / vl_r)
+        al_rr = atan(lat_r / vr_r)
         # suspension travel and its rate at each corner
         gap_f, gap_r = hs - R + z_f - z, hs - R + z_r - z
         roll_f, roll_r = phi - phi_f, phi - phi_r
@@ -234,8 +235,9 @@ def multibody_rhs(p: Any) -> Derivative:
         lift_r = gap_r / cphi - hs + R - b * theta
         zs_lf, zs_rf = lift_f + hf * roll_f, lift_f - hf * roll_f
         zs_lr, zs_rr = lift_r + hr * roll_r, lift_r - hr * roll_r
-        rate_f = dz_f - dz + a * dtheta
-        rate_r = dz_r - dz - b * dtheta
+        heave_f, heave_r = dz_f - dz, dz_r - dz
+        rate_f = heave_f + a * dtheta
+        rate_r = heave_r - b * dtheta
         dzs_lf, dzs_rf = rate_f + hf * droll_f, rate_f - hf * droll_f
         dzs_lr, dzs_rr = rate_r + hr * droll_r, rate_r - hr * droll_r
         # camber from roll and suspension travel
@@ -250,18 +252,18 @@ def multibody_rhs(p: Any) -> Derivative:
 
         # compliant joints between sprung and unsprung masses (lateral)
         ddy_f = v_front - vy_f
-        ddy_r = vy - b * r - vy_r
+        ddy_r = v_rear - vy_r
         defl_f = gap_f * sphi - dy_f * cphi - arm_f * sin(roll_f)
         defl_r = gap_r * sphi - dy_r * cphi - arm_r * sin(roll_r)
         ddefl_f = (
             (gap_f * cphi + dy_f * sphi) * dphi
-            + (dz_f - dz) * sphi
+            + heave_f * sphi
             - ddy_f * cphi
             - arm_f * cos(roll_f) * droll_f
         )
         ddefl_r = (
             (gap_r * cphi + dy_r * sphi) * dphi
-            + (dz_r - dz) * sphi
+            + heave_r * sphi
             - ddy_r * cphi
             - arm_r * cos(roll_r) * droll_r
         )
