@@ -107,3 +107,26 @@ def test_a_runge_kutta_stage_is_the_derivative_at_the_stage_state() -> None:
     k[3], k[0] = 10.0, 1.0
     stage = [xi + 0.001 * ki for xi, ki in zip(x, k, strict=True)]
     assert f(x, [0.0, 0.5], k, 0.001) == f(stage, [0.0, 0.5])
+
+
+def test_the_plant_drives_as_on_commonroad_s_own_function() -> None:
+    # the same manoeuvre (a steering sine while braking, into the stiff low-speed wheel modes) on
+    # the plant as shipped and on the plant with the package's vehicle_dynamics_mb
+    from makeway.messages import ControlCommand, VehicleState
+    from makeway.sim.plants import ActuatorConfig, CommonRoadPlant, _bound
+
+    runs = []
+    for ours in (True, False):
+        plant = CommonRoadPlant("multi_body", "ford_escort", "wet", ActuatorConfig(steer_delay_s=0.1))
+        if not ours:
+            plant._f = _bound(vehicle_dynamics_mb)(plant.p)
+        plant.reset(VehicleState(0.0, 0.0, 0.0, 0.2, 9.0))
+        states = []
+        for i in range(250):
+            steer = 0.06 * math.sin(2.0 * math.pi * 0.5 * i * 0.01)
+            states.append(plant.advance(ControlCommand(i * 0.01, steer, -2.5), 0.01))
+        runs.append(states)
+    assert runs[0][-1].vx_mps < 4.0  # it did brake into the slow, stiff regime
+    for a, b in zip(*runs, strict=True):
+        assert math.hypot(a.x_m - b.x_m, a.y_m - b.y_m) < 1e-9
+        assert abs(a.yaw_rad - b.yaw_rad) < 1e-11 and abs(a.vy_mps - b.vy_mps) < 1e-9

@@ -17,7 +17,10 @@ are those of the centre of gravity (CG), world frame; ``v_x, v_y`` in the vehicl
   bicycle, rear-axle reference), ``_st`` (single track with linear tyres and load transfer),
   ``_std`` (single track with Pacejka tyres and wheel spin) and ``_mb`` (29-state multi-body:
   sprung mass with roll and pitch, unsprung masses, suspension, four Pacejka tyres), with one of
-  the published parameter sets of :data:`VEHICLES` (Ford Escort, BMW 320i, VW Vanagon).
+  the published parameter sets of :data:`VEHICLES` (Ford Escort, BMW 320i, VW Vanagon). The
+  multi-body equations are evaluated by :mod:`makeway.sim.multibody`, our writing-out of the
+  package's ``vehicle_dynamics_mb`` (the same equations and parameters, equal to ~1e-12 relative,
+  about twice as fast).
 
 **Road friction** (:data:`ROADS`: dry μ = 1.0, wet μ = 0.5). The Pacejka tyres of ``single_track_drift``
 and ``multi_body`` take their peak friction from the tyre coefficients ``p_dy1`` (lateral, 1.0489
