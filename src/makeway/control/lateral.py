@@ -353,9 +353,10 @@ def _fit_errors(
     return errors, index, fit
 
 
-_FIT_CACHE_SIZE = 8
+_FIT_CACHE_SIZE = 32
 """Local fits a controller remembers (the path's window moves one point every few control periods,
-and the delay compensation fits two windows per period)."""
+and the delay compensation fits two windows per period: the one of the state predicted 0.15 s
+ahead, which the present state reaches some 10–20 windows later)."""
 
 
 class _LocalFitController:
