@@ -51,7 +51,6 @@ def worker(cells: list[tuple[str, str]], out_dir: Path) -> None:
     from makeway.sim.scenarios import SCENARIOS
     from makeway.vehicle import VehicleParams
 
-    print(f"makeway from {makeway.__file__}", file=sys.stderr)
     default_gains(VehicleParams())  # once per car, not per run
     rows = []
     for vehicle, road in cells:
@@ -68,6 +67,7 @@ def worker(cells: list[tuple[str, str]], out_dir: Path) -> None:
                 "cpu": cpu,
                 "sim": sc.duration_s,
                 "load": os.getloadavg()[0],
+                "code": str(Path(makeway.__file__).resolve().parents[1]),
             }
         )
     print(json.dumps(rows))
@@ -88,8 +88,9 @@ def _run(src: Path, cells: list[tuple[str, str]], out_dir: Path) -> list[dict[st
     cmd = [sys.executable, __file__, "--worker", "--out", str(out_dir), "--cells", _cells_arg(cells)]
     env = {**os.environ, "PYTHONPATH": str(src)}
     done = subprocess.run(cmd, check=True, capture_output=True, text=True, env=env, cwd=ROOT)
-    print(done.stderr.strip(), file=sys.stderr)
     rows: list[dict[str, Any]] = json.loads(done.stdout.strip().splitlines()[-1])
+    if any(Path(r["code"]) != src.resolve() for r in rows):  # e.g. an installed makeway shadowing src
+        raise RuntimeError(f"the worker imported makeway from {rows[0]['code']}, not from {src}")
     return rows
 
 
@@ -164,7 +165,10 @@ def main() -> int:
                 "delta_end_m": d_end,
             }
         loads = [r["load"] for rows in times["now"].values() for r in rows]
-        print(f"load average during the runs: {min(loads):.2f}–{max(loads):.2f} (2 shared cores)")
+        print(
+            f"load average during the runs: {min(loads):.2f}–{max(loads):.2f} (2 shared cores; wall-clock "
+            f"factors fall with the load, CPU ones far less)"
+        )
         print(f"all targets met: {'yes' if all_ok else 'NO'}")
         summary["targets_met"] = all_ok
         print(json.dumps(summary))
