@@ -74,7 +74,7 @@ def predict_state(
     """``state`` advanced by ``len(pending)·dt`` on the design model, the steering commands
     ``pending`` (oldest first) each applied for ``dt`` through its steering lag and rate limit;
     the kinematic bicycle below ``kinematic_below_mps`` (``math.inf``: everywhere)."""
-    return _predict(state, pending, params, dt, kinematic_below_mps, substeps, False)[0]
+    return _predict(state, pending, params, dt, kinematic_below_mps, substeps)[0]
 
 
 def _predict(
@@ -84,11 +84,12 @@ def _predict(
     dt: float,
     kinematic_below_mps: float,
     substeps: int,
-    with_bicycle: bool,
-) -> tuple[VehicleState, VehicleState | None]:
-    """:func:`predict_state`, and with ``with_bicycle`` beside it the kinematic bicycle's prediction
-    (``kinematic_below_mps = inf``) from the same state: both share the steering angle and the
-    speed, so the ``mean`` predictor integrates them in one pass (each exactly as on its own)."""
+    with_bicycle: bool = False,
+) -> tuple[VehicleState, VehicleState]:
+    """:func:`predict_state`, and beside it with ``with_bicycle`` the kinematic bicycle's prediction
+    (``kinematic_below_mps = inf``) from the same state (else the first again): both share the
+    steering angle and the speed, so the ``mean`` predictor integrates them in one pass, each
+    exactly as on its own."""
     p = params
     x, y, psi = state.x_m, state.y_m, state.yaw_rad
     vx, vy, r, delta, ax = state.vx_mps, state.vy_mps, state.yaw_rate_radps, state.steer_rad, state.ax_mps2
@@ -132,7 +133,7 @@ def _predict(
     two_pi = 2.0 * math.pi
     main = VehicleState(t, x, y, math.remainder(psi, two_pi), vx, vy, r, delta, state.ax_mps2)
     if not with_bicycle:
-        return main, None
+        return main, main
     return main, VehicleState(t, kx, ky, math.remainder(kpsi, two_pi), vx, kvy, kr, delta, state.ax_mps2)
 
 
@@ -187,7 +188,6 @@ class DelayCompensated:
             below = math.inf if self.model == "kinematic" else KINEMATIC_BELOW_MPS
             return predict_state(state, pending, self.params, self.dt, kinematic_below_mps=below)
         tyres, bicycle = _predict(state, pending, self.params, self.dt, KINEMATIC_BELOW_MPS, 2, True)
-        assert bicycle is not None
         return _mean_state(tyres, bicycle)
 
     def steer(
