@@ -12,7 +12,7 @@ from typer.testing import CliRunner
 
 from makeway.cli.main import app
 from makeway.control import FeedforwardFeedback
-from makeway.control.delay import predict_state
+from makeway.control.delay import DelayCompensated, predict_state
 from makeway.messages import ControlCommand, VehicleState
 from makeway.sim.localization import LOCALIZATIONS, Localization
 from makeway.sim.plants import (
@@ -164,6 +164,28 @@ def test_delay_prediction_matches_the_design_model_it_predicts_with() -> None:
     assert predicted.y_m == pytest.approx(states[-1].y_m, abs=2e-3)
     assert predicted.yaw_rad == pytest.approx(states[-1].yaw_rad, abs=2e-4)
     assert predicted.steer_rad == pytest.approx(states[-1].steer_rad, abs=2e-4)
+
+
+@pytest.mark.parametrize("vx, ax", [(15.0, 0.0), (3.05, -2.0), (1.0, 0.5)])
+def test_the_mean_predictor_is_the_mean_of_its_two_predictions(vx: float, ax: float) -> None:
+    # the default predictor integrates the design model and the kinematic bicycle in one pass:
+    # exactly what each gives on its own (also across the 3 m/s switch to the kinematic model)
+    params = VehicleParams()
+    s0 = VehicleState(1.0, 3.0, -2.0, 0.4, vx, 0.05, 0.02, 0.01, ax)
+    pending = [0.02 * math.sin(0.4 * k) for k in range(15)]
+    comp = DelayCompensated(FeedforwardFeedback(params), params, 0.15, DT)
+    comp._pending.extend(pending)
+    tyres = predict_state(s0, pending, params, DT)
+    bicycle = predict_state(s0, pending, params, DT, kinematic_below_mps=math.inf)
+    mean = comp.predicted(s0)
+    assert mean.x_m == 0.5 * (tyres.x_m + bicycle.x_m)
+    assert mean.y_m == 0.5 * (tyres.y_m + bicycle.y_m)
+    assert mean.vy_mps == 0.5 * (tyres.vy_mps + bicycle.vy_mps)
+    assert mean.yaw_rate_radps == 0.5 * (tyres.yaw_rate_radps + bicycle.yaw_rate_radps)
+    assert mean.yaw_rad == pytest.approx(0.5 * (tyres.yaw_rad + bicycle.yaw_rad), abs=1e-15)
+    assert (mean.vx_mps, mean.steer_rad) == (tyres.vx_mps, tyres.steer_rad)
+    if vx > 3.0:  # below it the design predictor is the kinematic bicycle too
+        assert tyres.y_m != bicycle.y_m
 
 
 def test_rtk_localization_has_its_documented_noise() -> None:

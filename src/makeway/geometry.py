@@ -17,8 +17,16 @@ def rectangle_corners(x: float, y: float, yaw: float, length: float, width: floa
     along ``yaw`` (rad, counter-clockwise from the frame's x axis); metres, in that frame."""
     c, s = math.cos(yaw), math.sin(yaw)
     hl, hw = 0.5 * length, 0.5 * width
-    local = np.array([[hl, hw], [hl, -hw], [-hl, -hw], [-hl, hw]])
-    return local @ np.array([[c, s], [-s, c]]) + np.array([x, y])
+    # body-frame corners (±hl, ±hw) rotated by yaw, then moved to (x, y) (front left first)
+    lc, ls, wc, ws = hl * c, hl * s, hw * c, hw * s
+    return np.array(
+        [
+            [lc - ws + x, ls + wc + y],
+            [lc + ws + x, ls - wc + y],
+            [-lc + ws + x, -ls - wc + y],
+            [-lc - ws + x, -ls + wc + y],
+        ]
+    )
 
 
 def _rectangles_overlap(a: np.ndarray, b: np.ndarray) -> bool:
@@ -43,10 +51,20 @@ def _points_to_edges(p: np.ndarray, q: np.ndarray) -> float:
     return float(np.sqrt((d * d).sum(-1)).min())
 
 
+def _extent(corners: list[list[float]]) -> tuple[float, float, float]:
+    """The larger side of the corners' axis-aligned bounding box, and their mean ``(x, y)``."""
+    xs = [c[0] for c in corners]
+    ys = [c[1] for c in corners]
+    return max(max(xs) - min(xs), max(ys) - min(ys)), sum(xs) / len(xs), sum(ys) / len(ys)
+
+
 def rect_distance(a: np.ndarray, b: np.ndarray) -> float:
     """Gap between two rectangles (0 when they touch or overlap)."""
-    reach = float(np.ptp(a, axis=0).max() + np.ptp(b, axis=0).max())
-    centre_gap = float(np.linalg.norm(a.mean(axis=0) - b.mean(axis=0)))
+    # the far-apart test on the corners as Python floats (the closed loop asks every 10 ms)
+    size_a, xa, ya = _extent(a.tolist())
+    size_b, xb, yb = _extent(b.tolist())
+    reach = size_a + size_b
+    centre_gap = math.hypot(xa - xb, ya - yb)
     if centre_gap > reach:  # far apart: the gap is at least this (exact enough for metrics)
         return centre_gap - 0.5 * reach
     if _rectangles_overlap(a, b):

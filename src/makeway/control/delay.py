@@ -47,7 +47,6 @@ from __future__ import annotations
 
 import math
 from collections import deque
-from dataclasses import replace
 from typing import Any
 
 from makeway.messages import ReferencePath, TrackingErrors, VehicleState
@@ -55,12 +54,12 @@ from makeway.vehicle import VehicleParams
 
 __all__ = ["PREDICTORS", "DelayCompensated", "predict_state"]
 
+KINEMATIC_BELOW_MPS = 3.0
+"""Below this speed the ``design`` predictor uses the kinematic bicycle (the tyre model's
+``1/v_x`` terms grow without bound at standstill)."""
+
 PREDICTORS: tuple[str, ...] = ("mean", "design", "kinematic")
 """The predictors :class:`DelayCompensated` offers (module docstring); the first is the default."""
-
-
-def _clip(value: float, low: float, high: float) -> float:
-    return low if value < low else high if value > high else value
 
 
 def predict_state(
@@ -69,64 +68,87 @@ def predict_state(
     params: VehicleParams,
     dt: float,
     *,
-    kinematic_below_mps: float = 3.0,
+    kinematic_below_mps: float = KINEMATIC_BELOW_MPS,
     substeps: int = 2,
 ) -> VehicleState:
     """``state`` advanced by ``len(pending)·dt`` on the design model, the steering commands
     ``pending`` (oldest first) each applied for ``dt`` through its steering lag and rate limit;
     the kinematic bicycle below ``kinematic_below_mps`` (``math.inf``: everywhere)."""
+    return _predict(state, pending, params, dt, kinematic_below_mps, substeps)[0]
+
+
+def _predict(
+    state: VehicleState,
+    pending: list[float] | deque[float],
+    params: VehicleParams,
+    dt: float,
+    kinematic_below_mps: float,
+    substeps: int,
+    with_bicycle: bool = False,
+) -> tuple[VehicleState, VehicleState]:
+    """:func:`predict_state`, and beside it with ``with_bicycle`` the kinematic bicycle's prediction
+    (``kinematic_below_mps = inf``) from the same state (else the first again): both share the
+    steering angle and the speed, so the ``mean`` predictor integrates them in one pass, each
+    exactly as on its own."""
     p = params
     x, y, psi = state.x_m, state.y_m, state.yaw_rad
     vx, vy, r, delta, ax = state.vx_mps, state.vy_mps, state.yaw_rate_radps, state.steer_rad, state.ax_mps2
+    kx, ky, kpsi, kvy, kr = x, y, psi, vy, r  # the bicycle's
     m, iz, a, b, cf, cr = p.mass_kg, p.yaw_inertia_kgm2, p.a_m, p.b_m, p.cf_npr, p.cr_npr
+    # the model's coefficients, grouped as the equations below group them (the same rounding)
+    c_sum, c_moment, acf, c_inertia = cf + cr, a * cf - b * cr, a * cf, a * a * cf + b * b * cr
     L = p.L
+    tau, rate, lock = p.steer_time_constant_s, p.max_steer_rate_radps, p.max_steer_rad
     h = dt / substeps
+    cos, sin, tan = math.cos, math.sin, math.tan
     for cmd in pending:
-        target = _clip(cmd, -p.max_steer_rad, p.max_steer_rad)
+        target = -lock if cmd < -lock else lock if cmd > lock else cmd
         for _ in range(substeps):
-            d_delta = _clip(
-                (target - delta) / p.steer_time_constant_s, -p.max_steer_rate_radps, p.max_steer_rate_radps
-            )
+            d_delta = (target - delta) / tau
+            d_delta = -rate if d_delta < -rate else rate if d_delta > rate else d_delta
             if vx > kinematic_below_mps:
-                d_vy = (cf * delta - (cf + cr) / vx * vy - (a * cf - b * cr) / vx * r) / m - vx * r
-                d_r = (a * cf * delta - (a * cf - b * cr) / vx * vy - (a * a * cf + b * b * cr) / vx * r) / iz
+                d_vy = (cf * delta - c_sum / vx * vy - c_moment / vx * r) / m - vx * r
+                d_r = (acf * delta - c_moment / vx * vy - c_inertia / vx * r) / iz
                 vy += h * d_vy
                 r += h * d_r
+                if with_bicycle:
+                    kr = vx * tan(delta) / L
+                    kvy = b * kr
             else:
-                r = vx * math.tan(delta) / L
+                r = vx * tan(delta) / L
                 vy = b * r
-            c, s = math.cos(psi), math.sin(psi)
+                kr, kvy = r, vy
+            c, s = cos(psi), sin(psi)
             x += h * (vx * c - vy * s)
             y += h * (vx * s + vy * c)
             psi += h * r
+            if with_bicycle:
+                c, s = cos(kpsi), sin(kpsi)
+                kx += h * (vx * c - kvy * s)
+                ky += h * (vx * s + kvy * c)
+                kpsi += h * kr
             vx = max(0.0, vx + h * ax)
             delta += h * d_delta
-    return replace(
-        state,
-        time_s=state.time_s + dt * len(pending),
-        x_m=x,
-        y_m=y,
-        yaw_rad=math.remainder(psi, 2.0 * math.pi),
-        vx_mps=vx,
-        vy_mps=vy,
-        yaw_rate_radps=r,
-        steer_rad=delta,
-    )
+    t = state.time_s + dt * len(pending)
+    two_pi = 2.0 * math.pi
+    main = VehicleState(t, x, y, math.remainder(psi, two_pi), vx, vy, r, delta, state.ax_mps2)
+    if not with_bicycle:
+        return main, main
+    return main, VehicleState(t, kx, ky, math.remainder(kpsi, two_pi), vx, kvy, kr, delta, state.ax_mps2)
 
 
 def _mean_state(a: VehicleState, b: VehicleState) -> VehicleState:
     """The mean of two predictions of the same car at the same time (headings averaged on the circle)."""
-    return replace(
-        a,
-        x_m=0.5 * (a.x_m + b.x_m),
-        y_m=0.5 * (a.y_m + b.y_m),
-        yaw_rad=math.remainder(
-            a.yaw_rad + 0.5 * math.remainder(b.yaw_rad - a.yaw_rad, 2.0 * math.pi), 2.0 * math.pi
-        ),
-        vx_mps=0.5 * (a.vx_mps + b.vx_mps),
-        vy_mps=0.5 * (a.vy_mps + b.vy_mps),
-        yaw_rate_radps=0.5 * (a.yaw_rate_radps + b.yaw_rate_radps),
-        steer_rad=0.5 * (a.steer_rad + b.steer_rad),
+    return VehicleState(
+        a.time_s,
+        0.5 * (a.x_m + b.x_m),
+        0.5 * (a.y_m + b.y_m),
+        math.remainder(a.yaw_rad + 0.5 * math.remainder(b.yaw_rad - a.yaw_rad, 2.0 * math.pi), 2.0 * math.pi),
+        0.5 * (a.vx_mps + b.vx_mps),
+        0.5 * (a.vy_mps + b.vy_mps),
+        0.5 * (a.yaw_rate_radps + b.yaw_rate_radps),
+        0.5 * (a.steer_rad + b.steer_rad),
+        a.ax_mps2,
     )
 
 
@@ -163,10 +185,9 @@ class DelayCompensated:
         if len(pending) < self.steps:  # before the first commands: the wheel holds its angle
             pending = [state.steer_rad] * (self.steps - len(pending)) + pending
         if self.model != "mean":
-            below = math.inf if self.model == "kinematic" else 3.0
+            below = math.inf if self.model == "kinematic" else KINEMATIC_BELOW_MPS
             return predict_state(state, pending, self.params, self.dt, kinematic_below_mps=below)
-        tyres = predict_state(state, pending, self.params, self.dt)
-        bicycle = predict_state(state, pending, self.params, self.dt, kinematic_below_mps=math.inf)
+        tyres, bicycle = _predict(state, pending, self.params, self.dt, KINEMATIC_BELOW_MPS, 2, True)
         return _mean_state(tyres, bicycle)
 
     def steer(

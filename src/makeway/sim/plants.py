@@ -17,7 +17,10 @@ are those of the centre of gravity (CG), world frame; ``v_x, v_y`` in the vehicl
   bicycle, rear-axle reference), ``_st`` (single track with linear tyres and load transfer),
   ``_std`` (single track with Pacejka tyres and wheel spin) and ``_mb`` (29-state multi-body:
   sprung mass with roll and pitch, unsprung masses, suspension, four Pacejka tyres), with one of
-  the published parameter sets of :data:`VEHICLES` (Ford Escort, BMW 320i, VW Vanagon).
+  the published parameter sets of :data:`VEHICLES` (Ford Escort, BMW 320i, VW Vanagon). The
+  multi-body equations are evaluated by :mod:`makeway.sim.multibody`, our writing-out of the
+  package's ``vehicle_dynamics_mb`` (the same equations and parameters, equal to ~1e-12 relative,
+  about twice as fast).
 
 **Road friction** (:data:`ROADS`: dry μ = 1.0, wet μ = 0.5). The Pacejka tyres of ``single_track_drift``
 and ``multi_body`` take their peak friction from the tyre coefficients ``p_dy1`` (lateral, 1.0489
@@ -71,12 +74,12 @@ from vehiclemodels.parameters_vehicle2 import parameters_vehicle2
 from vehiclemodels.parameters_vehicle3 import parameters_vehicle3
 from vehiclemodels.utils.vehicle_dynamics_ks_cog import vehicle_dynamics_ks_cog
 from vehiclemodels.vehicle_dynamics_ks import vehicle_dynamics_ks
-from vehiclemodels.vehicle_dynamics_mb import vehicle_dynamics_mb
 from vehiclemodels.vehicle_dynamics_st import vehicle_dynamics_st
 from vehiclemodels.vehicle_dynamics_std import vehicle_dynamics_std
 
 from makeway.messages import ControlCommand, VehicleState
 from makeway.registry import Registry
+from makeway.sim.multibody import Derivative, multibody_rhs
 from makeway.sim.vehicle import SingleTrackModel
 from makeway.vehicle import VehicleParams
 
@@ -228,12 +231,27 @@ class LinearPlant:
         return self._state
 
 
-# model name → its derivative f(x, u, p)
-_MODELS: dict[str, Callable[[list[float], list[float], Any], list[float]]] = {
-    "kinematic": vehicle_dynamics_ks,
-    "single_track": vehicle_dynamics_st,
-    "single_track_drift": vehicle_dynamics_std,
-    "multi_body": vehicle_dynamics_mb,
+def _bound(model: Callable[[list[float], list[float], Any], list[float]]) -> Callable[[Any], Derivative]:
+    """CommonRoad's ``vehicle_dynamics_*(x, u, p)`` as a :data:`~makeway.sim.multibody.Derivative`
+    for parameter set ``p`` (it may write into ``x``, so it gets a copy)."""
+
+    def build(p: Any) -> Derivative:
+        def f(x: list[float], u: list[float], k: list[float] | None = None, c: float = 0.0) -> list[float]:
+            y = list(x) if k is None else [xi + c * ki for xi, ki in zip(x, k, strict=True)]
+            return model(y, u, p)
+
+        return f
+
+    return build
+
+
+# model name → its derivative for a parameter set; the multi-body model is our faster writing-out
+# of the package's equations (makeway.sim.multibody; identical to rounding)
+_MODELS: dict[str, Callable[[Any], Derivative]] = {
+    "kinematic": _bound(vehicle_dynamics_ks),
+    "single_track": _bound(vehicle_dynamics_st),
+    "single_track_drift": _bound(vehicle_dynamics_std),
+    "multi_body": multibody_rhs,
 }
 
 
@@ -266,8 +284,9 @@ class CommonRoadPlant:
         self.max_substep_s = max_substep_s
         self.handover_low_mps = handover_low_mps
         self.handover_high_mps = handover_high_mps
-        self._f = _MODELS[model]
         p = self.p
+        self._f = _MODELS[model](p)
+        self._f_kinematic = _bound(vehicle_dynamics_ks_cog)(p)
         # static wheel load and the wheel-spin mode's step bound per m/s (module docstring)
         fz = p.m * G * max(p.a, p.b) / (p.a + p.b)
         fz_wheel = fz if model == "single_track_drift" else 0.5 * fz
@@ -372,12 +391,16 @@ class CommonRoadPlant:
         steer = _clip(steer, sp.min, sp.max)
         accel_cmd = _clip(command.accel_mps2, -act.max_decel_mps2, act.max_accel_mps2)
         t_left = dt
+        always_kinematic = self.model == "kinematic"
+        low, high = self.handover_low_mps, self.handover_high_mps
         while t_left > 1e-12:
-            self._switch_mode()
-            v = self._speed()
+            v = self._x[3]
+            if not always_kinematic and ((v > high) if self._kinematic else (v < low)):
+                self._switch_mode()
+                v = self._x[3]
             h = self.max_substep_s
-            if not self._kinematic and self.model != "kinematic":
-                h = min(h, self._h_per_mps * max(v, self.handover_low_mps))
+            if not self._kinematic and not always_kinematic:
+                h = min(h, self._h_per_mps * max(v, low))
             h = min(h, t_left)
             try:
                 self._substep(steer, accel_cmd, h)
@@ -414,29 +437,26 @@ class CommonRoadPlant:
         """One RK4 step of length ``h`` of the model with the actuator states held over it."""
         act = self.actuators
         sp = self.p.steering
-        f = vehicle_dynamics_ks_cog if self._kinematic else self._f
-        p = self.p
+        f = self._f_kinematic if self._kinematic else self._f
         x = self._x
+        ax0 = self._ax
         # actuators: servo rate (the model clips it to its published limit) and a_x's lag
-        steer_rate = (steer_target - x[2]) / act.steer_time_constant_s
-        steer_rate = _clip(steer_rate, sp.v_min, sp.v_max)
-        d_ax = _clip(
-            (accel_cmd - self._ax) / act.accel_time_constant_s, -act.max_jerk_mps3, act.max_jerk_mps3
-        )
-        ax0, ax1 = self._ax, self._ax + h * d_ax
-        ax1 = _clip(ax1, -act.max_decel_mps2, act.max_accel_mps2)
-        at_rest = x[3] <= 0.0
+        steer_rate = _clip((steer_target - x[2]) / act.steer_time_constant_s, sp.v_min, sp.v_max)
+        jerk = act.max_jerk_mps3
+        d_ax = _clip((accel_cmd - ax0) / act.accel_time_constant_s, -jerk, jerk)
+        ax1 = _clip(ax0 + h * d_ax, -act.max_decel_mps2, act.max_accel_mps2)
         # hold the acceleration at the sub-step's mid value; the brake cannot reverse the car
         a = 0.5 * (ax0 + ax1)
-        if at_rest and a <= 0.0:
+        if x[3] <= 0.0 and a <= 0.0:
             a = 0.0
         u = [steer_rate, a]
-        k1 = f(list(x), u, p)
-        k2 = f([xi + 0.5 * h * ki for xi, ki in zip(x, k1, strict=True)], u, p)
-        k3 = f([xi + 0.5 * h * ki for xi, ki in zip(x, k2, strict=True)], u, p)
-        k4 = f([xi + h * ki for xi, ki in zip(x, k3, strict=True)], u, p)
+        half, sixth = 0.5 * h, h / 6.0
+        k1 = f(x, u)
+        k2 = f(x, u, k1, half)
+        k3 = f(x, u, k2, half)
+        k4 = f(x, u, k3, h)
         new = [
-            xi + h / 6.0 * (a1 + 2.0 * a2 + 2.0 * a3 + a4)
+            xi + sixth * (a1 + 2.0 * a2 + 2.0 * a3 + a4)
             for xi, a1, a2, a3, a4 in zip(x, k1, k2, k3, k4, strict=True)
         ]
         if new[3] < 0.0:  # came to rest inside the sub-step: stay at rest
