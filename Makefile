@@ -8,7 +8,7 @@ OUT    ?= reports/demo
 
 .PHONY: venv demo test lint typecheck bench bench-sort bench-video bench-crops bench-detection bench-pull-over \
 	bench-siren-loop bench-audio bench-rig bench-v2x bench-fusion bench-roadside bench-lights bench-active-rule \
-	bench-rsu bench-fusion-ablation bench-mcap bench-engine bench-robust bench-faults bench-overload bench-overload-listener bench-range bench-clip-fusion bench-framework-ab fuzz clean
+	bench-rsu bench-fusion-ablation bench-mcap bench-engine bench-robust bench-speed bench-faults bench-overload bench-overload-listener bench-range bench-clip-fusion bench-framework-ab fuzz clean
 
 # `make demo` installs the runtime only; `make test` and the benchmarks add the dev extra (linters,
 # scikit-learn, XGBoost, torch for the training tests).
@@ -121,6 +121,10 @@ bench-engine: venv
 bench-robust: venv
 	$(BIN)/python benchmarks/bench_robust_pull_over.py
 
+# the closed loop's speed on the multi-body plant, against the code before the speed work (same run)
+bench-speed: venv
+	$(BIN)/python benchmarks/bench_closed_loop_speed.py
+
 # sensor faults (dead, clipped, noisy, swapped capsule; dropped, frozen, black frames; clock skew) beside clean
 bench-faults: venv
 	$(BIN)/python benchmarks/bench_sensor_faults.py
@@ -152,7 +156,7 @@ fuzz: venv
 
 bench: bench-sort bench-video bench-crops bench-detection bench-pull-over bench-siren-loop bench-audio bench-rig \
 	bench-v2x bench-fusion bench-roadside bench-lights bench-active-rule bench-rsu \
-	bench-fusion-ablation bench-mcap bench-engine bench-robust bench-faults bench-overload bench-overload-listener \
+	bench-fusion-ablation bench-mcap bench-engine bench-robust bench-speed bench-faults bench-overload bench-overload-listener \
 	bench-range bench-clip-fusion bench-framework-ab
 
 clean:
