@@ -98,6 +98,13 @@ def simulate(
             "new sweep shape). Empty: sirens as they are."
         ),
     ] = "",
+    siren_level: Annotated[
+        str,
+        typer.Option(
+            help="Range the emitted siren level is drawn from, LOW,HIGH in dB SPL at 1 m "
+            "(default 110,120; real sirens span about 110 to 135, e.g. 105,140 for training).",
+        ),
+    ] = "110,120",
     full_scale_db_spl: Annotated[
         float,
         typer.Option(
@@ -121,8 +128,10 @@ def simulate(
     noise otherwise.
     """
     from makeway.apps.audio import simulate_recordings
+    from makeway.sim.audio_scenarios import SIREN_LEVEL_BOUNDS_DB
 
     street_dba = _parse_range(street_level, "--street-level", (0.0, 120.0), "dB(A) like 60,75")
+    level_db = _parse_range(siren_level, "--siren-level", SIREN_LEVEL_BOUNDS_DB, "dB SPL like 110,135")
     pitch = None
     if siren_pitch:
         pitch = _parse_range(siren_pitch, "--siren-pitch", (0.25, 4.0), "factors like 0.7,1.25")
@@ -141,6 +150,7 @@ def simulate(
         distractors=distractors,
         street_dba=street_dba,
         siren_pitch=pitch,
+        siren_level_db=level_db,
         full_scale_db_spl=full_scale_db_spl,
         progress=not quiet,
     )

@@ -93,6 +93,9 @@ PRE_ROLL_S = 1.5
 from the first sample."""
 
 SIREN_LEVEL_DB_1M = (110.0, 120.0)
+SIREN_LEVEL_BOUNDS_DB = (80.0, 150.0)
+"""The emitted siren levels a caller may ask for (dB SPL at 1 m): far beyond any road siren's
+110–135 dB on either side, but no further (a typo like 1150 is refused, not simulated)."""
 SIREN_REAR_ATTENUATION_DB = (0.0, 6.0)
 SIREN_HEIGHT_M = (0.8, 2.0)
 GROUND_REFLECTION = (0.7, 0.9)
@@ -421,6 +424,22 @@ def simulate_recording(
     )
 
 
+def check_siren_level(level_db: Sequence[float]) -> tuple[float, float]:
+    """``level_db`` as ``(low, high)`` floats, or a ValueError unless it is two numbers with
+    low ≤ high inside :data:`SIREN_LEVEL_BOUNDS_DB` (dB SPL at 1 m)."""
+    try:
+        lo, hi = (float(v) for v in level_db)
+    except (TypeError, ValueError):
+        raise ValueError(f"siren_level_db must be (low, high) in dB SPL at 1 m, not {level_db!r}") from None
+    b = SIREN_LEVEL_BOUNDS_DB
+    if not b[0] <= lo <= hi <= b[1]:
+        raise ValueError(
+            f"siren_level_db must be (low, high) with {b[0]:g} <= low <= high <= {b[1]:g} dB SPL at 1 m, "
+            f"not {level_db!r}"
+        )
+    return lo, hi
+
+
 def siren_point_source(
     signal: np.ndarray,
     trajectory: Trajectory,
@@ -433,9 +452,7 @@ def siren_point_source(
     ``level_db`` (dB SPL at 1 m; default :data:`SIREN_LEVEL_DB_1M`), from a speaker height, ground
     reflection and rear attenuation drawn from their ranges (module docstring). Returns the source
     and the drawn values."""
-    lo, hi = (float(v) for v in level_db)
-    if not lo <= hi:
-        raise ValueError(f"siren_level_db must be (low, high) with low <= high, not {level_db!r}")
+    lo, hi = check_siren_level(level_db)
     level = float(rng.uniform(lo, hi))
     ps = PointSource(
         signal=np.asarray(signal, dtype=np.float32) * np.float32(db_spl_to_pa(level)),
@@ -662,6 +679,7 @@ def generate_recordings(
     for s in scenarios:
         if s not in AUDIO_SCENARIOS:
             raise ValueError(f"unknown audio scenario {s!r}; choose from {', '.join(AUDIO_SCENARIOS)}")
+    siren_level_db = check_siren_level(siren_level_db)
     root = Path(data_root) if data_root is not None else data_dir()
     if siren_pool is None and root is not None and siren in ("auto", "real"):
         siren_pool = load_siren_sources(root)
