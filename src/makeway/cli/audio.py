@@ -406,6 +406,13 @@ def train(
             "array had recorded it, so the network cannot lean on the absolute level (0: off).",
         ),
     ] = 0.0,
+    distance_sigma: Annotated[
+        bool,
+        typer.Option(
+            help="Also learn how uncertain each distance is (needs --distance-loss log): the model "
+            "then gives a spread with every distance.",
+        ),
+    ] = False,
 ) -> None:
     """Train the siren network and export it to ONNX.
 
@@ -448,6 +455,7 @@ def train(
         threads=threads,
         seed=seed,
         gain_augment_db=gain_augment,
+        distance_sigma=distance_sigma,
         command=" ".join(["makeway audio train", *sys.argv[3:]])
         if len(sys.argv) > 3
         else "makeway audio train",
