@@ -55,6 +55,7 @@ def simulate_recordings(
     street_dba: tuple[float, float] = (60.0, 75.0),
     siren_pitch: tuple[float, float] | None = None,
     siren_level_db: tuple[float, float] = (110.0, 120.0),
+    far_start: bool = False,
     full_scale_db_spl: float = REFERENCE_FULL_SCALE_DB_SPL,
     progress: bool = True,
 ) -> dict[str, Any]:
@@ -64,6 +65,7 @@ def simulate_recordings(
     (:func:`~makeway.sim.audio_scenarios.generate_recordings` explains every option; ``street_dba`` is
     the street noise's A-weighted level range at the array in dB(A), ``siren_pitch`` a range of pitch
     factors, ``siren_level_db`` the range the emitted siren level is drawn from in dB SPL at 1 m,
+    ``far_start`` EVs that start and pass out to ~300 m away,
     ``full_scale_db_spl`` the dB SPL a digital RMS of 1.0 stands for).
 
     Returns a summary: ``out``, ``split``, ``recordings``, ``duration_s``, ``seconds`` (wall) and
@@ -103,6 +105,7 @@ def simulate_recordings(
         street_dba=street_dba,
         siren_pitch=siren_pitch,
         siren_level_db=siren_level_db,
+        far_start=far_start,
         start_index=start,
         full_scale_db_spl=full_scale_db_spl,
     )
@@ -116,6 +119,7 @@ def simulate_recordings(
         "seconds_per_audio_second": round(wall / max(len(paths) * duration_s, 1e-9), 3),
         "full_scale_db_spl": full_scale_db_spl,
         "siren_level_db": list(siren_level_db),
+        "far_start": far_start,
     }
 
 

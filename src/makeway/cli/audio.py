@@ -105,6 +105,13 @@ def simulate(
             "(default 110,120; real sirens span about 110 to 135, e.g. 105,140 for training).",
         ),
     ] = "110,120",
+    far_start: Annotated[
+        bool,
+        typer.Option(
+            help="Let the emergency vehicles start and pass farther away, out to about 300 m "
+            "(default: mostly within 60 m, at most about 180 m).",
+        ),
+    ] = False,
     full_scale_db_spl: Annotated[
         float,
         typer.Option(
@@ -151,6 +158,7 @@ def simulate(
         street_dba=street_dba,
         siren_pitch=pitch,
         siren_level_db=level_db,
+        far_start=far_start,
         full_scale_db_spl=full_scale_db_spl,
         progress=not quiet,
     )
