@@ -713,6 +713,8 @@ def train_siren_networks(
         if log is not None:
             log(line)
 
+    if distance_sigma and distance_loss != "log":
+        raise ValueError("--distance-sigma needs --distance-loss log (the spread is that of ln distance)")
     folders = [f for d in data for f in recording_folders(d)]
     test_folders = recording_folders(test) if test is not None else []
     target = Path(out) if out is not None else DEFAULT_SIREN_MODEL
@@ -724,8 +726,6 @@ def train_siren_networks(
         )
     if distance_loss not in DISTANCE_LOSSES:
         raise ValueError(f"--distance-loss must be {' or '.join(DISTANCE_LOSSES)}, not {distance_loss!r}")
-    if distance_sigma and distance_loss != "log":
-        raise ValueError("--distance-sigma needs --distance-loss log (the spread is that of ln distance)")
     weights = (
         [10.0, 10.0, 0.008 if distance_loss == "squared" else 10.0]
         if loss_weights is None
