@@ -95,8 +95,9 @@ class Recorder:
     """The shipped model as ``model_estimator`` sees it, that also runs every candidate network on
     the same features and records each one's distance and σ (all windows, in call order)."""
 
-    def __init__(self, model: SirenModel, nets: dict[Path, SirenModel]) -> None:
-        self.model, self.nets = model, nets
+    def __init__(self, model: SirenModel, nets: dict[Path, SirenModel], cache: Path | None = None) -> None:
+        self.model, self.nets, self.cache = model, nets, cache
+        self.calls = 0
         self.shipped: list[np.ndarray] = []
         self.out: dict[Path, list[SirenPrediction]] = {p: [] for p in nets}
 
@@ -105,7 +106,15 @@ class Recorder:
 
     def predict(self, windows: np.ndarray, full_scale_db_spl: float | None = None) -> SirenPrediction:
         gain = calibration_gain(full_scale_db_spl, self.model.full_scale_db_spl)
-        feats = self.model.features.transform(windows * np.float32(gain) if gain != 1.0 else windows)
+        part = None if self.cache is None else self.cache / f"{self.calls:06d}.npz"
+        self.calls += 1
+        if part is not None and part.is_file():
+            with np.load(part) as z:
+                feats = {k: z[k] for k in z.files}
+        else:
+            feats = self.model.features.transform(windows * np.float32(gain) if gain != 1.0 else windows)
+            if part is not None:
+                np.savez(part, **feats)
         for p, net in self.nets.items():
             self.out[p].append(net.run_alone(feats))
         pred = self.model.run_features(feats)
@@ -226,10 +235,15 @@ def far_rows(
 
 
 def score(
-    folders: list[Path], threads: int = 2, combos: dict[str, list[Path]] | None = None
+    folders: list[Path],
+    threads: int = 2,
+    combos: dict[str, list[Path]] | None = None,
+    feature_cache: Path | None = None,
 ) -> dict[str, Any]:
     """Run the shipped listener's decision over ``folders`` and break it down (module docstring);
-    ``combos`` (name → networks) are scored on the same windows beside the shipped combination."""
+    ``combos`` (name → networks) are scored on the same windows beside the shipped combination.
+    ``feature_cache``: a folder where the windows' features are kept, per set of folders, so a
+    second run on the same recordings only runs the networks."""
     model = SirenModel(threads=threads)
     combos = dict(combos or {})
     nets: dict[Path, SirenModel] = {}
@@ -240,7 +254,14 @@ def score(
                 if net.features.config != model.features.config:
                     raise InputError(p, "reads other features than the shipped detector")
                 nets[p] = net
-    recorder = Recorder(model, nets)
+    cache = None
+    if feature_cache is not None:
+        import hashlib
+
+        key = hashlib.sha1("\n".join(str(Path(f).resolve()) for f in folders).encode()).hexdigest()[:16]
+        cache = feature_cache / key
+        cache.mkdir(parents=True, exist_ok=True)
+    recorder = Recorder(model, nets, cache)
     arrays: dict[str, np.ndarray] = {}
     t0 = time.perf_counter()
     with progress_bar("scoring", len(folders), unit="rec") as advance:
@@ -387,6 +408,12 @@ def main() -> int:
         help="NAME=NET+NET+…: also score the geometric mean of these networks' distances (repeatable)",
     )
     ap.add_argument("--keep", type=Path, default=None, help="simulate into this folder and keep it")
+    ap.add_argument(
+        "--feature-cache",
+        type=Path,
+        default=None,
+        help="keep the windows' features in this folder: a rerun on the same recordings reuses them",
+    )
     ap.add_argument("--json", type=Path, default=None, help="also write the results to this JSON file")
     args = ap.parse_args()
     lo, hi = (float(v) for v in args.levels.split(","))
@@ -402,7 +429,7 @@ def main() -> int:
                     f"simulated {len(folders)} held-out recordings (levels {lo:g}–{hi:g} dB) in "
                     f"{time.perf_counter() - t0:.0f} s, load {os.getloadavg()[0]:.1f}"
                 )
-            result = score(folders, combos=combos)
+            result = score(folders, combos=combos, feature_cache=args.feature_cache)
         except InputError as exc:
             raise SystemExit(str(exc)) from None
     print(

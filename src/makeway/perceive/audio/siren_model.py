@@ -32,6 +32,16 @@ variety on 120 more no-siren recordings, and two trained on 500 other recordings
 kept because it lowered the median distance error at 10–50 m on validation recordings (see
 docs/results.md, section "Siren detection, bearing and distance"; model card).
 
+**Combination.** :data:`LOCALIZER_DISTANCE` says whether the localizer's distance joins the
+shipped rangers' (``localizer_distance=`` overrides it); :func:`combine_distances` is the rule.
+
+**Uncertainty.** A network trained with ``makeway audio train --distance-sigma`` has a fifth ONNX
+output, :data:`SIGMA_OUTPUT`: ln σ, σ the spread of the error of ln distance it expects for the
+window. It is read when present (``SirenPrediction.distance_sigma``; ``None`` for older files);
+the distance's ±1σ interval is ``distance · e^(±σ)``. For a mean of networks, σ is the root mean
+square of the members' σ (their errors share the level ambiguity, so averaging does not shrink
+it).
+
 **Calibration.** The networks read absolute levels at the scale they were trained at
 (:attr:`SirenModel.full_scale_db_spl`, from the ONNX metadata; 135 dB SPL for every shipped one and
 for files written before the key existed). :meth:`SirenModel.predict` rescales the windows of an
