@@ -27,10 +27,12 @@ does not decide whether a siren is there (model card).
 **Rangers.** Further networks of the same kind can join the distance (``ranger=``): the reported
 distance is then the geometric mean of the localizer's (or, without one, this network's) and the
 rangers'. Networks trained on different recordings err differently, and their mean removes part of
-the error. The shipped rangers are :data:`DEFAULT_SIREN_RANGERS`: a network trained without pitch
-variety on 120 more no-siren recordings, and two trained on 500 other recordings each; each was
-kept because it lowered the median distance error at 10–50 m on validation recordings (see
-docs/results.md, section "Siren detection, bearing and distance"; model card).
+the error. The shipped rangers are :data:`DEFAULT_SIREN_RANGERS`: two networks trained on sirens
+emitted at 105–140 dB at 1 m, the real range with margin (issue 25), where every earlier network
+had learnt 110–120 dB and placed loud sirens too near. The combination (localizer + the two) was
+chosen on validation recordings at 105–140 dB by the mean over the 5 dB bands of 110–135 dB of
+the median distance error at 10–50 m (model card). The earlier rangers stay in the package
+(:data:`PRIOR_SIREN_RANGERS`).
 
 **Combination.** :data:`LOCALIZER_DISTANCE` says whether the localizer's distance joins the
 shipped rangers' (``localizer_distance=`` overrides it); :func:`combine_distances` is the rule.
@@ -68,6 +70,7 @@ __all__ = [
     "DEFAULT_SIREN_MODEL",
     "DEFAULT_SIREN_RANGER",
     "DEFAULT_SIREN_RANGERS",
+    "PRIOR_SIREN_RANGERS",
     "SirenModel",
     "SirenPrediction",
     "combine_distances",
@@ -76,13 +79,20 @@ __all__ = [
 DEFAULT_SIREN_MODEL = Path(__file__).resolve().parents[2] / "models" / "siren_net.onnx"
 DEFAULT_SIREN_LOCALIZER = Path(__file__).resolve().parents[2] / "models" / "siren_localizer.onnx"
 DEFAULT_SIREN_RANGER = Path(__file__).resolve().parents[2] / "models" / "siren_ranger.onnx"
-DEFAULT_SIREN_RANGERS = (
+PRIOR_SIREN_RANGERS = (
     DEFAULT_SIREN_RANGER,
     Path(__file__).resolve().parents[2] / "models" / "siren_ranger2.onnx",
     Path(__file__).resolve().parents[2] / "models" / "siren_ranger3.onnx",
 )
-"""The shipped rangers (model card ``docs/model_card_siren_net.md``): ``siren_ranger.onnx``, trained
-without pitch variety, and ``siren_ranger2.onnx`` / ``siren_ranger3.onnx``, trained on other recordings."""
+"""The rangers shipped until issue 25, trained on sirens of 110–120 dB at 1 m only (``siren_ranger``,
+``siren_ranger2``, ``siren_ranger3``); still in the package, e.g. ``ranger=PRIOR_SIREN_RANGERS``."""
+DEFAULT_SIREN_RANGERS = (
+    Path(__file__).resolve().parents[2] / "models" / "siren_ranger_wide.onnx",
+    Path(__file__).resolve().parents[2] / "models" / "siren_ranger_wide2.onnx",
+)
+"""The shipped rangers (model card ``docs/model_card_siren_net.md``, "Rangers over the real siren
+levels"): two networks trained on sirens of 105–140 dB at 1 m, each with the distance uncertainty
+output; their distances are averaged with the localizer's (:data:`LOCALIZER_DISTANCE`)."""
 
 SIGMA_OUTPUT = "distance_log_sigma"
 """Name of the optional ONNX output of networks trained with ``makeway audio train
