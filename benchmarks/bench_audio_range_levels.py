@@ -99,6 +99,7 @@ class Recorder:
         self.model, self.nets, self.cache = model, nets, cache
         self.calls = 0
         self.shipped: list[np.ndarray] = []
+        self.shipped_sigma: list[np.ndarray | None] = []
         self.out: dict[Path, list[SirenPrediction]] = {p: [] for p in nets}
 
     def check_array(self, mics: np.ndarray, sample_rate: int, source: str | Path) -> None:
@@ -119,6 +120,7 @@ class Recorder:
             self.out[p].append(net.run_alone(feats))
         pred = self.model.run_features(feats)
         self.shipped.append(pred.distance)
+        self.shipped_sigma.append(pred.distance_sigma)
         return pred
 
     def combined(self, paths: list[Path]) -> tuple[np.ndarray, np.ndarray | None]:
@@ -301,6 +303,8 @@ def score(
         d300.append(label_recording(rec, max_distance_m=FAR_LABEL_M).nearest()[1])
     keep, far_d = np.concatenate(kept), np.concatenate(d300)
     shipped_all = np.concatenate(recorder.shipped)
+    sig_parts = recorder.shipped_sigma
+    shipped_sigma = np.concatenate(sig_parts) if all(x is not None for x in sig_parts) else None  # type: ignore[arg-type]
     if len(shipped_all) != len(keep) or not np.allclose(shipped_all[keep], a["distance_hat"], equal_nan=True):
         raise SystemExit("recorded windows differ from evaluate's; cannot compare combinations")
     d100 = np.full(len(keep), np.nan)
@@ -309,7 +313,7 @@ def score(
         SHIPPED: {
             "all_10_50": group_row(in_range, a, model.threshold),
             "by_level_db": by_band,
-            **far_rows(shipped_all, None, far_d, d100),
+            **far_rows(shipped_all, shipped_sigma, far_d, d100),
         }
     }
     for name, paths in combos.items():
