@@ -2,6 +2,7 @@
 
     .venv/bin/python benchmarks/bench_audio_model.py [--data DIR | --n 30 --seeds 2026,2027 --duration 8]
         [--model FILE] [--localizer FILE|none|auto] [--ranger FILE|none|auto]
+        [--localizer-distance auto|yes|no]
         [--baselines gccphat,srp,normmusic] [--latency-reps 60] [--smooth 1,8] [--smooth-probability 3]
         [--keep DIR] [--json FILE]
 
@@ -115,6 +116,12 @@ def main() -> int:
         help="further models whose distances are averaged in: comma-separated files, 'none', or "
         "'auto' (the shipped rangers with the shipped model)",
     )
+    ap.add_argument(
+        "--localizer-distance",
+        default="auto",
+        choices=("auto", "yes", "no"),
+        help="whether the localizer's distance joins the rangers' ('auto': the shipped rule)",
+    )
     ap.add_argument("--baselines", default="gccphat,srp,normmusic")
     ap.add_argument(
         "--smooth",
@@ -152,7 +159,13 @@ def main() -> int:
             if args.ranger in ("auto", "none")
             else [Path(v) for v in args.ranger.split(",") if v.strip()]
         )
-        model = SirenModel(args.model, threads=2, localizer=companion(args.localizer), ranger=rangers)
+        model = SirenModel(
+            args.model,
+            threads=2,
+            localizer=companion(args.localizer),
+            ranger=rangers,
+            localizer_distance={"auto": None, "yes": True, "no": False}[args.localizer_distance],
+        )
         print(f"model: {model!r} ({args.model.stat().st_size / 1e6:.2f} MB)")
         results: dict[str, dict[str, Any]] = {}
         smooths = sorted({1, *(int(v) for v in args.smooth.split(",") if v.strip())})  # 1: the table's anchor

@@ -1,7 +1,8 @@
 """Siren recall and distance by emitted level and by siren kind (issue 25, item 3).
 
     .venv/bin/python benchmarks/bench_audio_range_levels.py [--data DIR ... | --n 20
-        --seeds 2026,2027,2030,2031 --levels 110,135] [--keep DIR] [--json FILE]
+        --seeds 2026,2027,2030,2031 --levels 110,135] [--combo NAME=NET+NET ...] [--keep DIR]
+        [--json FILE]
 
 Real sirens span about 110–135 dB SPL at 1 m; the shipped networks were trained on 110–120 dB.
 Without ``--data`` this simulates held-out scenes (test-split sirens, tones and street noise only,
@@ -19,6 +20,20 @@ threshold. It prints, per 5 dB band of the nearest siren's emitted level and per
   propagation effect removed, read against an assumed emitted level: ``d·10^((L̂ − L)/20)`` — for
   ``L̂`` = 115 dB (the networks' prior) and 122.5 dB (the middle of the real range): what loudness
   alone can give in each band.
+
+``--combo NAME=NET+NET+…`` (repeatable) scores other ways of combining networks' distances on the
+very same windows, beside the shipped combination (``shipped``): the geometric mean of the named
+networks' distances (``SirenModel.run_alone`` on the features computed once). A ``NET`` is an ONNX
+file or a shipped name (``localizer``, ``ranger``, ``ranger2`` … for ``models/siren_<name>.onnx``).
+For every combination it also prints, on labels out to 300 m (the networks learnt to 100 m):
+
+* the median relative distance error ``|d̂ − d| / d`` per distance band (10–50, 50–100, 100–150,
+  150–300 m; target ≤ 25 % to 150 m);
+* the far/near call — ``d̂ > 100 m`` against ``d > 100 m`` — right in what share of the windows
+  with a siren within 300 m (target ≥ 95 %);
+* with networks that give a σ of ln distance (``makeway audio train --distance-sigma``): the
+  share of windows at 5–100 m whose ln distance error lies within ±1σ and ±2σ (a calibrated
+  Gaussian: 68 % and 95 %).
 
 ``--keep DIR`` keeps the simulated scenes, so ``bench_audio_range_cues.py --data DIR`` measures the
 level-independent cues on the very same scenes.
@@ -40,16 +55,90 @@ from makeway.errors import InputError
 from makeway.eval.siren import evaluate, model_estimator
 from makeway.eval.siren_labels import label_recording
 from makeway.jsonable import to_jsonable
-from makeway.perceive.audio.siren_model import SirenModel
+from makeway.perceive.audio.siren_model import (
+    DEFAULT_SIREN_MODEL,
+    SirenModel,
+    SirenPrediction,
+    combine_distances,
+)
 from makeway.perceive.audio.windows import LISTEN_SMOOTH
 from makeway.progress import progress_bar
-from makeway.sense.recording import Recording, read_recording
+from makeway.sense.recording import Recording, calibration_gain, read_recording
 from makeway.sim.audio_scenarios import held_out_folders
 
 RANGE_M = (10.0, 50.0)
 BANDS_DB = ((110.0, 115.0), (115.0, 120.0), (120.0, 125.0), (125.0, 130.0), (130.0, 135.0))
 ORACLE_LEVELS_DB = (115.0, 122.5)
 TARGET = {"distance_median_m": 6.0, "distance_mean_m": 8.0}
+FAR_BANDS_M = ((10.0, 50.0), (50.0, 100.0), (100.0, 150.0), (150.0, 300.0))
+FAR_LABEL_M = 300.0
+FAR_NEAR_M = 100.0
+SIGMA_RANGE_M = (5.0, 100.0)
+SHIPPED = "shipped"
+
+
+def parse_combo(text: str) -> tuple[str, list[Path]]:
+    """``NAME=NET+NET+…`` → the name and the networks' files (module docstring)."""
+    name, sep, members = text.partition("=")
+    if not sep or not name.strip() or not members.strip():
+        raise SystemExit(f"--combo takes NAME=NET+NET+…, not {text!r}")
+    paths = []
+    for m in (v.strip() for v in members.split("+")):
+        p = Path(m) if m.endswith(".onnx") else DEFAULT_SIREN_MODEL.parent / f"siren_{m}.onnx"
+        if not p.is_file():
+            raise SystemExit(f"--combo {name}: no network {p}")
+        paths.append(p)
+    return name.strip(), paths
+
+
+class Recorder:
+    """The shipped model as ``model_estimator`` sees it, that also runs every candidate network on
+    the same features and records each one's distance and σ (all windows, in call order)."""
+
+    def __init__(self, model: SirenModel, nets: dict[Path, SirenModel], cache: Path | None = None) -> None:
+        self.model, self.nets, self.cache = model, nets, cache
+        self.calls = 0
+        self.shipped: list[np.ndarray] = []
+        self.shipped_sigma: list[np.ndarray | None] = []
+        self.out: dict[Path, list[SirenPrediction]] = {p: [] for p in nets}
+
+    def check_array(self, mics: np.ndarray, sample_rate: int, source: str | Path) -> None:
+        self.model.check_array(mics, sample_rate, source)
+
+    def predict(self, windows: np.ndarray, full_scale_db_spl: float | None = None) -> SirenPrediction:
+        gain = calibration_gain(full_scale_db_spl, self.model.full_scale_db_spl)
+        part = None if self.cache is None else self.cache / f"{self.calls:06d}.npz"
+        self.calls += 1
+        if part is not None and part.is_file():
+            with np.load(part) as z:
+                feats = {k: z[k] for k in z.files}
+        else:
+            feats = self.model.features.transform(windows * np.float32(gain) if gain != 1.0 else windows)
+            if part is not None:
+                np.savez(part, **feats)
+        for p, net in self.nets.items():
+            self.out[p].append(net.run_alone(feats))
+        pred = self.model.run_features(feats)
+        self.shipped.append(pred.distance)
+        self.shipped_sigma.append(pred.distance_sigma)
+        return pred
+
+    def combined(self, paths: list[Path]) -> tuple[np.ndarray, np.ndarray | None]:
+        """Distance and σ of the geometric mean of ``paths``' networks over every recorded window."""
+        members = []
+        for p in paths:
+            parts = self.out[p]
+            sig = [q.distance_sigma for q in parts]
+            members.append(
+                SirenPrediction(
+                    np.zeros(0),
+                    np.zeros(0),
+                    np.concatenate([q.distance for q in parts]),
+                    None,
+                    np.concatenate(sig) if all(x is not None for x in sig) else None,  # type: ignore[arg-type]
+                )
+            )
+        return combine_distances(members)
 
 
 def siren_kind(info: dict[str, Any]) -> str:
@@ -115,15 +204,72 @@ def group_row(sel: np.ndarray, a: dict[str, np.ndarray], threshold: float) -> di
     return row
 
 
-def score(folders: list[Path], threads: int = 2) -> dict[str, Any]:
-    """Run the shipped listener's decision over ``folders`` and break it down (module docstring)."""
+def far_rows(
+    d_hat: np.ndarray, sigma: np.ndarray | None, d300: np.ndarray, d100: np.ndarray
+) -> dict[str, Any]:
+    """Relative error per distance band and the far/near call on labels to 300 m (``d300``: the
+    nearest siren's distance per window, NaN: none within 300 m), and the σ coverage at 5–100 m
+    (``d100``: the same on the windows the 10–50 m figures use) (module docstring)."""
+    row: dict[str, Any] = {}
+    ok = np.isfinite(d300) & (d300 > 0)
+    rel = np.abs(d_hat - d300) / np.where(ok, d300, 1.0)
+    for lo, hi in FAR_BANDS_M:
+        sel = ok & (d300 >= lo) & (d300 < hi)
+        row[f"rel_{lo:g}_{hi:g}"] = {
+            "n": int(sel.sum()),
+            "median": round(float(np.median(rel[sel])), 4) if sel.any() else None,
+        }
+    row["far_near_right"] = round(float(np.mean((d_hat[ok] > FAR_NEAR_M) == (d300[ok] > FAR_NEAR_M))), 4)
+    row["far_windows"] = int((ok & (d300 > FAR_NEAR_M)).sum())
+    row["far_called_far"] = (
+        round(float(np.mean(d_hat[ok & (d300 > FAR_NEAR_M)] > FAR_NEAR_M)), 4) if row["far_windows"] else None
+    )
+    if sigma is not None:
+        sel = np.isfinite(d100) & (d100 >= SIGMA_RANGE_M[0]) & (d100 <= SIGMA_RANGE_M[1])
+        z = np.abs(np.log(np.maximum(d_hat[sel], 1e-3)) - np.log(d100[sel])) / np.maximum(sigma[sel], 1e-6)
+        row["sigma"] = {
+            "n": int(sel.sum()),
+            "within_1": round(float(np.mean(z <= 1.0)), 4),
+            "within_2": round(float(np.mean(z <= 2.0)), 4),
+            "median_sigma": round(float(np.median(sigma[sel])), 4),
+        }
+    return row
+
+
+def score(
+    folders: list[Path],
+    threads: int = 2,
+    combos: dict[str, list[Path]] | None = None,
+    feature_cache: Path | None = None,
+) -> dict[str, Any]:
+    """Run the shipped listener's decision over ``folders`` and break it down (module docstring);
+    ``combos`` (name → networks) are scored on the same windows beside the shipped combination.
+    ``feature_cache``: a folder where the windows' features are kept, per set of folders, so a
+    second run on the same recordings only runs the networks."""
     model = SirenModel(threads=threads)
+    combos = dict(combos or {})
+    nets: dict[Path, SirenModel] = {}
+    for paths in combos.values():
+        for p in paths:
+            if p not in nets:
+                net = SirenModel(p, threads=threads, localizer=False, ranger=False)
+                if net.features.config != model.features.config:
+                    raise InputError(p, "reads other features than the shipped detector")
+                nets[p] = net
+    cache = None
+    if feature_cache is not None:
+        import hashlib
+
+        key = hashlib.sha1("\n".join(str(Path(f).resolve()) for f in folders).encode()).hexdigest()[:16]
+        cache = feature_cache / key
+        cache.mkdir(parents=True, exist_ok=True)
+    recorder = Recorder(model, nets, cache)
     arrays: dict[str, np.ndarray] = {}
     t0 = time.perf_counter()
     with progress_bar("scoring", len(folders), unit="rec") as advance:
         overall = evaluate(
             folders,
-            model_estimator(model),
+            model_estimator(recorder),
             threshold=model.threshold,
             smooth=LISTEN_SMOOTH,
             on_recording=lambda: advance(1),
@@ -135,14 +281,50 @@ def score(folders: list[Path], threads: int = 2) -> dict[str, Any]:
         raise SystemExit("window bookkeeping differs from evaluate's; cannot break down by level")
     pos = a["siren"]
     in_range = pos & (a["distance"] >= RANGE_M[0]) & (a["distance"] <= RANGE_M[1])
-    by_band = {}
-    for lo, hi in BANDS_DB:
-        top = a["level"] <= hi if hi == BANDS_DB[-1][1] else a["level"] < hi
-        by_band[f"{lo:g}-{hi:g}"] = group_row(in_range & (a["level"] >= lo) & top, a, model.threshold)
+
+    def bands(a: dict[str, np.ndarray]) -> dict[str, Any]:
+        out = {}
+        for lo, hi in BANDS_DB:
+            top = a["level"] <= hi if hi == BANDS_DB[-1][1] else a["level"] < hi
+            out[f"{lo:g}-{hi:g}"] = group_row(in_range & (a["level"] >= lo) & top, a, model.threshold)
+        return out
+
+    by_band = bands(a)
     by_kind = {
         k: group_row(in_range & (a["kind"] == k), a, model.threshold)
         for k in sorted({str(v) for v in a["kind"][in_range]})
     }
+    # every window was run (the smoothed decision needs each one's history): map them to the
+    # kept windows of the figures above and to labels out to 300 m
+    kept, d300 = [], []
+    for folder in folders:
+        rec = read_recording(folder)
+        kept.append(label_recording(rec).kept)
+        d300.append(label_recording(rec, max_distance_m=FAR_LABEL_M).nearest()[1])
+    keep, far_d = np.concatenate(kept), np.concatenate(d300)
+    shipped_all = np.concatenate(recorder.shipped)
+    sig_parts = recorder.shipped_sigma
+    shipped_sigma = np.concatenate(sig_parts) if all(x is not None for x in sig_parts) else None  # type: ignore[arg-type]
+    if len(shipped_all) != len(keep) or not np.allclose(shipped_all[keep], a["distance_hat"], equal_nan=True):
+        raise SystemExit("recorded windows differ from evaluate's; cannot compare combinations")
+    d100 = np.full(len(keep), np.nan)
+    d100[np.flatnonzero(keep)[pos]] = a["distance"][pos]
+    combined: dict[str, Any] = {
+        SHIPPED: {
+            "all_10_50": group_row(in_range, a, model.threshold),
+            "by_level_db": by_band,
+            **far_rows(shipped_all, shipped_sigma, far_d, d100),
+        }
+    }
+    for name, paths in combos.items():
+        dist, sigma = recorder.combined(paths)
+        b = {**a, "distance_hat": dist[keep]}
+        combined[name] = {
+            "networks": [p.name for p in paths],
+            "all_10_50": group_row(in_range, b, model.threshold),
+            "by_level_db": bands(b),
+            **far_rows(dist, sigma, far_d, d100),
+        }
     return {
         "recordings": len(folders),
         "threshold": model.threshold,
@@ -152,6 +334,7 @@ def score(folders: list[Path], threads: int = 2) -> dict[str, Any]:
         "all_10_50": group_row(in_range, a, model.threshold),
         "by_level_db": by_band,
         "by_kind": by_kind,
+        "combinations": combined,
         "seconds": round(time.perf_counter() - t0, 1),
     }
 
@@ -170,6 +353,51 @@ def print_table(title: str, rows: dict[str, dict[str, Any]]) -> None:
         print(f"{name:16s}{r['n']:>7d} ({r['sirens']:>2d}){rec:>9s}{fmt(r['networks'])} {oracles}")
 
 
+def print_combinations(rows: dict[str, dict[str, Any]]) -> None:
+    """Distance by emitted level, and beyond 50 m, for every combination (module docstring)."""
+
+    def ms(r: dict[str, Any]) -> str:
+        s = r["networks"]
+        return "–" if s["median_m"] is None else f"{s['median_m']:.1f}/{s['mean_m']:.1f}"
+
+    bands = list(next(iter(rows.values()))["by_level_db"])
+    print(f"\n{'distance, 10–50 m':18s}{'all':>12s}" + "".join(f"{b + ' dB':>12s}" for b in bands))
+    for name, r in rows.items():
+        print(
+            f"{name:18s}{ms(r['all_10_50']):>12s}" + "".join(f"{ms(r['by_level_db'][b]):>12s}" for b in bands)
+        )
+    print(f"{'target':18s}" + f"{'≤ 6/8':>12s}" * (len(bands) + 1) + "   (median/mean m)")
+    heads = [f"{lo:g}–{hi:g} m" for lo, hi in FAR_BANDS_M]
+    print(
+        f"\n{'relative error':18s}"
+        + "".join(f"{h:>12s}" for h in heads)
+        + f"{'far/near':>10s}"
+        + f"{'far→far':>9s}{'±1σ':>7s}{'±2σ':>7s}"
+    )
+    for name, r in rows.items():
+        cells = []
+        for lo, hi in FAR_BANDS_M:
+            c = r[f"rel_{lo:g}_{hi:g}"]
+            cells.append("–" if c["median"] is None else f"{100 * c['median']:.0f}% ({c['n']})")
+        sig = r.get("sigma")
+        far = "–" if r["far_called_far"] is None else f"{100 * r['far_called_far']:.0f}%"
+        print(
+            f"{name:18s}"
+            + "".join(f"{c:>12s}" for c in cells)
+            + f"{100 * r['far_near_right']:>9.1f}%"
+            + f"{far:>9s}"
+            + (
+                f"{100 * sig['within_1']:>6.0f}%{100 * sig['within_2']:>6.0f}%"
+                if sig
+                else f"{'–':>7s}{'–':>7s}"
+            )
+        )
+    print(
+        f"{'target':18s}{'≤ 25 %':>12s}{'≤ 25 %':>12s}{'≤ 25 %':>12s}{'':>12s}{'≥ 95 %':>10s}"
+        f"{'':>9s}{'68 %':>7s}{'95 %':>7s}"
+    )
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--data", type=Path, action="append", default=None, help="recordings (repeatable)")
@@ -177,11 +405,24 @@ def main() -> int:
     ap.add_argument("--seeds", default="2026,2027,2030,2031", help="held-out seeds, pooled")
     ap.add_argument("--levels", default="110,135", help="emitted siren level range, dB SPL at 1 m")
     ap.add_argument("--duration", type=float, default=8.0, help="seconds per simulated recording")
+    ap.add_argument(
+        "--combo",
+        action="append",
+        default=[],
+        help="NAME=NET+NET+…: also score the geometric mean of these networks' distances (repeatable)",
+    )
     ap.add_argument("--keep", type=Path, default=None, help="simulate into this folder and keep it")
+    ap.add_argument(
+        "--feature-cache",
+        type=Path,
+        default=None,
+        help="keep the windows' features in this folder: a rerun on the same recordings reuses them",
+    )
     ap.add_argument("--json", type=Path, default=None, help="also write the results to this JSON file")
     args = ap.parse_args()
     lo, hi = (float(v) for v in args.levels.split(","))
     seeds = [int(v) for v in args.seeds.split(",") if v.strip()]
+    combos = dict(parse_combo(c) for c in args.combo)
     with tempfile.TemporaryDirectory() as tmp:
         out = args.keep if args.keep is not None else Path(tmp)
         t0 = time.perf_counter()
@@ -192,7 +433,7 @@ def main() -> int:
                     f"simulated {len(folders)} held-out recordings (levels {lo:g}–{hi:g} dB) in "
                     f"{time.perf_counter() - t0:.0f} s, load {os.getloadavg()[0]:.1f}"
                 )
-            result = score(folders)
+            result = score(folders, combos=combos, feature_cache=args.feature_cache)
         except InputError as exc:
             raise SystemExit(str(exc)) from None
     print(
@@ -203,6 +444,7 @@ def main() -> int:
     )
     print_table("emitted level", {"all": result["all_10_50"], **result["by_level_db"]})
     print_table("siren kind", result["by_kind"])
+    print_combinations(result["combinations"])
     print(f"\nscored in {result['seconds']:.0f} s, load average {os.getloadavg()}")
     text = json.dumps(to_jsonable(result), ensure_ascii=False)
     if args.json is not None:

@@ -23,6 +23,8 @@ from makeway.perceive.audio.siren_model import (
     DEFAULT_SIREN_MODEL,
     DEFAULT_SIREN_RANGER,
     DEFAULT_SIREN_RANGERS,
+    LOCALIZER_DISTANCE,
+    PRIOR_SIREN_RANGERS,
     SirenModel,
 )
 from makeway.sense.recording import Recording, reference_mics, write_recording
@@ -339,22 +341,28 @@ def test_shipped_localizer_gives_bearing_and_distance(windows: tuple[np.ndarray,
 def test_shipped_rangers_join_the_distance(windows: tuple[np.ndarray, ...]) -> None:
     """The shipped rangers' distances are averaged (geometric mean) with the localizer's; detection
     and bearing are untouched."""
-    assert len(DEFAULT_SIREN_RANGERS) == 3
-    for path in DEFAULT_SIREN_RANGERS:
+    assert len(DEFAULT_SIREN_RANGERS) == 2 and LOCALIZER_DISTANCE
+    for path in (*DEFAULT_SIREN_RANGERS, *PRIOR_SIREN_RANGERS):
         assert path.is_file() and path.stat().st_size <= 5_000_000
     full, pair = SirenModel(threads=1), SirenModel(threads=1, ranger=False)
     assert [r.path for r in full.rangers] == list(DEFAULT_SIREN_RANGERS)
-    assert "ranger=siren_ranger.onnx+siren_ranger2.onnx+siren_ranger3.onnx" in repr(full)
+    assert "ranger=siren_ranger_wide.onnx+siren_ranger_wide2.onnx" in repr(full)
     assert pair.rangers == ()
     w, siren, _, dist = windows
     f, p = full.predict(w), pair.predict(w)
-    r1, r2, r3 = (SirenModel(path, threads=1).predict(w) for path in DEFAULT_SIREN_RANGERS)
+    r1, r2 = (SirenModel(path, threads=1).predict(w) for path in DEFAULT_SIREN_RANGERS)
     np.testing.assert_allclose(f.prob, p.prob, rtol=1e-6)
     np.testing.assert_allclose(f.theta, p.theta, atol=1e-6)
-    product = p.distance * r1.distance * r2.distance * r3.distance
-    np.testing.assert_allclose(f.distance, product**0.25, rtol=1e-5)
+    np.testing.assert_allclose(f.distance, (p.distance * r1.distance * r2.distance) ** (1 / 3), rtol=1e-5)
+    assert f.distance_sigma is not None and r1.distance_sigma is not None and r2.distance_sigma is not None
+    np.testing.assert_allclose(f.distance_sigma, np.sqrt((r1.distance_sigma**2 + r2.distance_sigma**2) / 2))
+    # the rangers shipped before issue 25 can still be named: the mean of the localizer and the three
+    old = SirenModel(threads=1, ranger=PRIOR_SIREN_RANGERS)
+    q1, q2, q3 = (SirenModel(path, threads=1).predict(w) for path in PRIOR_SIREN_RANGERS)
+    product = p.distance * q1.distance * q2.distance * q3.distance
+    np.testing.assert_allclose(old.predict(w).distance, product**0.25, rtol=1e-5)
     one = SirenModel(threads=1, ranger=DEFAULT_SIREN_RANGER)  # one named ranger: the eighth session's pair
-    np.testing.assert_allclose(one.predict(w).distance, np.sqrt(p.distance * r1.distance), rtol=1e-5)
+    np.testing.assert_allclose(one.predict(w).distance, np.sqrt(p.distance * q1.distance), rtol=1e-5)
     sel = siren & (dist > 20) & (dist < 80)
     assert np.median(np.abs(f.distance[sel] - dist[sel])) <= 15.0
 
@@ -429,7 +437,9 @@ def test_calibration_brings_another_array_to_the_networks_scale(windows: tuple[n
     np.testing.assert_allclose(cal.theta, ref.theta, atol=1e-4)
     detected = lambda p: np.mean(p.prob[siren] >= trio.threshold)  # noqa: E731
     assert detected(ref) >= 0.9 and detected(raw) <= detected(ref) - 0.2
-    assert np.median(raw.distance[siren] / ref.distance[siren]) >= 1.2
+    # farther, though by less than the 4x of a level-only ranger: the rangers trained over 105–140 dB
+    # lean on loudness less than the 110–120 dB ones did (1.17x here, against >= 1.2x before)
+    assert np.median(raw.distance[siren] / ref.distance[siren]) >= 1.1
 
 
 def test_cli_eval_and_listen_state_the_calibration(pass_rec: Recording, tmp_path: Path) -> None:

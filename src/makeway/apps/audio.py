@@ -54,6 +54,8 @@ def simulate_recordings(
     distractors: bool = True,
     street_dba: tuple[float, float] = (60.0, 75.0),
     siren_pitch: tuple[float, float] | None = None,
+    siren_level_db: tuple[float, float] = (110.0, 120.0),
+    far_start: bool = False,
     full_scale_db_spl: float = REFERENCE_FULL_SCALE_DB_SPL,
     progress: bool = True,
 ) -> dict[str, Any]:
@@ -62,18 +64,26 @@ def simulate_recordings(
     with the real ingredients of source ``split`` where the shared data is present
     (:func:`~makeway.sim.audio_scenarios.generate_recordings` explains every option; ``street_dba`` is
     the street noise's A-weighted level range at the array in dB(A), ``siren_pitch`` a range of pitch
-    factors, ``full_scale_db_spl`` the dB SPL a digital RMS of 1.0 stands for).
+    factors, ``siren_level_db`` the range the emitted siren level is drawn from in dB SPL at 1 m,
+    ``far_start`` EVs that start and pass out to ~300 m away,
+    ``full_scale_db_spl`` the dB SPL a digital RMS of 1.0 stands for).
 
     Returns a summary: ``out``, ``split``, ``recordings``, ``duration_s``, ``seconds`` (wall) and
     ``seconds_per_audio_second``, ``full_scale_db_spl``.
 
     Raises:
         InputError: ``out`` cannot be written (checked first).
-        ValueError: ``siren`` is not auto, synth or real.
+        ValueError: ``siren`` is not auto, synth or real, or ``siren_level_db`` is out of range.
     """
-    from makeway.sim.audio_scenarios import AUDIO_SCENARIOS, generate_recordings, source_pools
+    from makeway.sim.audio_scenarios import (
+        AUDIO_SCENARIOS,
+        check_siren_level,
+        generate_recordings,
+        source_pools,
+    )
 
     check_writable(out, folder=True)
+    siren_level_db = check_siren_level(siren_level_db)
     if siren not in ("auto", "synth", "real"):
         raise ValueError(f"--siren must be auto, synth or real, not {siren!r}")
     siren_pool, noise_pool = source_pools(split)
@@ -94,6 +104,8 @@ def simulate_recordings(
         distractors=distractors,
         street_dba=street_dba,
         siren_pitch=siren_pitch,
+        siren_level_db=siren_level_db,
+        far_start=far_start,
         start_index=start,
         full_scale_db_spl=full_scale_db_spl,
     )
@@ -106,6 +118,8 @@ def simulate_recordings(
         "seconds": round(wall, 2),
         "seconds_per_audio_second": round(wall / max(len(paths) * duration_s, 1e-9), 3),
         "full_scale_db_spl": full_scale_db_spl,
+        "siren_level_db": list(siren_level_db),
+        "far_start": far_start,
     }
 
 

@@ -98,6 +98,20 @@ def simulate(
             "new sweep shape). Empty: sirens as they are."
         ),
     ] = "",
+    siren_level: Annotated[
+        str,
+        typer.Option(
+            help="Range the emitted siren level is drawn from, LOW,HIGH in dB SPL at 1 m "
+            "(default 110,120; real sirens span about 110 to 135, e.g. 105,140 for training).",
+        ),
+    ] = "110,120",
+    far_start: Annotated[
+        bool,
+        typer.Option(
+            help="Let the emergency vehicles start and pass farther away, out to about 300 m "
+            "(default: mostly within 60 m, at most about 180 m).",
+        ),
+    ] = False,
     full_scale_db_spl: Annotated[
         float,
         typer.Option(
@@ -121,8 +135,10 @@ def simulate(
     noise otherwise.
     """
     from makeway.apps.audio import simulate_recordings
+    from makeway.sim.audio_scenarios import SIREN_LEVEL_BOUNDS_DB
 
     street_dba = _parse_range(street_level, "--street-level", (0.0, 120.0), "dB(A) like 60,75")
+    level_db = _parse_range(siren_level, "--siren-level", SIREN_LEVEL_BOUNDS_DB, "dB SPL like 110,135")
     pitch = None
     if siren_pitch:
         pitch = _parse_range(siren_pitch, "--siren-pitch", (0.25, 4.0), "factors like 0.7,1.25")
@@ -141,6 +157,8 @@ def simulate(
         distractors=distractors,
         street_dba=street_dba,
         siren_pitch=pitch,
+        siren_level_db=level_db,
+        far_start=far_start,
         full_scale_db_spl=full_scale_db_spl,
         progress=not quiet,
     )
@@ -396,6 +414,13 @@ def train(
             "array had recorded it, so the network cannot lean on the absolute level (0: off).",
         ),
     ] = 0.0,
+    distance_sigma: Annotated[
+        bool,
+        typer.Option(
+            help="Also learn how uncertain each distance is (needs --distance-loss log): the model "
+            "then gives a spread with every distance.",
+        ),
+    ] = False,
 ) -> None:
     """Train the siren network and export it to ONNX.
 
@@ -438,6 +463,7 @@ def train(
         threads=threads,
         seed=seed,
         gain_augment_db=gain_augment,
+        distance_sigma=distance_sigma,
         command=" ".join(["makeway audio train", *sys.argv[3:]])
         if len(sys.argv) > 3
         else "makeway audio train",

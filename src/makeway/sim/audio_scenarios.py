@@ -19,6 +19,15 @@ rotated and shifted by a random world pose so that world and vehicle frames diff
                          or earlier when fast) and overtakes
 =======================  ===================================================================
 
+With ``far_start`` (opt-in, for ranging out to audible range, issue 25) the distances above are
+drawn from wider ranges (:data:`FAR_START`): the EV crosses 8–250 m ahead, drives −250…250 m along
+the road from the ego, passes anywhere from 0.8 recordings before its start to 0.8 after its end
+(so it may stay a few hundred metres away the whole time), or closes from 30–300 m behind. Every
+other draw of a seed is unchanged (the same random numbers are stretched over the wider ranges).
+Over the four scenarios, 8 s recordings: without it half the windows hold a siren within 41 m,
+3 % beyond 150 m, none beyond 300 m; with it 36 % within 100 m, 17 % at 100–150 m, 42 % at
+150–300 m and 5 % farther.
+
 **Levels** (drawn per recording; module constants below):
 
 * siren: 110–120 dB SPL at 1 m (the issue's range; ratings of road sirens are higher on-axis —
@@ -93,6 +102,9 @@ PRE_ROLL_S = 1.5
 from the first sample."""
 
 SIREN_LEVEL_DB_1M = (110.0, 120.0)
+SIREN_LEVEL_BOUNDS_DB = (80.0, 150.0)
+"""The emitted siren levels a caller may ask for (dB SPL at 1 m): far beyond any road siren's
+110–135 dB on either side, but no further (a typo like 1150 is refused, not simulated)."""
 SIREN_REAR_ATTENUATION_DB = (0.0, 6.0)
 SIREN_HEIGHT_M = (0.8, 2.0)
 GROUND_REFLECTION = (0.7, 0.9)
@@ -118,6 +130,15 @@ SIREN_VARIETY_RISE = (0.15, 0.95)
 """With ``siren_pitch``: range of the rise fraction a varied synthesized wail or yelp is redrawn from
 (0.95: a slow rise and a sudden drop, like a mechanical siren winding up)."""
 """A-weighted level of a distractor while it sounds, relative to the street noise's (dB)."""
+
+FAR_START = {
+    "crossing_gap_m": (8.0, 250.0),
+    "same_direction_offset_m": (-250.0, 250.0),
+    "opposite_pass_fraction": (-0.8, 1.8),
+    "from_behind_gap_m": (30.0, 300.0),
+}
+"""With ``far_start``: the ranges that replace the scenario's own (module docstring); the default
+ones are 8–40 m, −60…60 m, 0.1–0.9 of the recording and 30–140 m."""
 
 Fn = Callable[[np.ndarray], np.ndarray]
 
@@ -148,13 +169,14 @@ def _smoothstep(u: np.ndarray) -> np.ndarray:
 
 
 def _ev_track(
-    kind: str, ego: _Motion, duration_s: float, rng: np.random.Generator
+    kind: str, ego: _Motion, duration_s: float, rng: np.random.Generator, far_start: bool = False
 ) -> tuple[Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]], dict[str, float]]:
-    """An EV path ``t → (x, y)`` in the ego's road frame for scenario ``kind``, and its parameters."""
+    """An EV path ``t → (x, y)`` in the ego's road frame for scenario ``kind``, and its parameters
+    (``far_start``: the wider distances of :data:`FAR_START`)."""
     T = duration_s
     if kind == "crossing":
         t_c = float(rng.uniform(0.15, 0.85) * T)
-        gap = float(rng.uniform(8.0, 40.0))
+        gap = float(rng.uniform(*(FAR_START["crossing_gap_m"] if far_start else (8.0, 40.0))))
         x_i = float(ego.x(np.array([t_c]))[0]) + gap
         side = float(rng.choice([-1.0, 1.0]))
         lane = float(rng.uniform(-4.0, 4.0))
@@ -164,18 +186,18 @@ def _ev_track(
     if kind == "opposite_direction":
         lateral = float(rng.uniform(3.0, 10.0))
         v = float(rng.uniform(8.0, 25.0))
-        t_p = float(rng.uniform(0.1, 0.9) * T)
+        t_p = float(rng.uniform(*(FAR_START["opposite_pass_fraction"] if far_start else (0.1, 0.9))) * T)
         x_p = float(ego.x(np.array([t_p]))[0])
         p = {"lateral_m": lateral, "ev_speed_mps": v, "pass_time_s": t_p}
         return (lambda t: (x_p - v * (t - t_p), np.full_like(t, lateral))), p
     if kind == "same_direction":
         lateral = float(rng.uniform(3.0, 8.0) * rng.choice([-1.0, 1.0]))
         dv = float(rng.uniform(-6.0, 10.0))
-        dx_mid = float(rng.uniform(-60.0, 60.0))
+        dx_mid = float(rng.uniform(*(FAR_START["same_direction_offset_m"] if far_start else (-60.0, 60.0))))
         p = {"lateral_m": lateral, "relative_speed_mps": dv, "offset_mid_m": dx_mid}
         return (lambda t: (ego.x(t) + dx_mid + dv * (t - 0.5 * T), np.full_like(t, lateral))), p
     if kind == "from_behind":
-        gap0 = float(rng.uniform(30.0, 140.0))
+        gap0 = float(rng.uniform(*(FAR_START["from_behind_gap_m"] if far_start else (30.0, 140.0))))
         dv = float(rng.uniform(5.0, 15.0))
         dur = float(rng.uniform(2.0, 3.5))
         # the EV has moved most of the way over before it draws level with the ego
@@ -207,12 +229,17 @@ class ScenarioTracks:
 
 
 def make_tracks(
-    scenario: str, duration_s: float, rng: np.random.Generator, *, n_sirens: int = 1
+    scenario: str,
+    duration_s: float,
+    rng: np.random.Generator,
+    *,
+    n_sirens: int = 1,
+    far_start: bool = False,
 ) -> ScenarioTracks:
     """Ego and EV trajectories for ``scenario`` (``"none"``: an ego drive with no EV).
 
     The first EV follows ``scenario``; further EVs (``n_sirens > 1``) take random scenarios around
-    the same ego drive.
+    the same ego drive. ``far_start``: EVs start farther away (module docstring).
     """
     if scenario not in (*AUDIO_SCENARIOS, "none"):
         raise ValueError(
@@ -238,7 +265,7 @@ def make_tracks(
     evs: list[Trajectory] = []
     params: list[dict[str, Any]] = []
     for kind in kinds:
-        path, p = _ev_track(kind, motion, duration_s, rng)
+        path, p = _ev_track(kind, motion, duration_s, rng, far_start)
         vx, vy = path(t)
         wx, wy = world(vx, vy)
         evs.append(Trajectory(t, wx, wy))
@@ -290,6 +317,7 @@ def simulate_recording(
     siren_pitch: tuple[float, float] | None = None,
     full_scale_db_spl: float = FULL_SCALE_DB_SPL,
     siren_level_db: tuple[float, float] = SIREN_LEVEL_DB_1M,
+    far_start: bool = False,
 ) -> Recording:
     """Simulate one recording of the reference array (not written; see :func:`generate_recordings`).
 
@@ -321,6 +349,8 @@ def simulate_recording(
         siren_level_db: ``(low, high)`` range the emitted siren level is drawn from, uniformly
             (dB SPL at 1 m; default :data:`SIREN_LEVEL_DB_1M`, the networks' training prior). Real
             sirens span about 110–135 dB: ``(110, 135)`` tests ranging beyond the prior (issue 25).
+        far_start: EVs start and pass farther away, out to ~300 m (module docstring); off by
+            default.
     """
     rng = np.random.default_rng(seed)
     vary_rng = np.random.default_rng([int(seed) & 0xFFFFFFFF, 0x517E]) if siren_pitch else None
@@ -346,7 +376,7 @@ def simulate_recording(
 
     mics = reference_mics() if mics is None else np.asarray(mics, dtype=np.float64)
     n = round(duration_s * sample_rate)
-    tracks = make_tracks(scenario, duration_s, rng, n_sirens=max(1, n_sirens))
+    tracks = make_tracks(scenario, duration_s, rng, n_sirens=max(1, n_sirens), far_start=far_start)
     meta: dict[str, Any] = {
         "simulator": "makeway.sim.audio_scenarios",
         "scenario": scenario,
@@ -354,6 +384,8 @@ def simulate_recording(
         "duration_s": float(duration_s),
         "ego_speed_mps": round(tracks.ego_speed_mps, 3),
     }
+    if far_start:
+        meta["far_start"] = True
 
     # --- sirens
     n_sig = round((duration_s + PRE_ROLL_S) * sample_rate) + 64
@@ -421,6 +453,22 @@ def simulate_recording(
     )
 
 
+def check_siren_level(level_db: Sequence[float]) -> tuple[float, float]:
+    """``level_db`` as ``(low, high)`` floats, or a ValueError unless it is two numbers with
+    low ≤ high inside :data:`SIREN_LEVEL_BOUNDS_DB` (dB SPL at 1 m)."""
+    try:
+        lo, hi = (float(v) for v in level_db)
+    except (TypeError, ValueError):
+        raise ValueError(f"siren_level_db must be (low, high) in dB SPL at 1 m, not {level_db!r}") from None
+    b = SIREN_LEVEL_BOUNDS_DB
+    if not b[0] <= lo <= hi <= b[1]:
+        raise ValueError(
+            f"siren_level_db must be (low, high) with {b[0]:g} <= low <= high <= {b[1]:g} dB SPL at 1 m, "
+            f"not {level_db!r}"
+        )
+    return lo, hi
+
+
 def siren_point_source(
     signal: np.ndarray,
     trajectory: Trajectory,
@@ -433,9 +481,7 @@ def siren_point_source(
     ``level_db`` (dB SPL at 1 m; default :data:`SIREN_LEVEL_DB_1M`), from a speaker height, ground
     reflection and rear attenuation drawn from their ranges (module docstring). Returns the source
     and the drawn values."""
-    lo, hi = (float(v) for v in level_db)
-    if not lo <= hi:
-        raise ValueError(f"siren_level_db must be (low, high) with low <= high, not {level_db!r}")
+    lo, hi = check_siren_level(level_db)
     level = float(rng.uniform(lo, hi))
     ps = PointSource(
         signal=np.asarray(signal, dtype=np.float32) * np.float32(db_spl_to_pa(level)),
@@ -585,13 +631,14 @@ def generate_held_out(
     split: str = "test",
     *,
     siren_level_db: tuple[float, float] = SIREN_LEVEL_DB_1M,
+    far_start: bool = False,
 ) -> list[Path]:
     """The held-out sets of the audio benchmarks: ``n`` recordings per seed, into
     ``out_dir/seed_<seed>``, made of the test-split ingredients only (:func:`source_pools`), as
     ``makeway audio simulate --n N --duration D --seed S --split test`` makes them
     (``split="train"``: validation sets of training-split ingredients, for choices made before a
-    held-out set is looked at). ``siren_level_db``: the emitted levels' range
-    (:func:`simulate_recording`)."""
+    held-out set is looked at). ``siren_level_db``: the emitted levels' range, ``far_start``: EVs out
+    to ~300 m (:func:`simulate_recording`)."""
     sirens, noise = source_pools(split)
     folders: list[Path] = []
     for seed in seeds:
@@ -603,6 +650,7 @@ def generate_held_out(
             siren_pool=sirens,
             noise_pool=noise,
             siren_level_db=siren_level_db,
+            far_start=far_start,
         )
     return folders
 
@@ -616,6 +664,7 @@ def held_out_folders(
     split: str = "test",
     *,
     siren_level_db: tuple[float, float] = SIREN_LEVEL_DB_1M,
+    far_start: bool = False,
 ) -> list[Path]:
     """The recordings an audio benchmark runs on: those in the ``data`` folders
     (:func:`~makeway.sense.recording.recording_folders`), or, when none are given, the held-out
@@ -623,7 +672,9 @@ def held_out_folders(
     levels drawn from ``siren_level_db``)."""
     if data:
         return [f for d in data for f in recording_folders(d)]
-    return generate_held_out(out_dir, n, seeds, duration_s, split, siren_level_db=siren_level_db)
+    return generate_held_out(
+        out_dir, n, seeds, duration_s, split, siren_level_db=siren_level_db, far_start=far_start
+    )
 
 
 def generate_recordings(
@@ -647,6 +698,7 @@ def generate_recordings(
     siren_pitch: tuple[float, float] | None = None,
     full_scale_db_spl: float = FULL_SCALE_DB_SPL,
     siren_level_db: tuple[float, float] = SIREN_LEVEL_DB_1M,
+    far_start: bool = False,
 ) -> list[Path]:
     """Simulate ``n`` recordings into ``out_dir/rec_00000`` … (each written all-or-nothing).
 
@@ -654,14 +706,15 @@ def generate_recordings(
     EVs. Recording ``i`` uses a seed derived from ``(seed, i)``, so any one can be re-made alone.
     ``distractors``: non-siren street sounds in a share of the recordings (module docstring);
     ``street_dba``: the street noise's level range; ``siren_pitch``: pitch variety for training sets;
-    ``full_scale_db_spl``: the array's calibration; ``siren_level_db``: the emitted levels' range
-    (all: see :func:`simulate_recording`).
+    ``full_scale_db_spl``: the array's calibration; ``siren_level_db``: the emitted levels' range;
+    ``far_start``: EVs out to ~300 m (all: see :func:`simulate_recording`).
     """
     from makeway.progress import progress_bar
 
     for s in scenarios:
         if s not in AUDIO_SCENARIOS:
             raise ValueError(f"unknown audio scenario {s!r}; choose from {', '.join(AUDIO_SCENARIOS)}")
+    siren_level_db = check_siren_level(siren_level_db)
     root = Path(data_root) if data_root is not None else data_dir()
     if siren_pool is None and root is not None and siren in ("auto", "real"):
         siren_pool = load_siren_sources(root)
@@ -692,6 +745,7 @@ def generate_recordings(
                 siren_pitch=siren_pitch,
                 full_scale_db_spl=full_scale_db_spl,
                 siren_level_db=siren_level_db,
+                far_start=far_start,
             )
             written.append(write_recording(out / f"rec_{i:05d}", rec))
             advance(1)

@@ -22,7 +22,11 @@ heads. Losses as SPEC §3: BCE for the siren, squared error on (sin θ, cos θ) 
 both masked to windows with a siren, weighted sum with weights (10, 10, 0.008) by default. With
 ``TrainConfig.distance_loss = "log"`` the distance head predicts ln distance (the output stays in
 metres) and the loss is the squared error of ln distance (weights 10, 10, 10 from the CLI): the
-level cue's error is relative, so near sirens count as much as far ones. Inputs
+level cue's error is relative, so near sirens count as much as far ones. With
+``TrainConfig.distance_sigma`` (log loss only) a fifth head predicts ln σ, the spread of the ln
+distance error it expects for the window, trained by the Gaussian negative log-likelihood of the
+(detached) ln distance error on the detached trunk features: the other heads train exactly as
+without it, and the ONNX graph gains the output ``distance_log_sigma``. Inputs
 are standardised inside the network (buffers fitted on the training data), so the exported ONNX
 graph takes the raw features.
 
@@ -51,6 +55,7 @@ from makeway.eval.siren import calibrate_threshold
 from makeway.eval.siren_labels import label_recording
 from makeway.perceive.audio.features import window_batch
 from makeway.perceive.audio.siren_features import MIRROR_CHANNELS, SirenFeatureConfig, SirenFeatures
+from makeway.perceive.audio.siren_model import SIGMA_OUTPUT
 from makeway.sense.recording import REFERENCE_FULL_SCALE_DB_SPL, calibration_gain, read_recording
 
 __all__ = [
@@ -67,6 +72,7 @@ __all__ = [
 INPUT_NAMES = ("wave", "spec", "gcc", "level")
 DISTANCE_LOSSES = ("squared", "log")
 OUTPUT_NAMES = ("siren_logit", "direction", "distance", "bearing_logits")
+LOG_SIGMA_RANGE = (-5.0, 3.0)
 
 
 # ------------------------------------------------------------------------------------------- data
@@ -274,9 +280,13 @@ class SirenNet(nn.Module):
         width: int = 32,
         n_azimuth: int = 120,
         log_distance: bool = False,
+        distance_sigma: bool = False,
     ) -> None:
         super().__init__()
         self.log_distance = bool(log_distance)
+        self.distance_sigma = bool(distance_sigma)
+        if self.distance_sigma and not self.log_distance:
+            raise ValueError("the distance uncertainty head needs the log distance loss")
         unknown = set(streams) - set(INPUT_NAMES)
         if unknown:
             raise ValueError(f"unknown streams {sorted(unknown)}; choose from {', '.join(INPUT_NAMES)}")
@@ -330,6 +340,8 @@ class SirenNet(nn.Module):
         self.distance_head = nn.Linear(4 * w, 1)
         if "gcc" not in self.streams:
             self.direction_head = nn.Linear(4 * w, 2)
+        if self.distance_sigma:  # made last: the other layers' initial weights stay as without it
+            self.sigma_head = nn.Linear(4 * w, 1)
 
     def fit_normalization(self, features: dict[str, np.ndarray]) -> None:
         """Standardisation buffers from training features (per channel/row, over the rest)."""
@@ -340,7 +352,9 @@ class SirenNet(nn.Module):
                 assert isinstance(norm, _Standardize)
                 norm.fit(features[s], axes[s])
 
-    def forward(self, *inputs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+    def forward(self, *inputs: torch.Tensor) -> tuple[torch.Tensor, ...]:
+        """``(siren_logit, direction, distance, bearing_logits)``, plus ``distance_log_sigma``
+        with ``distance_sigma`` (module docstring)."""
         x = dict(zip(self.streams, inputs, strict=True))
         parts = []
         bearing_logits = None
@@ -366,6 +380,10 @@ class SirenNet(nn.Module):
         else:
             direction = self.direction_head(h)
             bearing_logits = torch.zeros((h.shape[0], 1), dtype=h.dtype)
+        if self.distance_sigma:
+            # on the detached trunk: the uncertainty never pulls on the features of the estimate
+            log_sigma = torch.clamp(self.sigma_head(h.detach())[:, 0], *LOG_SIGMA_RANGE)
+            return siren_logit, direction, distance, bearing_logits, log_sigma
         return siren_logit, direction, distance, bearing_logits
 
 
@@ -391,6 +409,8 @@ class TrainConfig:
     val_fraction: float = 0.15
     seed: int = 0
     threads: int = 2
+    distance_sigma: bool = False
+    """Add the distance uncertainty head (module docstring; needs ``distance_loss="log"``)."""
     gain_augment_db: float = 0.0
     """Each training window is shifted by a gain drawn uniformly from ±this many dB
     (:meth:`~makeway.perceive.audio.siren_features.SirenFeatures.shift_gain`), as if recorded by
@@ -411,8 +431,11 @@ def _loss(
     tgt: tuple[torch.Tensor, ...],
     weights: tuple[float, float, float],
     distance_loss: str = "squared",
-) -> tuple[torch.Tensor, list[float]]:
-    siren_logit, direction, distance, _ = out
+) -> tuple[torch.Tensor, list[float], torch.Tensor | None]:
+    """The weighted loss of the siren, direction and distance heads, its three parts, and (with an
+    uncertainty output) the Gaussian negative log-likelihood of the detached ln distance error
+    under the predicted σ, to be added for the backward pass only."""
+    siren_logit, direction, distance = out[:3]
     siren, direction_t, dist_t, mask = tgt
     bce = nn.functional.binary_cross_entropy_with_logits(siren_logit, siren)
     m = mask.float()
@@ -424,7 +447,12 @@ def _loss(
         err = distance - dist_t
     dist_l = ((err**2) * m).sum() / n
     total = weights[0] * bce + weights[1] * dir_l + weights[2] * dist_l
-    return total, [float(bce.detach()), float(dir_l.detach()), float(dist_l.detach())]
+    nll = None
+    if len(out) > 4:
+        log_sigma = out[4]
+        e2 = err.detach() ** 2
+        nll = ((0.5 * e2 * torch.exp(-2.0 * log_sigma) + log_sigma) * m).sum() / n
+    return total, [float(bce.detach()), float(dir_l.detach()), float(dist_l.detach())], nll
 
 
 def split_by_recording(data: SirenDataset, fraction: float, seed: int) -> tuple[np.ndarray, np.ndarray]:
@@ -455,7 +483,7 @@ def evaluate_net(net: SirenNet, data: SirenDataset, batch_size: int = 256) -> di
     with torch.no_grad():
         for i in range(0, len(data), batch_size):
             idx = np.arange(i, min(i + batch_size, len(data)))
-            logit, direction, distance, _ = net(*_batches(data, idx, net.streams))
+            logit, direction, distance = net(*_batches(data, idx, net.streams))[:3]
             probs.append(torch.sigmoid(logit).numpy())
             thetas.append(torch.atan2(direction[:, 0], direction[:, 1]).numpy())
             dists.append(distance.numpy())
@@ -496,7 +524,14 @@ def train_siren_net(
             f"distance_loss must be one of {', '.join(DISTANCE_LOSSES)}, not {cfg.distance_loss!r}"
         )
     train_idx, val_idx = split_by_recording(data, cfg.val_fraction, cfg.seed)
-    net = SirenNet(shapes, cfg.streams, cfg.width, n_azimuth, log_distance=cfg.distance_loss == "log")
+    net = SirenNet(
+        shapes,
+        cfg.streams,
+        cfg.width,
+        n_azimuth,
+        log_distance=cfg.distance_loss == "log",
+        distance_sigma=cfg.distance_sigma,
+    )
     # standardisation statistics from at most 4000 training windows (a full copy of the waveform
     # stream would double the memory of a large training set)
     norm_idx = np.sort(rng.choice(train_idx, size=min(len(train_idx), 4000), replace=False))
@@ -514,14 +549,15 @@ def train_siren_net(
         order = rng.permutation(train_idx)
         sums = np.zeros(4)
         nb = 0
+        nll_sum = 0.0
         for i in range(0, len(order), cfg.batch_size):
             idx = order[i : i + cfg.batch_size]
             if len(idx) < 2:
                 continue
             out = net(*_batches(data, idx, net.streams, shift))
-            loss, parts = _loss(out, tuple(t[idx] for t in tgt_all), cfg.loss_weights, cfg.distance_loss)
+            loss, parts, nll = _loss(out, tuple(t[idx] for t in tgt_all), cfg.loss_weights, cfg.distance_loss)
             opt.zero_grad()
-            loss.backward()
+            (loss if nll is None else loss + nll).backward()
             opt.step()
             sums += [float(loss.detach()), *parts]
             nb += 1
@@ -532,9 +568,13 @@ def train_siren_net(
             for i in range(0, len(val_idx), 256):
                 idx = val_idx[i : i + 256]
                 out = net(*_batches(data, idx, net.streams))
-                loss, parts = _loss(out, tuple(t[idx] for t in tgt_all), cfg.loss_weights, cfg.distance_loss)
+                loss, parts, nll = _loss(
+                    out, tuple(t[idx] for t in tgt_all), cfg.loss_weights, cfg.distance_loss
+                )
                 vsum += np.array([float(loss), *parts]) * len(idx)
                 vn += len(idx)
+                if nll is not None:
+                    nll_sum += float(nll) * len(idx)
             vsum /= max(vn, 1)
         row = {
             "epoch": epoch + 1,
@@ -546,6 +586,8 @@ def train_siren_net(
             "val_distance_mse": vsum[3],
             "seconds": time.perf_counter() - t0,
         }
+        if net.distance_sigma:  # reported, not part of the checkpoint choice
+            row["val_sigma_nll"] = nll_sum / max(vn, 1)
         history.append(row)
         if on_epoch is not None:
             on_epoch(epoch, row)
@@ -578,6 +620,7 @@ def export_onnx(
 
     net.eval()
     dummy = tuple(torch.zeros((2, *net.shapes[s])) for s in net.streams)
+    outputs = (*OUTPUT_NAMES, SIGMA_OUTPUT) if net.distance_sigma else OUTPUT_NAMES
     meta = {
         "makeway_model": "siren_net",
         "format_version": "1",
@@ -596,8 +639,8 @@ def export_onnx(
             str(tmp),
             dynamo=False,
             input_names=list(net.streams),
-            output_names=list(OUTPUT_NAMES),
-            dynamic_axes={n: {0: "batch"} for n in (*net.streams, *OUTPUT_NAMES)},
+            output_names=list(outputs),
+            dynamic_axes={n: {0: "batch"} for n in (*net.streams, *outputs)},
             opset_version=17,
         )
         model = onnx.load(str(tmp))
@@ -631,6 +674,7 @@ def train_siren_networks(
     threads: int = 2,
     seed: int = 0,
     gain_augment_db: float = 0.0,
+    distance_sigma: bool = False,
     command: str = "makeway audio train",
     log: Callable[[str], None] | None = None,
     progress: bool = True,
@@ -641,7 +685,8 @@ def train_siren_networks(
     run cut short still leaves a model.
 
     ``streams`` is a subset of :data:`~makeway.perceive.audio.siren_features.STREAMS`;
-    ``distance_loss`` ``"squared"`` (m²) or ``"log"`` (ln distance); ``loss_weights`` weigh the siren,
+    ``distance_loss`` ``"squared"`` (m²) or ``"log"`` (ln distance); ``distance_sigma`` adds the
+    distance uncertainty output (log loss only; module docstring); ``loss_weights`` weigh the siren,
     direction and distance losses (default ``(10, 10, 0.008)`` with the squared loss, ``(10, 10, 10)``
     with the log loss). ``lr`` is Adam's learning rate, ``patience`` the epochs without improvement
     before it drops; ``gain_augment_db`` shifts each training window by up to ± that many dB. With
@@ -668,6 +713,8 @@ def train_siren_networks(
         if log is not None:
             log(line)
 
+    if distance_sigma and distance_loss != "log":
+        raise ValueError("--distance-sigma needs --distance-loss log (the spread is that of ln distance)")
     folders = [f for d in data for f in recording_folders(d)]
     test_folders = recording_folders(test) if test is not None else []
     target = Path(out) if out is not None else DEFAULT_SIREN_MODEL
@@ -698,6 +745,7 @@ def train_siren_networks(
         seed=seed,
         threads=threads,
         gain_augment_db=gain_augment_db,
+        distance_sigma=distance_sigma,
     )
     feats = SirenFeatures()
     with progress_bar("features", len(folders), enabled=progress, unit="rec") as advance:
@@ -737,6 +785,7 @@ def train_siren_networks(
                 f"val {row['val_loss']:.3f} "
                 f"(bce {row['val_bce']:.3f}, direction {row['val_direction']:.3f}, "
                 + distance
+                + (f"σ nll {row['val_sigma_nll']:.3f}, " if "val_sigma_nll" in row else "")
                 + f"{row['seconds']:.0f} s"
             )
             advance(1)

@@ -27,10 +27,22 @@ does not decide whether a siren is there (model card).
 **Rangers.** Further networks of the same kind can join the distance (``ranger=``): the reported
 distance is then the geometric mean of the localizer's (or, without one, this network's) and the
 rangers'. Networks trained on different recordings err differently, and their mean removes part of
-the error. The shipped rangers are :data:`DEFAULT_SIREN_RANGERS`: a network trained without pitch
-variety on 120 more no-siren recordings, and two trained on 500 other recordings each; each was
-kept because it lowered the median distance error at 10–50 m on validation recordings (see
-docs/results.md, section "Siren detection, bearing and distance"; model card).
+the error. The shipped rangers are :data:`DEFAULT_SIREN_RANGERS`: two networks trained on sirens
+emitted at 105–140 dB at 1 m, the real range with margin (issue 25), where every earlier network
+had learnt 110–120 dB and placed loud sirens too near. The combination (localizer + the two) was
+chosen on validation recordings at 105–140 dB by the mean over the 5 dB bands of 110–135 dB of
+the median distance error at 10–50 m (model card). The earlier rangers stay in the package
+(:data:`PRIOR_SIREN_RANGERS`).
+
+**Combination.** :data:`LOCALIZER_DISTANCE` says whether the localizer's distance joins the
+shipped rangers' (``localizer_distance=`` overrides it); :func:`combine_distances` is the rule.
+
+**Uncertainty.** A network trained with ``makeway audio train --distance-sigma`` has a fifth ONNX
+output, :data:`SIGMA_OUTPUT`: ln σ, σ the spread of the error of ln distance it expects for the
+window. It is read when present (``SirenPrediction.distance_sigma``; ``None`` for older files);
+the distance's ±1σ interval is ``distance · e^(±σ)``. For a mean of networks, σ is the root mean
+square of the members' σ (their errors share the level ambiguity, so averaging does not shrink
+it).
 
 **Calibration.** The networks read absolute levels at the scale they were trained at
 (:attr:`SirenModel.full_scale_db_spl`, from the ONNX metadata; 135 dB SPL for every shipped one and
@@ -58,20 +70,37 @@ __all__ = [
     "DEFAULT_SIREN_MODEL",
     "DEFAULT_SIREN_RANGER",
     "DEFAULT_SIREN_RANGERS",
+    "PRIOR_SIREN_RANGERS",
     "SirenModel",
     "SirenPrediction",
+    "combine_distances",
 ]
 
 DEFAULT_SIREN_MODEL = Path(__file__).resolve().parents[2] / "models" / "siren_net.onnx"
 DEFAULT_SIREN_LOCALIZER = Path(__file__).resolve().parents[2] / "models" / "siren_localizer.onnx"
 DEFAULT_SIREN_RANGER = Path(__file__).resolve().parents[2] / "models" / "siren_ranger.onnx"
-DEFAULT_SIREN_RANGERS = (
+PRIOR_SIREN_RANGERS = (
     DEFAULT_SIREN_RANGER,
     Path(__file__).resolve().parents[2] / "models" / "siren_ranger2.onnx",
     Path(__file__).resolve().parents[2] / "models" / "siren_ranger3.onnx",
 )
-"""The shipped rangers (model card ``docs/model_card_siren_net.md``): ``siren_ranger.onnx``, trained
-without pitch variety, and ``siren_ranger2.onnx`` / ``siren_ranger3.onnx``, trained on other recordings."""
+"""The rangers shipped until issue 25, trained on sirens of 110–120 dB at 1 m only (``siren_ranger``,
+``siren_ranger2``, ``siren_ranger3``); still in the package, e.g. ``ranger=PRIOR_SIREN_RANGERS``."""
+DEFAULT_SIREN_RANGERS = (
+    Path(__file__).resolve().parents[2] / "models" / "siren_ranger_wide.onnx",
+    Path(__file__).resolve().parents[2] / "models" / "siren_ranger_wide2.onnx",
+)
+"""The shipped rangers (model card ``docs/model_card_siren_net.md``, "Rangers over the real siren
+levels"): two networks trained on sirens of 105–140 dB at 1 m, each with the distance uncertainty
+output; their distances are averaged with the localizer's (:data:`LOCALIZER_DISTANCE`)."""
+
+SIGMA_OUTPUT = "distance_log_sigma"
+"""Name of the optional ONNX output of networks trained with ``makeway audio train
+--distance-sigma``: ln σ of the ln distance error the network expects (module docstring)."""
+LOCALIZER_DISTANCE = True
+"""Whether the localizer's distance (or, without a localizer, this network's) joins the shipped
+rangers' in the geometric mean when the rangers are the shipped ones (``ranger=True``); named
+rangers are always averaged with it unless ``localizer_distance=False``."""
 
 MAX_SOURCES = 3
 """At most this many sirens are reported per window (the nearest plus two)."""
@@ -89,9 +118,25 @@ class SirenPrediction:
     theta: np.ndarray
     distance: np.ndarray
     bearing_map: np.ndarray | None
+    distance_sigma: np.ndarray | None = None
+    """σ of ln distance per window (the distance's ±1σ interval is ``distance · e^(±σ)``), from
+    networks with the uncertainty output (module docstring, **Uncertainty**); ``None`` without."""
 
     def __len__(self) -> int:
         return len(self.prob)
+
+
+def combine_distances(members: Sequence[SirenPrediction]) -> tuple[np.ndarray, np.ndarray | None]:
+    """The combined distance of several networks: the geometric mean of their distances, and the
+    root mean square of the σ of ln distance of those members that give one (``None`` when none
+    does). The RMS is the spread of one member, not of the mean: the members share the level cue
+    and its ambiguity, so their errors are far from independent."""
+    dists = np.array([m.distance for m in members], dtype=np.float64)
+    with np.errstate(divide="ignore"):
+        distance = np.exp(np.mean(np.log(np.maximum(dists, 0.0)), axis=0))
+    sigmas = [m.distance_sigma for m in members if m.distance_sigma is not None]
+    sigma = np.sqrt(np.mean(np.square(sigmas), axis=0)) if sigmas else None
+    return distance, sigma
 
 
 class SirenModel:
@@ -107,6 +152,9 @@ class SirenModel:
         ranger: further siren networks whose distances are averaged in (geometric mean; module
             docstring): a path or a sequence of paths, ``True`` (:data:`DEFAULT_SIREN_RANGERS`
             when ``path`` is the default model, none otherwise) or ``False`` (none).
+        localizer_distance: whether the localizer's (or this network's) distance joins the
+            rangers' in the mean (``None``: :data:`LOCALIZER_DISTANCE` with the shipped rangers,
+            ``True`` with named ones). Without rangers it is the distance whatever this says.
     """
 
     def __init__(
@@ -117,6 +165,7 @@ class SirenModel:
         threshold: float | None = None,
         localizer: str | Path | bool = True,
         ranger: str | Path | bool | Sequence[str | Path] = True,
+        localizer_distance: bool | None = None,
     ) -> None:
         self.path = Path(path) if path is not None else DEFAULT_SIREN_MODEL
         self.session, meta = open_makeway_onnx(
@@ -142,10 +191,20 @@ class SirenModel:
         names = [i.name for i in self.session.get_inputs()]
         if names != list(self.streams):
             raise InputError(self.path, f"model inputs {names} do not match its streams {list(self.streams)}")
+        outputs = [o.name for o in self.session.get_outputs()]
+        if len(outputs) < 4:
+            raise InputError(self.path, f"a siren model has at least 4 outputs, this one {len(outputs)}")
+        # optional: only networks trained with the uncertainty head have it (older files do not)
+        self._sigma_output = outputs.index(SIGMA_OUTPUT) if SIGMA_OUTPUT in outputs else None
         located = self._named(localizer, (DEFAULT_SIREN_LOCALIZER,))
         self.localizer = self._companion(located[0], "localizer", threads) if located else None
         self.rangers: tuple[SirenModel, ...] = tuple(
             self._companion(p, "ranger", threads) for p in self._named(ranger, DEFAULT_SIREN_RANGERS)
+        )
+        self.localizer_distance = (
+            bool(localizer_distance)
+            if localizer_distance is not None
+            else (LOCALIZER_DISTANCE if ranger is True else True)
         )
         self.near_alone_m = NEAR_ALONE_M
         self.separator: Any = None
@@ -212,21 +271,31 @@ class SirenModel:
     def run_features(self, feats: dict[str, np.ndarray]) -> SirenPrediction:
         """Run the network on precomputed features (``SirenFeatures.transform`` output); with a
         localizer, its bearing, distance and bearing map replace this network's; with rangers,
-        the distance is the geometric mean of that one and the rangers'."""
+        the distance is the geometric mean of the rangers' and (with :attr:`localizer_distance`)
+        that one (:func:`combine_distances`)."""
         own = self._run_own(feats)
         out = own if self.localizer is None else self.localizer._run_own(feats)
-        distance = out.distance
-        if self.rangers:
-            members = [distance] + [r._run_own(feats).distance for r in self.rangers]
-            with np.errstate(divide="ignore"):
-                distance = np.exp(np.mean(np.log(np.maximum(members, 0.0)), axis=0))
-        return SirenPrediction(own.prob, out.theta, distance, out.bearing_map)
+        if not self.rangers:
+            return SirenPrediction(own.prob, out.theta, out.distance, out.bearing_map, out.distance_sigma)
+        members = [r._run_own(feats) for r in self.rangers]
+        if self.localizer_distance:
+            members.insert(0, out)
+        distance, sigma = combine_distances(members)
+        return SirenPrediction(own.prob, out.theta, distance, out.bearing_map, sigma)
+
+    def run_alone(self, feats: dict[str, np.ndarray]) -> SirenPrediction:
+        """This network's own outputs on precomputed features, without its localizer or rangers
+        (e.g. to compare ways of combining several networks on the same windows)."""
+        return self._run_own(feats)
 
     def _run_own(self, feats: dict[str, np.ndarray]) -> SirenPrediction:
         outs = self.session.run(
             None, {s: np.ascontiguousarray(feats[s], dtype=np.float32) for s in self.streams}
         )
         logit, direction, distance, bearing_logits = outs[:4]
+        sigma = None
+        if self._sigma_output is not None:
+            sigma = np.exp(np.asarray(outs[self._sigma_output], dtype=np.float64))
         prob = 1.0 / (1.0 + np.exp(-np.asarray(logit, dtype=np.float64)))
         theta = np.arctan2(direction[:, 0], direction[:, 1]).astype(np.float64)
         bmap = None
@@ -234,7 +303,8 @@ class SirenModel:
             z = bearing_logits - bearing_logits.max(axis=1, keepdims=True)
             e = np.exp(z)
             bmap = e / e.sum(axis=1, keepdims=True)
-        return SirenPrediction(prob, theta, np.maximum(np.asarray(distance, dtype=np.float64), 0.0), bmap)
+        dist = np.maximum(np.asarray(distance, dtype=np.float64), 0.0)
+        return SirenPrediction(prob, theta, dist, bmap, sigma)
 
     def predict(self, windows: np.ndarray, full_scale_db_spl: float | None = None) -> SirenPrediction:
         """Outputs for ``windows (n, channels, samples)`` or one ``(channels, samples)`` window of
