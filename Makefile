@@ -147,7 +147,7 @@ bench-clip-fusion: venv
 
 # siren recall and distance per 5 dB band of emitted level; level-independent range cues alone and combined
 bench-range: venv
-	$(BIN)/python benchmarks/bench_audio_range_levels.py --n 25
+	$(BIN)/python benchmarks/bench_audio_range_levels.py --n 25 --combo wide=localizer+ranger_wide+ranger_wide2
 	$(BIN)/python benchmarks/bench_audio_range_cues.py --n 25
 
 # the long fuzz run over every reader (about half an hour); the test suite runs a small fixed budget
