@@ -38,6 +38,8 @@ import sys
 import time
 from typing import Any
 
+from scipy.stats import chi2
+
 from makeway.perceive.audio.siren_model import SirenModel
 from makeway.pipeline.closed_loop import ClosedLoopResult, PerceptionSpec, run_scenario
 from makeway.pipeline.fused_perception import FusedPerceptionConfig
@@ -83,6 +85,12 @@ def row(res: ClosedLoopResult) -> dict[str, Any]:
     }
 
 
+def poisson_upper95(count: int) -> float:
+    """One-sided 95 % upper confidence bound on a Poisson mean after ``count`` events (exact,
+    Garwood: half the 95th percentile of χ² with 2·(count + 1) degrees of freedom; 3.0 for 0)."""
+    return float(chi2.ppf(0.95, 2 * (count + 1)) / 2.0)
+
+
 def _f(v: Any) -> str:
     if v is None:
         return "—"
@@ -101,10 +109,11 @@ def main() -> int:
     ap.add_argument("--perceptions", default=",".join(PERCEPTIONS), help="audio, vision, v2x, fused")
     ap.add_argument("--no-ev-runs", type=int, default=12, help="no-EV drives (20 s) through real noise")
     ap.add_argument("--full", action="store_true", help="10 seeds and 360 no-EV drives (2 h of driving)")
+    ap.add_argument("--only-no-ev", action="store_true", help="skip the scenarios: only the no-EV drives")
     args = ap.parse_args()
     seeds = list(range(args.first_seed, args.first_seed + (10 if args.full else args.seeds)))
     no_ev_runs = 360 if args.full else args.no_ev_runs
-    names = [s for s in args.scenarios.split(",") if s]
+    names = [] if args.only_no_ev else [s for s in args.scenarios.split(",") if s]
     kinds = [s for s in args.perceptions.split(",") if s]
     model = SirenModel()
     wall0 = time.perf_counter()
@@ -187,12 +196,15 @@ def main() -> int:
         prepares += pr
         if fy or pr:
             print(f"  no-EV drive seed {100 + k}: {fy} yields, {pr} confirmations", flush=True)
+        if (k + 1) % 20 == 0:
+            print(f"  {k + 1}/{no_ev_runs} no-EV drives, {false_yields} false yields so far", flush=True)
     hours = no_ev_runs * quiet.duration_s / 3600.0
     no_ev = {
         "drives": no_ev_runs,
         "hours": round(hours, 4),
         "false_yields": false_yields,
         "false_yields_per_hour": round(false_yields / hours, 3) if hours else None,
+        "false_yields_per_hour_upper95": round(poisson_upper95(false_yields) / hours, 3) if hours else None,
         "false_confirmations_per_hour": round(prepares / hours, 3) if hours else None,
         "false_lights_per_hour_modelled": FusedPerceptionConfig().cameras.false_rate_per_hour,
         "wall_s": round(time.perf_counter() - t1, 1),
@@ -202,7 +214,8 @@ def main() -> int:
             f"no EV, fused, real held-out street noise and false lights: {false_yields} false yields in "
             f"{no_ev_runs} drives ({hours:.2f} h) = {no_ev['false_yields_per_hour']} per hour (target ≤ "
             f"{TARGETS['false_yields_per_hour']} over ≥ {TARGETS['no_ev_hours']:g} h; hearing alone, "
-            "old rule: 13.5); EVs confirmed (slow-downs) {no_ev['false_confirmations_per_hour']} per hour"
+            f"old rule: 13.5); 95 % upper bound {no_ev['false_yields_per_hour_upper95']} per hour; "
+            f"EVs confirmed (slow-downs) {no_ev['false_confirmations_per_hour']} per hour"
         )
     wall = time.perf_counter() - wall0
     print(f"wall time {wall:.0f} s (scenarios {scenario_wall:.0f} s, no-EV drives {no_ev['wall_s']:.0f} s)")
