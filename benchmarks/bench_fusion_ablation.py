@@ -82,6 +82,8 @@ def row(res: ClosedLoopResult) -> dict[str, Any]:
         "yield_s": m["time_active_to_yield_s"],
         "extra_yields": max(0, m["yields"] - 1),
         "clear_of_intersections": m["stopped_clear_of_intersections"],
+        "min_gap_m": m["min_distance_to_ev_m"],
+        "peak_decel_mps2": round(max(-float(res.log["ax"].min()), 0.0), 2),
     }
 
 
@@ -110,6 +112,7 @@ def main() -> int:
     ap.add_argument("--no-ev-runs", type=int, default=12, help="no-EV drives (20 s) through real noise")
     ap.add_argument("--full", action="store_true", help="10 seeds and 360 no-EV drives (2 h of driving)")
     ap.add_argument("--only-no-ev", action="store_true", help="skip the scenarios: only the no-EV drives")
+    ap.add_argument("--first-no-ev-seed", type=int, default=100, help="scene seed of the first no-EV drive")
     args = ap.parse_args()
     seeds = list(range(args.first_seed, args.first_seed + (10 if args.full else args.seeds)))
     no_ev_runs = 360 if args.full else args.no_ev_runs
@@ -118,7 +121,7 @@ def main() -> int:
     model = SirenModel()
     wall0 = time.perf_counter()
     runs: list[dict[str, Any]] = []
-    cols = ("action", "action_ok", "collision", "stopped_s", "yield_s", "extra_yields")
+    cols = ("action", "action_ok", "collision", "stopped_s", "yield_s", "extra_yields", "peak_decel_mps2")
     print(
         f"{'scenario':18s} {'perception':10s} {'seed':>4s} " + " ".join(f"{c:>18s}" for c in cols), flush=True
     )
@@ -168,8 +171,14 @@ def main() -> int:
         cross = [r for r in runs if r["scenario"] == "crossing" and r["perception"] == kind]
         if cross:
             ok = sum(r["action"] == "stop_before_intersection" and r["clear_of_intersections"] for r in cross)
+            peak = max(r["peak_decel_mps2"] for r in cross)
+            gap = min((r["min_gap_m"] for r in cross if r["min_gap_m"] is not None), default=None)
             summary.setdefault(kind, {})["crossing_stop_before"] = round(ok / len(cross), 3)
-            print(f"crossing, {kind}: stopped before the intersection in {ok}/{len(cross)} (target ≥ 95 %)")
+            summary[kind]["crossing_peak_decel_mps2"] = peak
+            print(
+                f"crossing, {kind}: stopped before the intersection in {ok}/{len(cross)} (target ≥ 95 %), "
+                f"peak deceleration {peak:.2f} m/s², closest approach to the EV {_f(gap)} m"
+            )
     fused_c = [r["yield_s"] for r in runs if r["scenario"] == "v2x_corridor" and r["perception"] == "fused"]
     onb_c = [r["yield_s"] for r in runs if r["scenario"] == "v2x_corridor" and r["perception"] == "onboard"]
     if fused_c and onb_c and None not in fused_c:
@@ -186,16 +195,15 @@ def main() -> int:
     quiet = SCENARIOS["no_ev"]()
     false_yields = prepares = 0
     for k in range(no_ev_runs):
-        cfg = FusedPerceptionConfig(
-            audio=LiveAudioConfig(seed=100 + k, noise="real"), seed=100 + k, model=model
-        )
+        seed = args.first_no_ev_seed + k
+        cfg = FusedPerceptionConfig(audio=LiveAudioConfig(seed=seed, noise="real"), seed=seed, model=model)
         res = run_scenario(quiet, perception=cfg)
         fy = res.metrics["yields"]
         pr = sum(1 for _, _, to, _ in res.transitions if to == "ev_confirmed")
         false_yields += fy
         prepares += pr
         if fy or pr:
-            print(f"  no-EV drive seed {100 + k}: {fy} yields, {pr} confirmations", flush=True)
+            print(f"  no-EV drive seed {seed}: {fy} yields, {pr} confirmations", flush=True)
         if (k + 1) % 20 == 0:
             print(f"  {k + 1}/{no_ev_runs} no-EV drives, {false_yields} false yields so far", flush=True)
     hours = no_ev_runs * quiet.duration_s / 3600.0

@@ -141,6 +141,7 @@ __all__ = [
     "YieldConfig",
     "YieldStateMachine",
     "clear_stop_point",
+    "firm_stop_distance_m",
     "lane_change_length_m",
     "needs_yield",
 ]
@@ -188,6 +189,17 @@ class YieldConfig:
         intersection_min_margin_m: the smallest such gap accepted when the full one cannot be
             reached at ``comfort_decel_mps2`` (the ego is already close to the intersection).
         intersection_exit_margin_m: how far past an intersection's end a stop point must be.
+        firm_decel_mps2: the deceleration (m/s²) a **firm stop** before an intersection may use
+            when the comfortable one cannot stop short of it and the EV heads for it (crossing) or
+            is not yet placed (module docstring, "A firm stop"). Default 4.5 m/s² (0.46 g): above
+            the comfort limit, clearly below emergency braking (8–9 m/s² on dry asphalt) and below
+            the grip of a wet road (μ ≈ 0.5: 4.9 m/s²). Set it to ``comfort_decel_mps2`` to never
+            brake harder than comfort.
+        firm_jerk_mps3: the jerk (m/s³) a firm stop builds its deceleration with (the comfort one
+            is the longitudinal controller's, 2.5 m/s³).
+        firm_min_margin_m: the smallest gap between a firm stop point and the intersection's start
+            (the stop point is the car's centre: half its length plus what a firm stop may run
+            past its point).
         pull_over_before_intersection: for a crossing EV, also move to the right edge when there is
             room before the intersection (``False``: stop in lane).
         arrive_tolerance_m: stopped within this distance of the stop point counts as arrived.
@@ -221,6 +233,9 @@ class YieldConfig:
     intersection_margin_m: float = 5.0
     intersection_min_margin_m: float = 1.0
     intersection_exit_margin_m: float = 5.0
+    firm_decel_mps2: float = 4.5
+    firm_jerk_mps3: float = 8.0
+    firm_min_margin_m: float = 3.0
     pull_over_before_intersection: bool = True
     arrive_tolerance_m: float = 3.0
     stuck_timeout_s: float = 3.0
@@ -244,6 +259,8 @@ class YieldConfig:
             raise ValueError(f"resumed_speed_fraction must lie in (0, 1], got {self.resumed_speed_fraction}")
         if self.intersection_min_margin_m > self.intersection_margin_m:
             raise ValueError("intersection_min_margin_m must not exceed intersection_margin_m")
+        if self.firm_decel_mps2 < self.comfort_decel_mps2 or self.firm_jerk_mps3 <= 0.0:
+            raise ValueError("firm_decel_mps2 must be >= comfort_decel_mps2 and firm_jerk_mps3 > 0")
 
 
 # ------------------------------------------------------------------------------------ pure helpers
@@ -272,6 +289,40 @@ def lane_change_length_m(
         raise ValueError(f"max_lat_accel_mps2 must be > 0, got {max_lat_accel_mps2}")
     v = max(speed_mps, min_speed_mps, 0.0)
     return v * math.sqrt(_QUINTIC_PEAK * abs(offset_m) / max_lat_accel_mps2)
+
+
+def firm_stop_distance_m(
+    speed_mps: float, decel_mps2: float, jerk_mps3: float, delay_s: float, current_decel_mps2: float = 0.0
+) -> float:
+    """Distance (m) a car at ``speed_mps``, already braking at ``current_decel_mps2`` (≥ 0), needs to
+    stop when it keeps that deceleration for ``delay_s`` (the actuation delay), then builds it up to
+    ``decel_mps2`` at ``jerk_mps3`` and holds it to a stop (constant-jerk ramp, then constant
+    deceleration; each phase ends early if the car is already at rest)."""
+    if decel_mps2 <= 0.0 or jerk_mps3 <= 0.0:
+        raise ValueError(f"decel and jerk must be > 0, got {decel_mps2}, {jerk_mps3}")
+    v = max(float(speed_mps), 0.0)
+    a0 = min(max(float(current_decel_mps2), 0.0), decel_mps2)
+    delay = max(float(delay_s), 0.0)
+    if a0 > 0.0 and v <= a0 * delay:
+        return v * v / (2.0 * a0)
+    dist = v * delay - 0.5 * a0 * delay * delay
+    v -= a0 * delay
+    ramp = (decel_mps2 - a0) / jerk_mps3
+    lost = 0.5 * (a0 + decel_mps2) * ramp
+    if lost >= v:  # at rest during the ramp: step the ramp finely
+        n = 100
+        h = ramp / n
+        a = a0
+        for _ in range(n):
+            if v <= 0.0:
+                break
+            dist += max(v * h - 0.5 * a * h * h, 0.0)
+            v -= a * h
+            a += jerk_mps3 * h
+        return dist
+    dist += v * ramp - (0.5 * a0 + (decel_mps2 - a0) / 6.0) * ramp * ramp
+    v -= lost
+    return dist + v * v / (2.0 * decel_mps2)
 
 
 def _zones(
@@ -390,6 +441,7 @@ class _Plan:
     stop_s_m: float
     pull_over_ok: bool  # room to move over before the stop point
     before_intersection: bool  # the stop point is just before an intersection
+    firm: bool = False  # a firm stop: the comfortable deceleration cannot make it
 
 
 # ---------------------------------------------------------------------------------- state machine
@@ -442,6 +494,8 @@ class YieldStateMachine:
         self._duty = "ignore"  # the duty the followed EV's evidence carries
         self._others_wanting = False  # another EV than the followed one needs a yield
         self._lights_since: dict[int | None, float] = {}  # per track: lights shown without a break since
+        self._road_s = 0.0  # the ego's arc length and the map's intersections, this period
+        self._boxes: tuple[tuple[float, float], ...] = ()
 
     def update(self, belief: EVBelief, ego: VehicleState, road: RoadContext) -> YieldDecision:
         """:meth:`update_all` with one belief."""
@@ -478,6 +532,7 @@ class YieldStateMachine:
         if self._last_time is not None and now < self._last_time - _EPS:
             raise ValueError(f"time went backwards: {now} after {self._last_time} (call reset() first)")
         self._last_time = now
+        self._road_s, self._boxes = float(road.s_m), tuple(road.intersections)
         self._observe(belief, now)
         self._step(now, ego, road)
         return self._decide(now, ego, road)
@@ -500,6 +555,16 @@ class YieldStateMachine:
             return True
         return "v2x" in b.sources and dist <= self.config.duty.v2x_horizon_m
 
+    def _needs(self, relation: EVRelation, approaching: bool | None) -> bool:
+        """:func:`needs_yield`, and for an EV on a crossing road an intersection not yet behind the
+        ego: with the map's intersections all behind, the crossing road it is on crosses ours behind
+        the car, and it needs no yield (a map with none keeps the conservative table)."""
+        if not needs_yield(relation, approaching, yield_to_oncoming=self.config.yield_to_oncoming):
+            return False
+        if relation is not EVRelation.CROSSING or not self._boxes:
+            return True
+        return any(float(b) >= self._road_s for _, b in self._boxes)
+
     def _belief_wants(self, b: EVBelief) -> bool:
         """Whether ``b`` alone is a strong, active EV whose duty is a yield and that needs one."""
         cfg = self.config
@@ -510,7 +575,7 @@ class YieldStateMachine:
             and (b.lights or b.siren or not cfg.signals_required)
             and self._relevant(b)
             and self._duty_for(b) == "yield"
-            and needs_yield(b.relation, b.approaching, yield_to_oncoming=cfg.yield_to_oncoming)
+            and self._needs(b.relation, b.approaching)
         )
 
     def _choose(self, beliefs: Sequence[EVBelief]) -> EVBelief:
@@ -562,11 +627,7 @@ class YieldStateMachine:
             self._last_active_s = now
         strong = active and conf >= cfg.confirm_confidence
         self._run_since = (self._run_since if self._run_since is not None else now) if strong else None
-        wants = (
-            strong
-            and self._duty == "yield"
-            and needs_yield(b.relation, approach, yield_to_oncoming=cfg.yield_to_oncoming)
-        )
+        wants = strong and self._duty == "yield" and self._needs(b.relation, approach)
         self._yield_run_since = (
             (self._yield_run_since if self._yield_run_since is not None else now) if wants else None
         )
@@ -576,19 +637,11 @@ class YieldStateMachine:
 
     def _wants_yield(self) -> bool:
         b = self._belief
-        return (
-            b is not None
-            and self._duty == "yield"
-            and needs_yield(b.relation, self._approach, yield_to_oncoming=self.config.yield_to_oncoming)
-        )
+        return b is not None and self._duty == "yield" and self._needs(b.relation, self._approach)
 
     def _prepares(self) -> bool:
         b = self._belief
-        return (
-            b is not None
-            and self._duty == "prepare"
-            and needs_yield(b.relation, self._approach, yield_to_oncoming=self.config.yield_to_oncoming)
-        )
+        return b is not None and self._duty == "prepare" and self._needs(b.relation, self._approach)
 
     def _gone_reason(self, now: float) -> str | None:
         """Why the EV no longer counts (lost or inactive too long), or ``None``."""
@@ -727,20 +780,32 @@ class YieldStateMachine:
         b = self._belief
         plan = self._plan
         crossing_now: bool | None = None
-        if b is not None and b.relation is not EVRelation.UNKNOWN and self._wants_yield():
+        wants = b is not None and self._wants_yield()
+        if b is not None and b.relation is not EVRelation.UNKNOWN and wants:
             crossing_now = b.relation is EVRelation.CROSSING
+        # a firm stop before an intersection: for an EV heading for it or not yet placed
+        firm_ok = b is not None and wants and b.relation in (EVRelation.CROSSING, EVRelation.UNKNOWN)
         inside = _containing(road.s_m, road.intersections)
         if plan is None:
-            self._plan = self._make_plan(ego, road, bool(crossing_now))
+            self._plan = self._make_plan(ego, road, bool(crossing_now), firm_ok)
             self._plan_note = ""
         elif crossing_now is not None and crossing_now != plan.crossing:
-            self._plan = self._make_plan(ego, road, crossing_now)
-            self._plan_note = " (re-planned: the EV's direction changed)"
+            new = self._make_plan(ego, road, crossing_now, firm_ok)
+            starts = [float(a) for a, _ in road.intersections]
+            if plan.before_intersection and any(plan.stop_s_m < a <= new.stop_s_m for a in starts):
+                # committed to stop before an intersection: never turn that into crossing it
+                self._plan = _Plan(crossing_now, plan.stop_s_m, plan.pull_over_ok, True, plan.firm)
+                self._plan_note = " (the EV's direction changed: still stopping before the intersection)"
+            else:
+                self._plan = new
+                self._plan_note = " (re-planned: the EV's direction changed)"
         elif inside is not None and plan.stop_s_m < inside[1] + self.config.intersection_exit_margin_m:
             self._plan = self._make_plan(ego, road, plan.crossing)
             self._plan_note = " (re-planned: inside an intersection)"
 
-    def _make_plan(self, ego: VehicleState, road: RoadContext, crossing: bool) -> _Plan:
+    def _make_plan(
+        self, ego: VehicleState, road: RoadContext, crossing: bool, firm_ok: bool = False
+    ) -> _Plan:
         cfg = self.config
         s = float(road.s_m)
         v = max(float(ego.vx_mps), 0.0)
@@ -775,6 +840,17 @@ class YieldStateMachine:
         crossed = [b for a, b in boxes if s < b < stop]
         if crossed and stop < max(crossed) + cfg.intersection_exit_margin_m + change:
             stop = clear(max(crossed) + cfg.intersection_exit_margin_m + change)
+        # the comfortable stop is not clear of the intersection ahead: a firm stop before it, if it can
+        ahead = target if crossing else next(((a, b) for a, b in boxes if a > s), None)
+        if firm_ok and ahead is not None and ahead[0] > s and stop > ahead[0] - cfg.firm_min_margin_m:
+            braking = max(-float(ego.ax_mps2), 0.0)
+            reach = s + firm_stop_distance_m(
+                v, cfg.firm_decel_mps2, cfg.firm_jerk_mps3, cfg.reaction_time_s, braking
+            )
+            firm = max(ahead[0] - cfg.intersection_margin_m, reach)
+            if firm <= ahead[0] - cfg.firm_min_margin_m and cfg.firm_decel_mps2 > cfg.comfort_decel_mps2:
+                room = firm - s >= lead + change
+                return _Plan(True, firm, room and cfg.pull_over_before_intersection, True, firm=True)
         room = stop - s >= lead + change
         if target is not None and stop < target[0]:
             return _Plan(True, stop, room and cfg.pull_over_before_intersection, True)
@@ -789,9 +865,10 @@ class YieldStateMachine:
         v = max(float(ego.vx_mps), 0.0)
         stop = plan.stop_s_m
         left = max(stop - s, 0.0)
+        decel = cfg.firm_decel_mps2 if plan.firm else cfg.comfort_decel_mps2
         target = min(
             max(float(road.speed_limit_mps), 0.0),
-            math.sqrt(2.0 * cfg.comfort_decel_mps2 * left),
+            math.sqrt(2.0 * decel * left),
             max(v, cfg.creep_speed_mps),
         )
         inside = _containing(s, road.intersections)
@@ -804,7 +881,14 @@ class YieldStateMachine:
             pull = plan.pull_over_ok
             action = "stop_before_intersection" if (plan.crossing or not pull) else "pull_over_and_stop"
             edge = "at the right edge " if pull else "in lane "
-            return action, pull, target, stop, f"stopping {edge}before the intersection at s={stop:.1f} m"
+            how = f", braking firmly (up to {cfg.firm_decel_mps2:g} m/s²)" if plan.firm else ""
+            return (
+                action,
+                pull,
+                target,
+                stop,
+                f"stopping {edge}before the intersection at s={stop:.1f} m{how}",
+            )
         return "pull_over_and_stop", True, target, stop, f"pulling over to stop at s={stop:.1f} m"
 
     # ------------------------------------------------------------------------------- decisions
@@ -849,4 +933,10 @@ class YieldStateMachine:
             why = f"The emergency vehicle has passed: completing the stop, {note}."
         else:
             why = f"Yielding to the {what}: {note}{self._plan_note}."
-        return YieldDecision(now, st, action, pull, target, stop, why)
+        firm = self._plan is not None and self._plan.firm and action == "stop_before_intersection"
+        if not firm:
+            return YieldDecision(now, st, action, pull, target, stop, why)
+        cfg = self.config
+        return YieldDecision(
+            now, st, action, pull, target, stop, why, cfg.firm_decel_mps2, cfg.firm_jerk_mps3
+        )
