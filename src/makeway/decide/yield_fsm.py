@@ -57,9 +57,15 @@ CROSSING           yes / unknown               ``stop_before_intersection``    n
 CROSSING, ego      yes / unknown               ``clear_intersection``, then    never stop inside an
 inside the box                                 pull over and stop after it     intersection
 CROSSING           no                          ``continue``                    it has crossed / gone
+CROSSING, every    yes / unknown               ``continue``                    its road crosses ours
+intersection of                                                                behind the car (a map
+the map behind                                                                 with none: the rows above)
+the ego
 UNKNOWN (heard,    yes / unknown               ``pull_over_and_stop``          conservative: the siren
 not placed)                                                                    is real, its place is not
-UNKNOWN            no                          ``continue``                    a receding siren
+UNKNOWN            no                          ``continue`` (``prepare`` with  a receding siren (its way
+                                               an intersection ahead within    unknown: not towards an
+                                               ``max_relevant_distance_m``)    intersection at speed)
 =================  ==========================  ==============================  ==========================
 
 **The duty to yield** (``YieldConfig.duty``, :mod:`makeway.decide.duty`): the table's yields apply
@@ -99,6 +105,19 @@ confirmed while we still wait in EV_PASSED keeps the stop point we are standing 
 
 An ego inside an intersection always gets a stop point past it and a target speed above zero until
 it has cleared it; it never stops inside one.
+
+**A firm stop before an intersection.** For an EV on a crossing road, or one not yet placed (heard,
+its relation unknown), the plan is that of a crossing EV when the pull-over would reach an
+intersection (its start within the pull-over distance plus a lane-change length): stop before it.
+Comfort is tried first: the stop must lie ``firm_min_margin_m`` or more before the intersection and
+be reachable at ``comfort_decel_mps2`` built up at ``comfort_jerk_mps3`` after ``reaction_time_s``
+(:func:`firm_stop_distance_m`, from the deceleration the car already has). When it is not, the stop
+may be **firm**: at ``max(start − intersection_margin_m, s + firm reach)`` with the firm reach at
+``firm_decel_mps2`` (4.5 m/s²) and ``firm_jerk_mps3``, if that is still ``firm_min_margin_m``
+before the intersection; the decision then carries ``max_decel_mps2`` / ``max_jerk_mps3`` for the
+longitudinal controller (that stop only: every other decision leaves them ``None``, comfort).
+Otherwise the car clears the intersection first, as a comfort plan does. A re-plan (the EV placed
+differently) never turns a stop before an intersection into crossing it.
 
 Target speed while moving over: ``min(speed limit, √(2·comfort_decel·(stop − s)), max(v, creep))`` —
 never faster than now (except creeping up to the stop point), zero at the stop point.
@@ -195,8 +214,11 @@ class YieldConfig:
             the comfort limit, clearly below emergency braking (8–9 m/s² on dry asphalt) and below
             the grip of a wet road (μ ≈ 0.5: 4.9 m/s²). Set it to ``comfort_decel_mps2`` to never
             brake harder than comfort.
-        firm_jerk_mps3: the jerk (m/s³) a firm stop builds its deceleration with (the comfort one
-            is the longitudinal controller's, 2.5 m/s³).
+        comfort_jerk_mps3: the jerk (m/s³) the longitudinal controller builds a comfortable
+            deceleration with (its ``max_jerk``): a stop before an intersection counts as within
+            comfort only when :func:`firm_stop_distance_m` at ``comfort_decel_mps2`` and this jerk,
+            after ``reaction_time_s``, reaches it.
+        firm_jerk_mps3: the jerk (m/s³) a firm stop builds its deceleration with.
         firm_min_margin_m: the smallest gap between a firm stop point and the intersection's start
             (the stop point is the car's centre: half its length plus what a firm stop may run
             past its point).
@@ -233,6 +255,7 @@ class YieldConfig:
     intersection_margin_m: float = 5.0
     intersection_min_margin_m: float = 1.0
     intersection_exit_margin_m: float = 5.0
+    comfort_jerk_mps3: float = 2.5
     firm_decel_mps2: float = 4.5
     firm_jerk_mps3: float = 8.0
     firm_min_margin_m: float = 3.0
@@ -816,6 +839,13 @@ class YieldStateMachine:
         brake = v * v / (2.0 * cfg.comfort_decel_mps2)
         boxes = sorted((float(a), float(b)) for a, b in road.intersections)
         target = next(((a, b) for a, b in boxes if b >= s), None) if crossing else None
+        if firm_ok and not crossing:
+            # not placed: with an intersection within a pull-over (and a lane change) ahead, it may
+            # well be heading for it: stop before that intersection as for a crossing EV
+            near = next(((a, b) for a, b in boxes if a > s), None)
+            reach = s + lead + max(brake, change) + change
+            if near is not None and near[0] - cfg.intersection_margin_m <= reach:
+                crossing, target = True, near
 
         def clear(desired: float) -> float:
             return clear_stop_point(
@@ -840,17 +870,27 @@ class YieldStateMachine:
         crossed = [b for a, b in boxes if s < b < stop]
         if crossed and stop < max(crossed) + cfg.intersection_exit_margin_m + change:
             stop = clear(max(crossed) + cfg.intersection_exit_margin_m + change)
-        # the comfortable stop is not clear of the intersection ahead: a firm stop before it, if it can
+        # the comfortable stop is not clear of the intersection ahead, or comfort cannot make it in
+        # time (reaction, jerk-limited onset): a firm stop before the intersection, if it can
         ahead = target if crossing else next(((a, b) for a, b in boxes if a > s), None)
-        if firm_ok and ahead is not None and ahead[0] > s and stop > ahead[0] - cfg.firm_min_margin_m:
+        if firm_ok and ahead is not None and ahead[0] > s:
             braking = max(-float(ego.ax_mps2), 0.0)
-            reach = s + firm_stop_distance_m(
-                v, cfg.firm_decel_mps2, cfg.firm_jerk_mps3, cfg.reaction_time_s, braking
+            comfort_reach = s + firm_stop_distance_m(
+                v, cfg.comfort_decel_mps2, cfg.comfort_jerk_mps3, cfg.reaction_time_s, braking
             )
-            firm = max(ahead[0] - cfg.intersection_margin_m, reach)
-            if firm <= ahead[0] - cfg.firm_min_margin_m and cfg.firm_decel_mps2 > cfg.comfort_decel_mps2:
-                room = firm - s >= lead + change
-                return _Plan(True, firm, room and cfg.pull_over_before_intersection, True, firm=True)
+            before = stop < ahead[0]
+            if stop > ahead[0] - cfg.firm_min_margin_m or (before and stop < comfort_reach - _EPS):
+                reach = s + firm_stop_distance_m(
+                    v, cfg.firm_decel_mps2, cfg.firm_jerk_mps3, cfg.reaction_time_s, braking
+                )
+                firm = max(ahead[0] - cfg.intersection_margin_m, reach)
+                if firm <= ahead[0] - cfg.firm_min_margin_m and cfg.firm_decel_mps2 > cfg.comfort_decel_mps2:
+                    room = firm - s >= lead + change
+                    return _Plan(True, firm, room and cfg.pull_over_before_intersection, True, firm=True)
+                if before and stop < comfort_reach - _EPS:
+                    # neither comfort nor a firm stop makes it before: clear the intersection first
+                    stop = clear(ahead[1] + cfg.intersection_exit_margin_m + change)
+                    return _Plan(crossing, stop, True, False)
         room = stop - s >= lead + change
         if target is not None and stop < target[0]:
             return _Plan(True, stop, room and cfg.pull_over_before_intersection, True)
@@ -916,6 +956,17 @@ class YieldStateMachine:
             if self._prepares():
                 slow = self.config.duty.prepare_speed_fraction * limit
                 why = f"Heard an {what} but the law asks for more before a yield: slowing, ready to yield."
+                return YieldDecision(now, st, "prepare", False, slow, None, why)
+            s = float(road.s_m)
+            horizon = self.config.max_relevant_distance_m
+            if (
+                b is not None
+                and b.relation is EVRelation.UNKNOWN
+                and any(s < a <= s + horizon for a, _ in road.intersections)
+            ):
+                # its way unknown, an intersection ahead: do not speed towards it, be ready to stop
+                slow = self.config.duty.prepare_speed_fraction * limit
+                why = f"An {what}, an intersection ahead: slowing, ready to stop before it."
                 return YieldDecision(now, st, "prepare", False, slow, None, why)
             return YieldDecision(now, st, "continue", False, limit, None, f"No yield needed for the {what}.")
         if st in (YieldState.STOPPED_WAITING, YieldState.EV_PASSED):
