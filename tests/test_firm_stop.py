@@ -5,11 +5,14 @@ for that stop only."""
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 
 from makeway.control import LongitudinalController
 from makeway.decide import YieldConfig, YieldStateMachine, firm_stop_distance_m
+from makeway.fuse.relation import classify_relation
 from makeway.messages import (
     ControlCommand,
     EVBelief,
@@ -214,3 +217,51 @@ def test_the_planner_takes_a_moved_stop_point_in_lane() -> None:
     path = planner.update(moved, x=136.0, y=0.0, speed_mps=11.0)
     assert path.stop_s_m == 157.0 and planner.distance_to_stop(136.0, 0.0) == pytest.approx(21.0, abs=0.6)
     assert planner.update(moved, x=137.0, y=0.0, speed_mps=10.0) is path  # unchanged: no new path
+
+
+def test_an_unplaced_ev_with_an_intersection_near_stops_before_it() -> None:
+    # 11 m/s, 35 m short: a pull-over would end ~8 m before the intersection; it stops before it
+    _, d, _ = _first_yield(EVRelation.UNKNOWN, BOX[0] - 35.0, 11.0)
+    assert d.action == "stop_before_intersection" and d.stop_s_m == pytest.approx(BOX[0] - 5.0)
+    assert d.max_decel_mps2 is None  # comfortable
+    # the same EV far from any intersection: a plain pull-over
+    _, d, _ = _first_yield(EVRelation.UNKNOWN, BOX[0] - 120.0, 11.0)
+    assert d.action == "pull_over_and_stop" and d.stop_s_m is not None and d.stop_s_m < BOX[0] - 50.0
+
+
+def test_an_unplaced_receding_ev_with_an_intersection_ahead_slows() -> None:
+    cfg = YieldConfig()
+    for boxes, action in (((BOX,), "prepare"), ((), "continue")):
+        fsm = YieldStateMachine(cfg)
+        for k in range(10):
+            t = k * DT
+            road = RoadContext(s_m=100.0, intersections=boxes, speed_limit_mps=LIMIT)
+            d = fsm.update(_receding(t), VehicleState(t, 100.0, 0.0, 0.0, LIMIT), road)
+        assert d.state is YieldState.EV_CONFIRMED and d.action == action
+        if action == "prepare":
+            assert d.target_speed_mps == pytest.approx(cfg.duty.prepare_speed_fraction * LIMIT)
+
+
+def _receding(t: float) -> EVBelief:
+    return EVBelief(
+        time_s=t,
+        detected=True,
+        confidence=0.9,
+        relation=EVRelation.UNKNOWN,
+        distance_m=40.0,
+        approaching=False,
+        lights=True,
+        siren=True,
+    )
+
+
+def test_an_ev_along_our_road_must_be_on_it() -> None:
+    # on our road (or a curve's sweep of it) as before
+    assert classify_relation(-60.0, 1.5, 0.0) is EVRelation.BEHIND
+    assert classify_relation(-100.0, 20.0, 0.2) is EVRelation.BEHIND  # R = 250 m curve, 100 m back
+    assert classify_relation(45.0, -3.5, math.pi) is EVRelation.ONCOMING
+    # beside our road, "driving along it": not placed (crossing seed 11's siren track, 34 m ahead
+    # and 25 m to the right, heading along our road)
+    assert classify_relation(34.0, -25.0, 0.05) is EVRelation.UNKNOWN
+    assert classify_relation(-1.5, 16.0, 0.0) is EVRelation.UNKNOWN
+    assert classify_relation(40.0, -30.0, math.pi / 2) is EVRelation.CROSSING
