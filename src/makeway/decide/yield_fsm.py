@@ -117,7 +117,8 @@ may be **firm**: at ``max(start − intersection_margin_m, s + firm reach)`` wit
 before the intersection; the decision then carries ``max_decel_mps2`` / ``max_jerk_mps3`` for the
 longitudinal controller (that stop only: every other decision leaves them ``None``, comfort).
 Otherwise the car clears the intersection first, as a comfort plan does. A re-plan (the EV placed
-differently) never turns a stop before an intersection into crossing it.
+differently) never turns a stop before an intersection into crossing it, and keeps it unless the
+new plan must stop more than ``arrive_tolerance_m`` sooner.
 
 Target speed while moving over: ``min(speed limit, √(2·comfort_decel·(stop − s)), max(v, creep))`` —
 never faster than now (except creeping up to the stop point), zero at the stop point.
@@ -815,9 +816,11 @@ class YieldStateMachine:
         elif crossing_now is not None and crossing_now != plan.crossing:
             new = self._make_plan(ego, road, crossing_now, firm_ok)
             starts = [float(a) for a, _ in road.intersections]
-            if plan.before_intersection and any(plan.stop_s_m < a <= new.stop_s_m for a in starts):
-                # committed to stop before an intersection: never turn that into crossing it
-                self._plan = _Plan(crossing_now, plan.stop_s_m, plan.pull_over_ok, True, plan.firm)
+            crosses = any(plan.stop_s_m < a <= new.stop_s_m for a in starts)
+            sooner = new.stop_s_m < plan.stop_s_m - self.config.arrive_tolerance_m
+            if plan.before_intersection and (crosses or not sooner):
+                # committed to stop before an intersection: never turn that into crossing it, nor
+                # change it for a place that flips, unless the car must now stop sooner
                 self._plan_note = " (the EV's direction changed: still stopping before the intersection)"
             else:
                 self._plan = new
