@@ -3,6 +3,7 @@ scenario, and the fused car driving through held-out real street noise with fals
 (SPEC §7; issue 26 item 5).
 
     .venv/bin/python benchmarks/bench_fusion_ablation.py [--seeds 2] [--no-ev-runs 12] [--full]
+    .venv/bin/python benchmarks/bench_fusion_ablation.py --only-no-ev --no-ev-runs 180 --first-no-ev-seed 280
 
 Perceptions (``makeway simulate --perception``):
 
@@ -16,16 +17,21 @@ Perceptions (``makeway simulate --perception``):
   the corridor's "yield ≥ 10 s earlier" target.
 
 Every scenario × perception × seed: the action (the expected one?), collision, EV on → stopped,
-extra yields (manoeuvres after the first); per perception the expected-action rate, collisions and
-the median EV on → stopped; crossing: how often the car stopped before the intersection (target
-≥ 95 %); corridor: when the yield started, fused against on-board. Every decision uses the default
+extra yields (manoeuvres after the first), the peak deceleration; per perception the expected-action
+rate, collisions and the median EV on → stopped; crossing: how often the car stopped before the
+intersection (target ≥ 95 %), the peak deceleration (a firm stop before an intersection may use up to
+4.5 m/s², comfort is 3 m/s²) and the closest approach to the EV; corridor: when the yield started,
+fused against on-board. Every decision uses the default
 duty to yield (audible and visual, :mod:`makeway.decide.duty`).
 
 Then ``--no-ev-runs`` drives of ``no_ev`` (20 s each) with the fused perception through held-out real
 street recordings (scene seeds 100, 101, …) with the cameras' false lights: false yields (manoeuvres
 started) per hour (target ≤ 0.1 over ≥ 2 h; hearing alone under the old rule: 13.5), and the
-slow-downs to prepare (a confirmed EV whose evidence does not yet oblige a yield) per hour. ``--full``
-runs 10 seeds and 360 drives (2 h of driving); the default is a quick look. The wall time is printed.
+slow-downs to prepare (a confirmed EV whose evidence does not yet oblige a yield) per hour, with the
+exact 95 % upper bound on the false-yield rate. ``--full`` runs 10 seeds and 360 drives (2 h of
+driving); the default is a quick look. ``--only-no-ev`` runs the no-EV drives alone and
+``--first-no-ev-seed`` picks their first scene seed (to split the 2 h between processes: seeds 100…279
+and 280…459 are the 360 drives of ``--full``). The wall time is printed.
 The last line is one JSON object with every run.
 """
 
