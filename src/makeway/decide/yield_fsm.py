@@ -542,6 +542,7 @@ class YieldStateMachine:
         """
         if not beliefs:
             raise ValueError("update_all needs at least one belief")
+        self._road_s, self._boxes = float(road.s_m), tuple(road.intersections)
         for b in beliefs:  # how long each track has shown lights without a break
             if b.detected and b.lights:
                 self._lights_since.setdefault(b.track_id, b.time_s)
@@ -556,7 +557,6 @@ class YieldStateMachine:
         if self._last_time is not None and now < self._last_time - _EPS:
             raise ValueError(f"time went backwards: {now} after {self._last_time} (call reset() first)")
         self._last_time = now
-        self._road_s, self._boxes = float(road.s_m), tuple(road.intersections)
         self._observe(belief, now)
         self._step(now, ego, road)
         return self._decide(now, ego, road)
