@@ -3,6 +3,7 @@ scenario, and the fused car driving through held-out real street noise with fals
 (SPEC §7; issue 26 item 5).
 
     .venv/bin/python benchmarks/bench_fusion_ablation.py [--seeds 2] [--no-ev-runs 12] [--full]
+    .venv/bin/python benchmarks/bench_fusion_ablation.py --only-no-ev --no-ev-runs 180 --first-no-ev-seed 280
 
 Perceptions (``makeway simulate --perception``):
 
@@ -16,16 +17,21 @@ Perceptions (``makeway simulate --perception``):
   the corridor's "yield ≥ 10 s earlier" target.
 
 Every scenario × perception × seed: the action (the expected one?), collision, EV on → stopped,
-extra yields (manoeuvres after the first); per perception the expected-action rate, collisions and
-the median EV on → stopped; crossing: how often the car stopped before the intersection (target
-≥ 95 %); corridor: when the yield started, fused against on-board. Every decision uses the default
+extra yields (manoeuvres after the first), the peak deceleration; per perception the expected-action
+rate, collisions and the median EV on → stopped; crossing: how often the car stopped before the
+intersection (target ≥ 95 %), the peak deceleration (a firm stop before an intersection may use up to
+4.5 m/s², comfort is 3 m/s²) and the closest approach to the EV; corridor: when the yield started,
+fused against on-board. Every decision uses the default
 duty to yield (audible and visual, :mod:`makeway.decide.duty`).
 
 Then ``--no-ev-runs`` drives of ``no_ev`` (20 s each) with the fused perception through held-out real
 street recordings (scene seeds 100, 101, …) with the cameras' false lights: false yields (manoeuvres
 started) per hour (target ≤ 0.1 over ≥ 2 h; hearing alone under the old rule: 13.5), and the
-slow-downs to prepare (a confirmed EV whose evidence does not yet oblige a yield) per hour. ``--full``
-runs 10 seeds and 360 drives (2 h of driving); the default is a quick look. The wall time is printed.
+slow-downs to prepare (a confirmed EV whose evidence does not yet oblige a yield) per hour, with the
+exact 95 % upper bound on the false-yield rate. ``--full`` runs 10 seeds and 360 drives (2 h of
+driving); the default is a quick look. ``--only-no-ev`` runs the no-EV drives alone and
+``--first-no-ev-seed`` picks their first scene seed (to split the 2 h between processes: seeds 100…279
+and 280…459 are the 360 drives of ``--full``). The wall time is printed.
 The last line is one JSON object with every run.
 """
 
@@ -37,6 +43,8 @@ import statistics
 import sys
 import time
 from typing import Any
+
+from scipy.stats import chi2
 
 from makeway.perceive.audio.siren_model import SirenModel
 from makeway.pipeline.closed_loop import ClosedLoopResult, PerceptionSpec, run_scenario
@@ -80,7 +88,15 @@ def row(res: ClosedLoopResult) -> dict[str, Any]:
         "yield_s": m["time_active_to_yield_s"],
         "extra_yields": max(0, m["yields"] - 1),
         "clear_of_intersections": m["stopped_clear_of_intersections"],
+        "min_gap_m": m["min_distance_to_ev_m"],
+        "peak_decel_mps2": round(max(-float(res.log["ax"].min()), 0.0), 2),
     }
+
+
+def poisson_upper95(count: int) -> float:
+    """One-sided 95 % upper confidence bound on a Poisson mean after ``count`` events (exact,
+    Garwood: half the 95th percentile of χ² with 2·(count + 1) degrees of freedom; 3.0 for 0)."""
+    return float(chi2.ppf(0.95, 2 * (count + 1)) / 2.0)
 
 
 def _f(v: Any) -> str:
@@ -101,15 +117,17 @@ def main() -> int:
     ap.add_argument("--perceptions", default=",".join(PERCEPTIONS), help="audio, vision, v2x, fused")
     ap.add_argument("--no-ev-runs", type=int, default=12, help="no-EV drives (20 s) through real noise")
     ap.add_argument("--full", action="store_true", help="10 seeds and 360 no-EV drives (2 h of driving)")
+    ap.add_argument("--only-no-ev", action="store_true", help="skip the scenarios: only the no-EV drives")
+    ap.add_argument("--first-no-ev-seed", type=int, default=100, help="scene seed of the first no-EV drive")
     args = ap.parse_args()
     seeds = list(range(args.first_seed, args.first_seed + (10 if args.full else args.seeds)))
     no_ev_runs = 360 if args.full else args.no_ev_runs
-    names = [s for s in args.scenarios.split(",") if s]
+    names = [] if args.only_no_ev else [s for s in args.scenarios.split(",") if s]
     kinds = [s for s in args.perceptions.split(",") if s]
     model = SirenModel()
     wall0 = time.perf_counter()
     runs: list[dict[str, Any]] = []
-    cols = ("action", "action_ok", "collision", "stopped_s", "yield_s", "extra_yields")
+    cols = ("action", "action_ok", "collision", "stopped_s", "yield_s", "extra_yields", "peak_decel_mps2")
     print(
         f"{'scenario':18s} {'perception':10s} {'seed':>4s} " + " ".join(f"{c:>18s}" for c in cols), flush=True
     )
@@ -159,8 +177,14 @@ def main() -> int:
         cross = [r for r in runs if r["scenario"] == "crossing" and r["perception"] == kind]
         if cross:
             ok = sum(r["action"] == "stop_before_intersection" and r["clear_of_intersections"] for r in cross)
+            peak = max(r["peak_decel_mps2"] for r in cross)
+            gap = min((r["min_gap_m"] for r in cross if r["min_gap_m"] is not None), default=None)
             summary.setdefault(kind, {})["crossing_stop_before"] = round(ok / len(cross), 3)
-            print(f"crossing, {kind}: stopped before the intersection in {ok}/{len(cross)} (target ≥ 95 %)")
+            summary[kind]["crossing_peak_decel_mps2"] = peak
+            print(
+                f"crossing, {kind}: stopped before the intersection in {ok}/{len(cross)} (target ≥ 95 %), "
+                f"peak deceleration {peak:.2f} m/s², closest approach to the EV {_f(gap)} m"
+            )
     fused_c = [r["yield_s"] for r in runs if r["scenario"] == "v2x_corridor" and r["perception"] == "fused"]
     onb_c = [r["yield_s"] for r in runs if r["scenario"] == "v2x_corridor" and r["perception"] == "onboard"]
     if fused_c and onb_c and None not in fused_c:
@@ -177,22 +201,24 @@ def main() -> int:
     quiet = SCENARIOS["no_ev"]()
     false_yields = prepares = 0
     for k in range(no_ev_runs):
-        cfg = FusedPerceptionConfig(
-            audio=LiveAudioConfig(seed=100 + k, noise="real"), seed=100 + k, model=model
-        )
+        seed = args.first_no_ev_seed + k
+        cfg = FusedPerceptionConfig(audio=LiveAudioConfig(seed=seed, noise="real"), seed=seed, model=model)
         res = run_scenario(quiet, perception=cfg)
         fy = res.metrics["yields"]
         pr = sum(1 for _, _, to, _ in res.transitions if to == "ev_confirmed")
         false_yields += fy
         prepares += pr
         if fy or pr:
-            print(f"  no-EV drive seed {100 + k}: {fy} yields, {pr} confirmations", flush=True)
+            print(f"  no-EV drive seed {seed}: {fy} yields, {pr} confirmations", flush=True)
+        if (k + 1) % 20 == 0:
+            print(f"  {k + 1}/{no_ev_runs} no-EV drives, {false_yields} false yields so far", flush=True)
     hours = no_ev_runs * quiet.duration_s / 3600.0
     no_ev = {
         "drives": no_ev_runs,
         "hours": round(hours, 4),
         "false_yields": false_yields,
         "false_yields_per_hour": round(false_yields / hours, 3) if hours else None,
+        "false_yields_per_hour_upper95": round(poisson_upper95(false_yields) / hours, 3) if hours else None,
         "false_confirmations_per_hour": round(prepares / hours, 3) if hours else None,
         "false_lights_per_hour_modelled": FusedPerceptionConfig().cameras.false_rate_per_hour,
         "wall_s": round(time.perf_counter() - t1, 1),
@@ -202,7 +228,8 @@ def main() -> int:
             f"no EV, fused, real held-out street noise and false lights: {false_yields} false yields in "
             f"{no_ev_runs} drives ({hours:.2f} h) = {no_ev['false_yields_per_hour']} per hour (target ≤ "
             f"{TARGETS['false_yields_per_hour']} over ≥ {TARGETS['no_ev_hours']:g} h; hearing alone, "
-            "old rule: 13.5); EVs confirmed (slow-downs) {no_ev['false_confirmations_per_hour']} per hour"
+            f"old rule: 13.5); 95 % upper bound {no_ev['false_yields_per_hour_upper95']} per hour; "
+            f"EVs confirmed (slow-downs) {no_ev['false_confirmations_per_hour']} per hour"
         )
     wall = time.perf_counter() - wall0
     print(f"wall time {wall:.0f} s (scenarios {scenario_wall:.0f} s, no-EV drives {no_ev['wall_s']:.0f} s)")

@@ -226,16 +226,11 @@ def test_crossing_heard_waits_until_the_ev_has_crossed(crossing_heard: ClosedLoo
     assert YieldState.RESUMING.value in [to for _, _, to, _ in res.transitions]
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="heard ~200 m away a crossing EV's track has no heading yet, and a car that only hears "
-    "yields at once on a siren (DutyToYield.for_senses: waiting for lights it cannot see caused a "
-    "collision on seed 3), so the decision asks for a pull-over instead of a stop before the "
-    "intersection; fused perception stops before it in 3 of 4 runs (docs/results.md)",
-)
 def test_crossing_heard_stops_before_the_intersection(crossing_heard: ClosedLoopResult) -> None:
     """SPEC §6's action for an EV on the crossing road: stop in lane before the intersection, the
-    scenario's expected action (with the modelled perception the loop takes it: test_closed_loop)."""
+    scenario's expected action (with the modelled perception the loop takes it: test_closed_loop).
+    Heard ~200 m away its track has no heading yet, so the siren is not placed: with the
+    intersection within a pull-over ahead the decision stops before it all the same."""
     m = crossing_heard.metrics
     assert m["action"] == "stop_before_intersection" and m["action_ok"]
 

@@ -554,7 +554,9 @@ class YieldDecision:
     ``pull_over``: move to the right edge; ``stop_s_m``: stop at this arc length (``None``: no stop
     required); ``target_speed_mps``: the speed to hold or approach; ``action`` a short word for logs
     and metrics (``"continue"``, ``"pull_over_and_stop"``, ``"stop_before_intersection"``,
-    ``"wait"``, ``"resume"`` …); ``reason`` a sentence for people.
+    ``"wait"``, ``"resume"`` …); ``reason`` a sentence for people. ``max_decel_mps2`` (m/s²) and
+    ``max_jerk_mps3`` (m/s³): the limits the longitudinal controller may use for this stop, set only
+    for a firm stop before an intersection (``None``: the controller's comfort limits).
     """
 
     time_s: float
@@ -564,3 +566,5 @@ class YieldDecision:
     target_speed_mps: float
     stop_s_m: float | None = None
     reason: str = ""
+    max_decel_mps2: float | None = None
+    max_jerk_mps3: float | None = None

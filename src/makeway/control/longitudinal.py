@@ -23,6 +23,14 @@ Every command is clipped to ``[−max_decel, max_accel]`` and its change per per
 ``±max_jerk·Δt`` (``Δt`` from successive ``state.time_s``; ``nominal_dt_s`` on the first call). The
 controller keeps its previous command, so use one instance per vehicle and :meth:`reset` it between
 runs.
+
+**A firmer stop.** The comfort limits above are the default. One call may raise them for one stop:
+:meth:`LongitudinalController.accel` takes ``max_decel_mps2`` and ``max_jerk_mps3`` (the yield
+decision's, :attr:`~makeway.messages.YieldDecision.max_decel_mps2`, set only for a stop before an
+intersection an emergency vehicle heads for that the comfortable deceleration cannot make). They
+replace ``max_decel`` and ``max_jerk`` for that call only (the end phase's ``j_end`` scales with the
+jerk: a firm stop also ends more briskly, and runs less past its point); the next call without them
+is back to comfort (the jerk limit then brings a firmer command back gradually).
 """
 
 from __future__ import annotations
@@ -74,6 +82,7 @@ class LongitudinalController:
         self.release_m = release_m
         self.creep_zone_m = creep_zone_m  # a stop point that moves on to within this is crept to
         self.onset_fraction = onset_fraction
+        self.end_jerk_fraction = end_jerk_fraction
         self.end_jerk = end_jerk_fraction * max_jerk
         self.lag_s = actuator_lag_s
         self.mode = "drive"
@@ -86,7 +95,7 @@ class LongitudinalController:
         self._last_accel = None
         self._last_time = None
 
-    def _desired(self, v: float, ax: float, target: float, d: float | None) -> float:
+    def _desired(self, v: float, ax: float, target: float, d: float | None, jerk: float) -> float:
         a_drive = self.k_v * (target - v)
         if d is None:
             self.mode = "drive"
@@ -101,9 +110,10 @@ class LongitudinalController:
             self.mode = "drive" if d > self.creep_zone_m else "brake"
         # distance the end phase adds to a constant-deceleration stop, and the distance covered while
         # a positive acceleration is still being ramped off
-        correction = self.stop_decel**3 / (24.0 * self.end_jerk**2)
+        end_jerk = self.end_jerk_fraction * jerk
+        correction = self.stop_decel**3 / (24.0 * end_jerk**2)
         a_pos = max(ax, 0.0)
-        t_ramp = a_pos / self.max_jerk + (self.lag_s if a_pos > 0.0 else 0.0)
+        t_ramp = a_pos / jerk + (self.lag_s if a_pos > 0.0 else 0.0)
         lead = (v + 0.5 * a_pos * t_ramp) * t_ramp
         d_eff = d - correction - lead
         a_req = v * v / (2.0 * max(d_eff, 1e-3))
@@ -115,19 +125,34 @@ class LongitudinalController:
         if self.mode == "drive":
             # never faster than a speed the onset deceleration can still stop from
             return self.k_v * (min(target, math.sqrt(2.0 * onset * max(d_eff, 0.0))) - v)
-        cap = math.sqrt(2.0 * self.end_jerk * max(v + min(ax, 0.0) * self.lag_s, 0.0))
+        cap = math.sqrt(2.0 * end_jerk * max(v + min(ax, 0.0) * self.lag_s, 0.0))
         short = stopped or (v < self.creep_speed_mps and a_req < 0.4 * cap)
         if d > self.stop_tolerance_m and short:
             # at rest (or nearly) short of the point: creep on, braking again when needed
             return min(a_drive, self.k_v * (self.creep_speed_mps - v))
         return min(a_drive, -min(a_req, cap))
 
-    def accel(self, state: VehicleState, target_speed_mps: float, stop_distance_m: float | None) -> float:
+    def accel(
+        self,
+        state: VehicleState,
+        target_speed_mps: float,
+        stop_distance_m: float | None,
+        *,
+        max_decel_mps2: float | None = None,
+        max_jerk_mps3: float | None = None,
+    ) -> float:
         """Acceleration command (m/s²) for ``state``: hold ``target_speed_mps``, and stop at
-        ``stop_distance_m`` ahead (along the path; negative when past it) when given."""
+        ``stop_distance_m`` ahead (along the path; negative when past it) when given.
+
+        ``max_decel_mps2`` (m/s², > 0) and ``max_jerk_mps3`` (m/s³, > 0) replace the comfort limits
+        ``max_decel`` and ``max_jerk`` for this call (``None``: the comfort limits)."""
+        decel = self.max_decel if max_decel_mps2 is None else float(max_decel_mps2)
+        jerk = self.max_jerk if max_jerk_mps3 is None else float(max_jerk_mps3)
+        if not (decel > 0.0 and jerk > 0.0 and math.isfinite(decel) and math.isfinite(jerk)):
+            raise ValueError(f"max_decel_mps2 and max_jerk_mps3 must be finite and > 0, got {decel}, {jerk}")
         v = max(state.vx_mps, 0.0)
-        a_des = self._desired(v, state.ax_mps2, max(target_speed_mps, 0.0), stop_distance_m)
-        a_des = min(max(a_des, -self.max_decel), self.max_accel)
+        a_des = self._desired(v, state.ax_mps2, max(target_speed_mps, 0.0), stop_distance_m, jerk)
+        a_des = min(max(a_des, -decel), self.max_accel)
         if self._last_accel is None or self._last_time is None:
             previous = state.ax_mps2
             dt = self.nominal_dt_s
@@ -136,9 +161,10 @@ class LongitudinalController:
             dt = state.time_s - self._last_time
             if not dt > 0.0:
                 dt = self.nominal_dt_s
-        step = self.max_jerk * dt
+        step = jerk * dt
         a_cmd = min(max(a_des, previous - step), previous + step)
-        a_cmd = min(max(a_cmd, -self.max_decel), self.max_accel)
+        # a firmer command of the last call comes back at the jerk limit, not in one step
+        a_cmd = min(max(a_cmd, min(-decel, previous)), self.max_accel)
         self._last_accel = a_cmd
         self._last_time = state.time_s
         return a_cmd

@@ -6,6 +6,7 @@ from makeway.decide.yield_fsm import (
     YieldConfig,
     YieldStateMachine,
     clear_stop_point,
+    firm_stop_distance_m,
     lane_change_length_m,
     needs_yield,
 )
@@ -17,6 +18,7 @@ __all__ = [
     "YieldStateMachine",
     "clear_stop_point",
     "duty_of",
+    "firm_stop_distance_m",
     "lane_change_length_m",
     "needs_yield",
 ]

@@ -57,9 +57,15 @@ CROSSING           yes / unknown               ``stop_before_intersection``    n
 CROSSING, ego      yes / unknown               ``clear_intersection``, then    never stop inside an
 inside the box                                 pull over and stop after it     intersection
 CROSSING           no                          ``continue``                    it has crossed / gone
+CROSSING, every    yes / unknown               ``continue``                    its road crosses ours
+intersection of                                                                behind the car (a map
+the map behind                                                                 with none: the rows above)
+the ego
 UNKNOWN (heard,    yes / unknown               ``pull_over_and_stop``          conservative: the siren
 not placed)                                                                    is real, its place is not
-UNKNOWN            no                          ``continue``                    a receding siren
+UNKNOWN            no                          ``continue`` (``prepare`` with  a receding siren (its way
+                                               an intersection ahead within    unknown: not towards an
+                                               ``max_relevant_distance_m``)    intersection at speed)
 =================  ==========================  ==============================  ==========================
 
 **The duty to yield** (``YieldConfig.duty``, :mod:`makeway.decide.duty`): the table's yields apply
@@ -99,6 +105,20 @@ confirmed while we still wait in EV_PASSED keeps the stop point we are standing 
 
 An ego inside an intersection always gets a stop point past it and a target speed above zero until
 it has cleared it; it never stops inside one.
+
+**A firm stop before an intersection.** For an EV on a crossing road, or one not yet placed (heard,
+its relation unknown), the plan is that of a crossing EV when the pull-over would reach an
+intersection (its start within the pull-over distance plus a lane-change length): stop before it.
+Comfort is tried first: the stop must lie ``firm_min_margin_m`` or more before the intersection and
+be reachable at ``comfort_decel_mps2`` built up at ``comfort_jerk_mps3`` after ``reaction_time_s``
+(:func:`firm_stop_distance_m`, from the deceleration the car already has). When it is not, the stop
+may be **firm**: at ``max(start − intersection_margin_m, s + firm reach)`` with the firm reach at
+``firm_decel_mps2`` (4.5 m/s²) and ``firm_jerk_mps3``, if that is still ``firm_min_margin_m``
+before the intersection; the decision then carries ``max_decel_mps2`` / ``max_jerk_mps3`` for the
+longitudinal controller (that stop only: every other decision leaves them ``None``, comfort).
+Otherwise the car clears the intersection first, as a comfort plan does. A re-plan (the EV placed
+differently) never turns a stop before an intersection into crossing it, and keeps it unless the
+new plan must stop more than ``arrive_tolerance_m`` sooner.
 
 Target speed while moving over: ``min(speed limit, √(2·comfort_decel·(stop − s)), max(v, creep))`` —
 never faster than now (except creeping up to the stop point), zero at the stop point.
@@ -141,6 +161,7 @@ __all__ = [
     "YieldConfig",
     "YieldStateMachine",
     "clear_stop_point",
+    "firm_stop_distance_m",
     "lane_change_length_m",
     "needs_yield",
 ]
@@ -188,6 +209,20 @@ class YieldConfig:
         intersection_min_margin_m: the smallest such gap accepted when the full one cannot be
             reached at ``comfort_decel_mps2`` (the ego is already close to the intersection).
         intersection_exit_margin_m: how far past an intersection's end a stop point must be.
+        firm_decel_mps2: the deceleration (m/s²) a **firm stop** before an intersection may use
+            when the comfortable one cannot stop short of it and the EV heads for it (crossing) or
+            is not yet placed (module docstring, "A firm stop"). Default 4.5 m/s² (0.46 g): above
+            the comfort limit, clearly below emergency braking (8–9 m/s² on dry asphalt) and below
+            the grip of a wet road (μ ≈ 0.5: 4.9 m/s²). Set it to ``comfort_decel_mps2`` to never
+            brake harder than comfort.
+        comfort_jerk_mps3: the jerk (m/s³) the longitudinal controller builds a comfortable
+            deceleration with (its ``max_jerk``): a stop before an intersection counts as within
+            comfort only when :func:`firm_stop_distance_m` at ``comfort_decel_mps2`` and this jerk,
+            after ``reaction_time_s``, reaches it.
+        firm_jerk_mps3: the jerk (m/s³) a firm stop builds its deceleration with.
+        firm_min_margin_m: the smallest gap between a firm stop point and the intersection's start
+            (the stop point is the car's centre: half its length plus what a firm stop may run
+            past its point).
         pull_over_before_intersection: for a crossing EV, also move to the right edge when there is
             room before the intersection (``False``: stop in lane).
         arrive_tolerance_m: stopped within this distance of the stop point counts as arrived.
@@ -221,6 +256,10 @@ class YieldConfig:
     intersection_margin_m: float = 5.0
     intersection_min_margin_m: float = 1.0
     intersection_exit_margin_m: float = 5.0
+    comfort_jerk_mps3: float = 2.5
+    firm_decel_mps2: float = 4.5
+    firm_jerk_mps3: float = 8.0
+    firm_min_margin_m: float = 3.0
     pull_over_before_intersection: bool = True
     arrive_tolerance_m: float = 3.0
     stuck_timeout_s: float = 3.0
@@ -244,6 +283,8 @@ class YieldConfig:
             raise ValueError(f"resumed_speed_fraction must lie in (0, 1], got {self.resumed_speed_fraction}")
         if self.intersection_min_margin_m > self.intersection_margin_m:
             raise ValueError("intersection_min_margin_m must not exceed intersection_margin_m")
+        if self.firm_decel_mps2 < self.comfort_decel_mps2 or self.firm_jerk_mps3 <= 0.0:
+            raise ValueError("firm_decel_mps2 must be >= comfort_decel_mps2 and firm_jerk_mps3 > 0")
 
 
 # ------------------------------------------------------------------------------------ pure helpers
@@ -272,6 +313,40 @@ def lane_change_length_m(
         raise ValueError(f"max_lat_accel_mps2 must be > 0, got {max_lat_accel_mps2}")
     v = max(speed_mps, min_speed_mps, 0.0)
     return v * math.sqrt(_QUINTIC_PEAK * abs(offset_m) / max_lat_accel_mps2)
+
+
+def firm_stop_distance_m(
+    speed_mps: float, decel_mps2: float, jerk_mps3: float, delay_s: float, current_decel_mps2: float = 0.0
+) -> float:
+    """Distance (m) a car at ``speed_mps``, already braking at ``current_decel_mps2`` (≥ 0), needs to
+    stop when it keeps that deceleration for ``delay_s`` (the actuation delay), then builds it up to
+    ``decel_mps2`` at ``jerk_mps3`` and holds it to a stop (constant-jerk ramp, then constant
+    deceleration; each phase ends early if the car is already at rest)."""
+    if decel_mps2 <= 0.0 or jerk_mps3 <= 0.0:
+        raise ValueError(f"decel and jerk must be > 0, got {decel_mps2}, {jerk_mps3}")
+    v = max(float(speed_mps), 0.0)
+    a0 = min(max(float(current_decel_mps2), 0.0), decel_mps2)
+    delay = max(float(delay_s), 0.0)
+    if a0 > 0.0 and v <= a0 * delay:
+        return v * v / (2.0 * a0)
+    dist = v * delay - 0.5 * a0 * delay * delay
+    v -= a0 * delay
+    ramp = (decel_mps2 - a0) / jerk_mps3
+    lost = 0.5 * (a0 + decel_mps2) * ramp
+    if lost >= v:  # at rest during the ramp: step the ramp finely
+        n = 100
+        h = ramp / n
+        a = a0
+        for _ in range(n):
+            if v <= 0.0:
+                break
+            dist += max(v * h - 0.5 * a * h * h, 0.0)
+            v -= a * h
+            a += jerk_mps3 * h
+        return dist
+    dist += v * ramp - (0.5 * a0 + (decel_mps2 - a0) / 6.0) * ramp * ramp
+    v -= lost
+    return dist + v * v / (2.0 * decel_mps2)
 
 
 def _zones(
@@ -390,6 +465,7 @@ class _Plan:
     stop_s_m: float
     pull_over_ok: bool  # room to move over before the stop point
     before_intersection: bool  # the stop point is just before an intersection
+    firm: bool = False  # a firm stop: the comfortable deceleration cannot make it
 
 
 # ---------------------------------------------------------------------------------- state machine
@@ -442,6 +518,8 @@ class YieldStateMachine:
         self._duty = "ignore"  # the duty the followed EV's evidence carries
         self._others_wanting = False  # another EV than the followed one needs a yield
         self._lights_since: dict[int | None, float] = {}  # per track: lights shown without a break since
+        self._road_s = 0.0  # the ego's arc length and the map's intersections, this period
+        self._boxes: tuple[tuple[float, float], ...] = ()
 
     def update(self, belief: EVBelief, ego: VehicleState, road: RoadContext) -> YieldDecision:
         """:meth:`update_all` with one belief."""
@@ -464,6 +542,7 @@ class YieldStateMachine:
         """
         if not beliefs:
             raise ValueError("update_all needs at least one belief")
+        self._road_s, self._boxes = float(road.s_m), tuple(road.intersections)
         for b in beliefs:  # how long each track has shown lights without a break
             if b.detected and b.lights:
                 self._lights_since.setdefault(b.track_id, b.time_s)
@@ -500,6 +579,16 @@ class YieldStateMachine:
             return True
         return "v2x" in b.sources and dist <= self.config.duty.v2x_horizon_m
 
+    def _needs(self, relation: EVRelation, approaching: bool | None) -> bool:
+        """:func:`needs_yield`, and for an EV on a crossing road an intersection not yet behind the
+        ego: with the map's intersections all behind, the crossing road it is on crosses ours behind
+        the car, and it needs no yield (a map with none keeps the conservative table)."""
+        if not needs_yield(relation, approaching, yield_to_oncoming=self.config.yield_to_oncoming):
+            return False
+        if relation is not EVRelation.CROSSING or not self._boxes:
+            return True
+        return any(float(b) >= self._road_s for _, b in self._boxes)
+
     def _belief_wants(self, b: EVBelief) -> bool:
         """Whether ``b`` alone is a strong, active EV whose duty is a yield and that needs one."""
         cfg = self.config
@@ -510,7 +599,7 @@ class YieldStateMachine:
             and (b.lights or b.siren or not cfg.signals_required)
             and self._relevant(b)
             and self._duty_for(b) == "yield"
-            and needs_yield(b.relation, b.approaching, yield_to_oncoming=cfg.yield_to_oncoming)
+            and self._needs(b.relation, b.approaching)
         )
 
     def _choose(self, beliefs: Sequence[EVBelief]) -> EVBelief:
@@ -562,11 +651,7 @@ class YieldStateMachine:
             self._last_active_s = now
         strong = active and conf >= cfg.confirm_confidence
         self._run_since = (self._run_since if self._run_since is not None else now) if strong else None
-        wants = (
-            strong
-            and self._duty == "yield"
-            and needs_yield(b.relation, approach, yield_to_oncoming=cfg.yield_to_oncoming)
-        )
+        wants = strong and self._duty == "yield" and self._needs(b.relation, approach)
         self._yield_run_since = (
             (self._yield_run_since if self._yield_run_since is not None else now) if wants else None
         )
@@ -576,19 +661,11 @@ class YieldStateMachine:
 
     def _wants_yield(self) -> bool:
         b = self._belief
-        return (
-            b is not None
-            and self._duty == "yield"
-            and needs_yield(b.relation, self._approach, yield_to_oncoming=self.config.yield_to_oncoming)
-        )
+        return b is not None and self._duty == "yield" and self._needs(b.relation, self._approach)
 
     def _prepares(self) -> bool:
         b = self._belief
-        return (
-            b is not None
-            and self._duty == "prepare"
-            and needs_yield(b.relation, self._approach, yield_to_oncoming=self.config.yield_to_oncoming)
-        )
+        return b is not None and self._duty == "prepare" and self._needs(b.relation, self._approach)
 
     def _gone_reason(self, now: float) -> str | None:
         """Why the EV no longer counts (lost or inactive too long), or ``None``."""
@@ -727,20 +804,34 @@ class YieldStateMachine:
         b = self._belief
         plan = self._plan
         crossing_now: bool | None = None
-        if b is not None and b.relation is not EVRelation.UNKNOWN and self._wants_yield():
+        wants = b is not None and self._wants_yield()
+        if b is not None and b.relation is not EVRelation.UNKNOWN and wants:
             crossing_now = b.relation is EVRelation.CROSSING
+        # a firm stop before an intersection: for an EV heading for it or not yet placed
+        firm_ok = b is not None and wants and b.relation in (EVRelation.CROSSING, EVRelation.UNKNOWN)
         inside = _containing(road.s_m, road.intersections)
         if plan is None:
-            self._plan = self._make_plan(ego, road, bool(crossing_now))
+            self._plan = self._make_plan(ego, road, bool(crossing_now), firm_ok)
             self._plan_note = ""
         elif crossing_now is not None and crossing_now != plan.crossing:
-            self._plan = self._make_plan(ego, road, crossing_now)
-            self._plan_note = " (re-planned: the EV's direction changed)"
+            new = self._make_plan(ego, road, crossing_now, firm_ok)
+            starts = [float(a) for a, _ in road.intersections]
+            crosses = any(plan.stop_s_m < a <= new.stop_s_m for a in starts)
+            sooner = new.stop_s_m < plan.stop_s_m - self.config.arrive_tolerance_m
+            if plan.before_intersection and (crosses or not sooner):
+                # committed to stop before an intersection: never turn that into crossing it, nor
+                # change it for a place that flips, unless the car must now stop sooner
+                self._plan_note = " (the EV's direction changed: still stopping before the intersection)"
+            else:
+                self._plan = new
+                self._plan_note = " (re-planned: the EV's direction changed)"
         elif inside is not None and plan.stop_s_m < inside[1] + self.config.intersection_exit_margin_m:
             self._plan = self._make_plan(ego, road, plan.crossing)
             self._plan_note = " (re-planned: inside an intersection)"
 
-    def _make_plan(self, ego: VehicleState, road: RoadContext, crossing: bool) -> _Plan:
+    def _make_plan(
+        self, ego: VehicleState, road: RoadContext, crossing: bool, firm_ok: bool = False
+    ) -> _Plan:
         cfg = self.config
         s = float(road.s_m)
         v = max(float(ego.vx_mps), 0.0)
@@ -751,6 +842,13 @@ class YieldStateMachine:
         brake = v * v / (2.0 * cfg.comfort_decel_mps2)
         boxes = sorted((float(a), float(b)) for a, b in road.intersections)
         target = next(((a, b) for a, b in boxes if b >= s), None) if crossing else None
+        if firm_ok and not crossing:
+            # not placed: with an intersection within a pull-over (and a lane change) ahead, it may
+            # well be heading for it: stop before that intersection as for a crossing EV
+            near = next(((a, b) for a, b in boxes if a > s), None)
+            reach = s + lead + max(brake, change) + change
+            if near is not None and near[0] - cfg.intersection_margin_m <= reach:
+                crossing, target = True, near
 
         def clear(desired: float) -> float:
             return clear_stop_point(
@@ -775,6 +873,27 @@ class YieldStateMachine:
         crossed = [b for a, b in boxes if s < b < stop]
         if crossed and stop < max(crossed) + cfg.intersection_exit_margin_m + change:
             stop = clear(max(crossed) + cfg.intersection_exit_margin_m + change)
+        # the comfortable stop is not clear of the intersection ahead, or comfort cannot make it in
+        # time (reaction, jerk-limited onset): a firm stop before the intersection, if it can
+        ahead = target if crossing else next(((a, b) for a, b in boxes if a > s), None)
+        if firm_ok and ahead is not None and ahead[0] > s:
+            braking = max(-float(ego.ax_mps2), 0.0)
+            comfort_reach = s + firm_stop_distance_m(
+                v, cfg.comfort_decel_mps2, cfg.comfort_jerk_mps3, cfg.reaction_time_s, braking
+            )
+            before = stop < ahead[0]
+            if stop > ahead[0] - cfg.firm_min_margin_m or (before and stop < comfort_reach - _EPS):
+                reach = s + firm_stop_distance_m(
+                    v, cfg.firm_decel_mps2, cfg.firm_jerk_mps3, cfg.reaction_time_s, braking
+                )
+                firm = max(ahead[0] - cfg.intersection_margin_m, reach)
+                if firm <= ahead[0] - cfg.firm_min_margin_m and cfg.firm_decel_mps2 > cfg.comfort_decel_mps2:
+                    room = firm - s >= lead + change
+                    return _Plan(True, firm, room and cfg.pull_over_before_intersection, True, firm=True)
+                if before and stop < comfort_reach - _EPS:
+                    # neither comfort nor a firm stop makes it before: clear the intersection first
+                    stop = clear(ahead[1] + cfg.intersection_exit_margin_m + change)
+                    return _Plan(crossing, stop, True, False)
         room = stop - s >= lead + change
         if target is not None and stop < target[0]:
             return _Plan(True, stop, room and cfg.pull_over_before_intersection, True)
@@ -789,9 +908,10 @@ class YieldStateMachine:
         v = max(float(ego.vx_mps), 0.0)
         stop = plan.stop_s_m
         left = max(stop - s, 0.0)
+        decel = cfg.firm_decel_mps2 if plan.firm else cfg.comfort_decel_mps2
         target = min(
             max(float(road.speed_limit_mps), 0.0),
-            math.sqrt(2.0 * cfg.comfort_decel_mps2 * left),
+            math.sqrt(2.0 * decel * left),
             max(v, cfg.creep_speed_mps),
         )
         inside = _containing(s, road.intersections)
@@ -804,7 +924,14 @@ class YieldStateMachine:
             pull = plan.pull_over_ok
             action = "stop_before_intersection" if (plan.crossing or not pull) else "pull_over_and_stop"
             edge = "at the right edge " if pull else "in lane "
-            return action, pull, target, stop, f"stopping {edge}before the intersection at s={stop:.1f} m"
+            how = f", braking firmly (up to {cfg.firm_decel_mps2:g} m/s²)" if plan.firm else ""
+            return (
+                action,
+                pull,
+                target,
+                stop,
+                f"stopping {edge}before the intersection at s={stop:.1f} m{how}",
+            )
         return "pull_over_and_stop", True, target, stop, f"pulling over to stop at s={stop:.1f} m"
 
     # ------------------------------------------------------------------------------- decisions
@@ -833,6 +960,17 @@ class YieldStateMachine:
                 slow = self.config.duty.prepare_speed_fraction * limit
                 why = f"Heard an {what} but the law asks for more before a yield: slowing, ready to yield."
                 return YieldDecision(now, st, "prepare", False, slow, None, why)
+            s = float(road.s_m)
+            horizon = self.config.max_relevant_distance_m
+            if (
+                b is not None
+                and b.relation is EVRelation.UNKNOWN
+                and any(s < a <= s + horizon for a, _ in road.intersections)
+            ):
+                # its way unknown, an intersection ahead: do not speed towards it, be ready to stop
+                slow = self.config.duty.prepare_speed_fraction * limit
+                why = f"An {what}, an intersection ahead: slowing, ready to stop before it."
+                return YieldDecision(now, st, "prepare", False, slow, None, why)
             return YieldDecision(now, st, "continue", False, limit, None, f"No yield needed for the {what}.")
         if st in (YieldState.STOPPED_WAITING, YieldState.EV_PASSED):
             stop = self._plan.stop_s_m if self._plan is not None else float(road.s_m)
@@ -849,4 +987,10 @@ class YieldStateMachine:
             why = f"The emergency vehicle has passed: completing the stop, {note}."
         else:
             why = f"Yielding to the {what}: {note}{self._plan_note}."
-        return YieldDecision(now, st, action, pull, target, stop, why)
+        firm = self._plan is not None and self._plan.firm and action == "stop_before_intersection"
+        if not firm:
+            return YieldDecision(now, st, action, pull, target, stop, why)
+        cfg = self.config
+        return YieldDecision(
+            now, st, action, pull, target, stop, why, cfg.firm_decel_mps2, cfg.firm_jerk_mps3
+        )

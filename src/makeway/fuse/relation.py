@@ -9,18 +9,32 @@ from makeway.messages import EVRelation
 
 
 def classify_relation(
-    rel_x: float, rel_y: float, rel_heading: float, *, same_road_half_width_m: float = 6.0
+    rel_x: float,
+    rel_y: float,
+    rel_heading: float,
+    *,
+    same_road_half_width_m: float = 6.0,
+    off_road_ratio: float = 0.4,
 ) -> EVRelation:
     """Where an EV is relative to the ego: from its position in the ego frame and its heading.
 
     Same direction (|Δheading| < 45°): behind or ahead by the sign of ``rel_x``. Opposite direction
     (|Δheading| > 135°) and ahead: oncoming (behind and opposite: it has gone, called AHEAD-like
     "receding" by the caller through ``approaching``). Otherwise crossing.
+
+    Behind, ahead and oncoming need the EV on the ego's road: off it to the side by more than
+    ``same_road_half_width_m`` and by more than ``off_road_ratio·|rel_x|`` (0.4: 22° off the ego's
+    heading; a road curving at R = 250 m bends 0.4 of the way aside only 200 m on), an EV "driving
+    along our road" is not on it (a wrong track heading, or a road beside ours) and is not placed:
+    ``UNKNOWN``.
     """
     d = math.atan2(math.sin(rel_heading), math.cos(rel_heading))
-    if abs(d) < math.radians(45):
-        return EVRelation.BEHIND if rel_x < 0 else EVRelation.AHEAD
-    if abs(d) > math.radians(135):
+    beside = abs(rel_y) > max(same_road_half_width_m, off_road_ratio * abs(rel_x))
+    if abs(d) < math.radians(45) or abs(d) > math.radians(135):
+        if beside:
+            return EVRelation.UNKNOWN
+        if abs(d) < math.radians(45):
+            return EVRelation.BEHIND if rel_x < 0 else EVRelation.AHEAD
         return EVRelation.ONCOMING if rel_x > 0 else EVRelation.BEHIND
     if abs(rel_y) < same_road_half_width_m and abs(rel_x) < 10.0:
         return EVRelation.UNKNOWN

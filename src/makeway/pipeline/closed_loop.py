@@ -268,7 +268,9 @@ def run_scenario(
         target = decision.target_speed_mps
         for truth in truths + traffic:
             target = min(target, _follow_speed(ego, truth, body))
-        accel_cmd = longitudinal.accel(est, target, stop_d)
+        accel_cmd = longitudinal.accel(
+            est, target, stop_d, max_decel_mps2=decision.max_decel_mps2, max_jerk_mps3=decision.max_jerk_mps3
+        )
         ego_box = rectangle_corners(ego.x_m, ego.y_m, ego.yaw_rad, body[0], body[1])
         gap = min((_gap(ego_box, v) for v in truths), default=math.nan)
         gap_traffic = min((_gap(ego_box, v) for v in traffic), default=math.nan)

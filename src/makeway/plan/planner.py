@@ -3,7 +3,8 @@
 :class:`YieldPlanner` keeps the path the controllers follow. It replans only when the decision asks
 for something new — entering the pull-over, stopping in lane before an intersection, or resuming — so
 the controllers track one smooth, curvature-continuous path per manoeuvre rather than a path that
-jumps every cycle.
+jumps every cycle. A stop in lane whose stop point the decision moves (a re-planned yield) keeps the
+lane and takes the new stop point.
 """
 
 from __future__ import annotations
@@ -71,7 +72,10 @@ class YieldPlanner:
                 self.offset_m = self.right_edge_offset_m
                 self._mode = "pull_over"
                 self.replans.append((decision.time_s, "pull_over"))
-            elif not decision.pull_over and self._mode not in ("pull_over", "stop_in_lane"):
+            elif not decision.pull_over and (
+                self._mode == "lane"
+                or (self._mode == "stop_in_lane" and decision.stop_s_m != self.path.stop_s_m)
+            ):
                 self.path = ReferencePath(
                     self.lane.x_m,
                     self.lane.y_m,
