@@ -8,7 +8,7 @@ OUT    ?= reports/demo
 
 .PHONY: venv demo test lint typecheck bench bench-sort bench-video bench-crops bench-detection bench-pull-over \
 	bench-siren-loop bench-audio bench-rig bench-v2x bench-fusion bench-roadside bench-lights bench-active-rule \
-	bench-rsu bench-fusion-ablation bench-mcap bench-engine bench-robust bench-speed bench-faults bench-overload bench-overload-listener bench-range bench-clip-fusion bench-framework-ab fuzz clean
+	bench-rsu bench-fusion-ablation bench-mcap bench-engine bench-robust bench-speed bench-crossing bench-no-ev-2h bench-faults bench-overload bench-overload-listener bench-range bench-clip-fusion bench-framework-ab fuzz clean
 
 # `make demo` installs the runtime only; `make test` and the benchmarks add the dev extra (linters,
 # scikit-learn, XGBoost, torch for the training tests).
@@ -120,6 +120,15 @@ bench-engine: venv
 # the pull-over on CommonRoad's vehicle models (3 cars, dry/wet, steering delay) beside Stanley and pure pursuit
 bench-robust: venv
 	$(BIN)/python benchmarks/bench_robust_pull_over.py
+
+# the crossing with every sense fused: 20 seeds, stop before the intersection (target ≥ 95 %)
+bench-crossing: venv
+	$(BIN)/python benchmarks/bench_fusion_ablation.py --scenarios crossing --perceptions fused --seeds 20 --no-ev-runs 0
+
+# 2 h of no-EV driving with every sense fused (two processes of 180 drives of 20 s)
+bench-no-ev-2h: venv
+	$(BIN)/python benchmarks/bench_fusion_ablation.py --only-no-ev --no-ev-runs 180 --first-no-ev-seed 100 & \
+	$(BIN)/python benchmarks/bench_fusion_ablation.py --only-no-ev --no-ev-runs 180 --first-no-ev-seed 280; wait
 
 # the closed loop's speed on the multi-body plant, against the code before the speed work (same run)
 bench-speed: venv
