@@ -25,6 +25,7 @@ from makeway.perceive.audio.siren_model import (
     DEFAULT_SIREN_RANGERS,
     LOCALIZER_DISTANCE,
     PRIOR_SIREN_RANGERS,
+    WIDE_SIREN_RANGERS,
     SirenModel,
 )
 from makeway.sense.recording import Recording, reference_mics, write_recording
@@ -341,26 +342,29 @@ def test_shipped_localizer_gives_bearing_and_distance(windows: tuple[np.ndarray,
 def test_shipped_rangers_join_the_distance(windows: tuple[np.ndarray, ...]) -> None:
     """The shipped rangers' distances are averaged (geometric mean) with the localizer's; detection
     and bearing are untouched."""
-    assert len(DEFAULT_SIREN_RANGERS) == 2 and LOCALIZER_DISTANCE
-    for path in (*DEFAULT_SIREN_RANGERS, *PRIOR_SIREN_RANGERS):
+    assert DEFAULT_SIREN_RANGERS == PRIOR_SIREN_RANGERS and LOCALIZER_DISTANCE
+    for path in (*PRIOR_SIREN_RANGERS, *WIDE_SIREN_RANGERS):
         assert path.is_file() and path.stat().st_size <= 5_000_000
     full, pair = SirenModel(threads=1), SirenModel(threads=1, ranger=False)
     assert [r.path for r in full.rangers] == list(DEFAULT_SIREN_RANGERS)
-    assert "ranger=siren_ranger_wide.onnx+siren_ranger_wide2.onnx" in repr(full)
+    assert "ranger=siren_ranger.onnx+siren_ranger2.onnx+siren_ranger3.onnx" in repr(full)
     assert pair.rangers == ()
     w, siren, _, dist = windows
     f, p = full.predict(w), pair.predict(w)
-    r1, r2 = (SirenModel(path, threads=1).predict(w) for path in DEFAULT_SIREN_RANGERS)
     np.testing.assert_allclose(f.prob, p.prob, rtol=1e-6)
     np.testing.assert_allclose(f.theta, p.theta, atol=1e-6)
-    np.testing.assert_allclose(f.distance, (p.distance * r1.distance * r2.distance) ** (1 / 3), rtol=1e-5)
-    assert f.distance_sigma is not None and r1.distance_sigma is not None and r2.distance_sigma is not None
-    np.testing.assert_allclose(f.distance_sigma, np.sqrt((r1.distance_sigma**2 + r2.distance_sigma**2) / 2))
-    # the rangers shipped before issue 25 can still be named: the mean of the localizer and the three
-    old = SirenModel(threads=1, ranger=PRIOR_SIREN_RANGERS)
+    # the default: the mean of the localizer and the three rangers; none of them gives a σ
     q1, q2, q3 = (SirenModel(path, threads=1).predict(w) for path in PRIOR_SIREN_RANGERS)
     product = p.distance * q1.distance * q2.distance * q3.distance
-    np.testing.assert_allclose(old.predict(w).distance, product**0.25, rtol=1e-5)
+    np.testing.assert_allclose(f.distance, product**0.25, rtol=1e-5)
+    assert f.distance_sigma is None
+    # the rangers trained over the real siren levels, named: the localizer's and theirs, with σ
+    wide = SirenModel(threads=1, ranger=WIDE_SIREN_RANGERS)
+    r1, r2 = (SirenModel(path, threads=1).predict(w) for path in WIDE_SIREN_RANGERS)
+    got = wide.predict(w)
+    np.testing.assert_allclose(got.distance, (p.distance * r1.distance * r2.distance) ** (1 / 3), rtol=1e-5)
+    assert got.distance_sigma is not None and r1.distance_sigma is not None and r2.distance_sigma is not None
+    np.testing.assert_allclose(got.distance_sigma, np.sqrt((r1.distance_sigma**2 + r2.distance_sigma**2) / 2))
     one = SirenModel(threads=1, ranger=DEFAULT_SIREN_RANGER)  # one named ranger: the eighth session's pair
     np.testing.assert_allclose(one.predict(w).distance, np.sqrt(p.distance * q1.distance), rtol=1e-5)
     sel = siren & (dist > 20) & (dist < 80)

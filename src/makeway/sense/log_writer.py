@@ -502,7 +502,7 @@ class H264MessageEncoder:
     ) -> None:
         import av
 
-        from makeway.viz.video_writer import pick_h264_encoder
+        from makeway.sense.video import pick_h264_encoder
 
         self.width, self.height = int(width), int(height)
         self._pad = (self.height % 2, self.width % 2)

@@ -278,3 +278,28 @@ def probe_video(path: str | Path) -> VideoInfo:
     """
     with VideoReader(path) as reader:
         return reader.info
+
+
+#: H.264 encoders tried in this order; the first that FFmpeg can open wins.
+ENCODER_PREFERENCE: tuple[str, ...] = ("libx264", "h264", "libopenh264")
+
+
+def pick_h264_encoder() -> str:
+    """The name of the H.264 encoder that :class:`~makeway.viz.video_writer.H264Writer` and the
+    H.264 camera logs (:mod:`makeway.sense.log_writer`) use.
+
+    Raises:
+        RuntimeError: PyAV's FFmpeg has no H.264 encoder at all.
+    """
+    import av
+
+    available = av.codecs_available
+    for name in ENCODER_PREFERENCE:
+        if name != "h264" and name not in available:
+            continue
+        try:
+            codec = av.codec.Codec(name, "w")
+        except Exception:  # not an encoder in this build
+            continue
+        return str(codec.name)
+    raise RuntimeError("PyAV's FFmpeg build has no H.264 encoder (tried libx264, h264, libopenh264)")

@@ -23,8 +23,7 @@ import av
 import cv2
 import numpy as np
 
-#: H.264 encoders tried in this order; the first that FFmpeg can open wins.
-ENCODER_PREFERENCE: tuple[str, ...] = ("libx264", "h264", "libopenh264")
+from makeway.sense.video import pick_h264_encoder
 
 #: The default x264 preset: the video pipeline must run at 2× real time (20 ms per 25 fps frame for
 #: everything), and only ``ultrafast`` encodes a 720p frame fast enough on 2 cores (preset timings:
@@ -36,24 +35,6 @@ DEFAULT_PRESET = "ultrafast"
 #: frame that the video pipeline's 2× real-time budget cannot spare while detection shares the cores
 #: (docs/journal.md, "Video pipeline"); pass it when size matters more.
 DEFAULT_X264_PARAMS: str | None = None
-
-
-def pick_h264_encoder() -> str:
-    """The name of the H.264 encoder :class:`H264Writer` will use.
-
-    Raises:
-        RuntimeError: PyAV's FFmpeg has no H.264 encoder at all.
-    """
-    available = av.codecs_available
-    for name in ENCODER_PREFERENCE:
-        if name != "h264" and name not in available:
-            continue
-        try:
-            codec = av.codec.Codec(name, "w")
-        except Exception:  # not an encoder in this build
-            continue
-        return str(codec.name)
-    raise RuntimeError("PyAV's FFmpeg build has no H.264 encoder (tried libx264, h264, libopenh264)")
 
 
 def default_encoder_threads() -> int:
