@@ -14,6 +14,7 @@ import subprocess
 import sys
 from pathlib import Path
 from types import ModuleType
+from typing import Any
 
 import pytest
 
@@ -148,3 +149,23 @@ def _register_fuzz_profiles() -> None:
 
 
 _register_fuzz_profiles()
+
+
+@pytest.fixture(scope="session")
+def short_train_recordings(data_root: Path) -> Any:
+    """``make(folder, scenarios, seed)``: 1.5 s roof-array recordings of training-split sirens, one
+    per scenario (seeds ``seed``, ``seed + 1``, …), written as ``folder/rec_00000`` …; returns
+    their folders in order."""
+    from makeway.sense.recording import write_recording
+    from makeway.sim.audio_scenarios import simulate_recording
+    from makeway.sim.siren import load_siren_sources, split_sources
+
+    sirens = split_sources(load_siren_sources(data_root), "train")
+
+    def make(folder: Path, scenarios: tuple[str, ...], seed: int) -> list[Path]:
+        for i, scen in enumerate(scenarios):
+            rec = simulate_recording(scen, 1.5, seed=seed + i, siren_pool=sirens, data_root=data_root)
+            write_recording(folder / f"rec_{i:05d}", rec)
+        return sorted(folder.iterdir())
+
+    return make

@@ -43,14 +43,6 @@ from makeway.train.classical import CLASSIFIERS, run_study, write_study
 runner = CliRunner()
 
 
-@pytest.fixture(scope="module")
-def yolo_root(data_root: Path) -> Path:
-    root = data_root / "vision" / "ambulance_yolo" / "valid"
-    if not root.is_dir():
-        pytest.fail(f"{root} missing from the shared data")
-    return root
-
-
 def _crop_folder(tmp_path: Path, csv_text: str, images: dict[str, bytes | np.ndarray] | None = None) -> Path:
     root = tmp_path / "crops"
     (root / "images").mkdir(parents=True)
@@ -344,8 +336,8 @@ def test_tiny_study_writes_sane_table(ev_crops: CropSet, tmp_path: Path) -> None
 # ---------------------------------------------------------------------------------------------- YOLO
 
 
-def test_read_real_yolo_set(yolo_root: Path) -> None:
-    images = read_yolo_set(yolo_root)
+def test_read_real_yolo_set(ambulance_dir: Path) -> None:
+    images = read_yolo_set(ambulance_dir)
     assert len(images) == 507
     assert sum(len(i.boxes) for i in images) == 659
     assert {c for i in images for c in i.class_ids} == {0}
@@ -405,13 +397,13 @@ def test_detection_crop_items_split_positives_and_negatives() -> None:
     assert [(name, label) for name, _, label in items] == [("p0", 1), ("n1", 0), ("n4", 0)]
 
 
-def test_cli_build_ambulance_crops_and_holdout(yolo_root: Path, tmp_path: Path) -> None:
+def test_cli_build_ambulance_crops_and_holdout(ambulance_dir: Path, tmp_path: Path) -> None:
     few = tmp_path / "yolo"
     for sub in ("images", "labels"):
         (few / sub).mkdir(parents=True)
-    for path in sorted((yolo_root / "images").iterdir())[:6]:
+    for path in sorted((ambulance_dir / "images").iterdir())[:6]:
         (few / "images" / path.name).write_bytes(path.read_bytes())
-        label = yolo_root / "labels" / f"{path.stem}.txt"
+        label = ambulance_dir / "labels" / f"{path.stem}.txt"
         (few / "labels" / label.name).write_bytes(label.read_bytes())
     out = tmp_path / "amb"
     r = runner.invoke(classify_app, ["build-ambulance-crops", "--data", str(few), "--out", str(out), "-q"])

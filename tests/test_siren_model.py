@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 import math
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -152,19 +153,17 @@ def test_source_split_is_by_group_and_stable(data_root: Path) -> None:
 
 
 @pytest.fixture(scope="module")
-def tiny_model(tmp_path_factory: pytest.TempPathFactory, data_root: Path) -> tuple[Path, Path, dict]:
+def tiny_model(
+    tmp_path_factory: pytest.TempPathFactory, short_train_recordings: Any
+) -> tuple[Path, Path, dict]:
     """Two short training-split recordings, one epoch of a narrow network, exported to ONNX."""
     import torch  # in the dev extra
 
     from makeway.train.siren import TrainConfig, build_dataset, evaluate_net, export_onnx, train_siren_net
 
     root = tmp_path_factory.mktemp("siren_train")
-    sirens = split_sources(load_siren_sources(data_root), "train")
-    for i, scen in enumerate(("same_direction", "none")):
-        rec = simulate_recording(scen, 1.5, seed=40 + i, siren_pool=sirens, data_root=data_root)
-        write_recording(root / "recs" / f"rec_{i:05d}", rec)
+    folders = short_train_recordings(root / "recs", ("same_direction", "none"), 40)
     feats = SirenFeatures()
-    folders = sorted((root / "recs").iterdir())
     data = build_dataset(folders, feats, mirror=True, cache=root / "cache.npz")
     assert len(data) == 2 * 2 * 6 and data.siren[:6].all() and not data.siren[-6:].any()
     again = build_dataset(folders, feats, mirror=True, cache=root / "cache.npz")  # from the cache

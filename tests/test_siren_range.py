@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -24,7 +25,7 @@ from makeway.perceive.audio.siren_model import (
     SirenPrediction,
     combine_distances,
 )
-from makeway.sense.recording import Recording, read_recording, write_recording
+from makeway.sense.recording import Recording, read_recording
 from makeway.sim.audio_scenarios import (
     AUDIO_SCENARIOS,
     FAR_START,
@@ -33,7 +34,6 @@ from makeway.sim.audio_scenarios import (
     make_tracks,
     simulate_recording,
 )
-from makeway.sim.siren import load_siren_sources, split_sources
 
 runner = CliRunner()
 
@@ -124,19 +124,17 @@ def test_far_start_reaches_audible_range_and_keeps_other_draws() -> None:
 
 
 @pytest.fixture(scope="module")
-def sigma_model(tmp_path_factory: pytest.TempPathFactory, data_root: Path) -> tuple[Path, np.ndarray, dict]:
+def sigma_model(
+    tmp_path_factory: pytest.TempPathFactory, short_train_recordings: Any
+) -> tuple[Path, np.ndarray, dict]:
     """A narrow network with the distance uncertainty head, one epoch on two short recordings."""
     import torch
 
     from makeway.train.siren import SirenNet, TrainConfig, build_dataset, export_onnx, train_siren_net
 
     root = tmp_path_factory.mktemp("sigma")
-    sirens = split_sources(load_siren_sources(data_root), "train")
-    for i, scen in enumerate(("same_direction", "crossing")):
-        rec = simulate_recording(scen, 1.5, seed=60 + i, siren_pool=sirens, data_root=data_root)
-        write_recording(root / "recs" / f"rec_{i:05d}", rec)
+    folders = short_train_recordings(root / "recs", ("same_direction", "crossing"), 60)
     feats = SirenFeatures()
-    folders = sorted((root / "recs").iterdir())
     data = build_dataset(folders, feats, mirror=False)
     with pytest.raises(ValueError, match="log distance"):
         SirenNet(feats.shapes(), width=8, distance_sigma=True)
