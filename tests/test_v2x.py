@@ -242,6 +242,26 @@ def test_generation_time_bounds(keys: dict) -> None:
     assert v.verify(sign_alert(_alert(good, 4, now - 2.1), good), now).reason.startswith("stale")
 
 
+def test_relevance_checks_come_before_the_signature(keys: dict) -> None:
+    """A stale, future or replayed message is refused on its fields before any ECDSA work: with its
+    signature broken it is still refused for being stale / future / a replay, and a broken signature
+    on a fresh, new message is refused as a bad signature and leaves no trace in the replay cache."""
+    store, good, now = TrustStore.load(keys["trust"]), keys["good"], time.time()
+
+    def broken(m: bytes) -> bytes:
+        return m[:-1] + bytes([m[-1] ^ 0x01])
+
+    v = Verifier(store)
+    ok = sign_alert(_alert(good, 7, now), good)
+    assert v.verify(ok, now).valid
+    assert v.verify(broken(ok), now).reason.startswith("replay")
+    assert v.verify(broken(sign_alert(_alert(good, 8, now - 60.0), good)), now).reason.startswith("stale")
+    assert v.verify(broken(sign_alert(_alert(good, 9, now + 60.0), good)), now).reason.startswith("future")
+    fresh = sign_alert(_alert(good, 10, now), good)
+    assert v.verify(broken(fresh), now).reason == "bad signature"
+    assert v.verify(fresh, now).valid  # the forged copy did not take sequence 10
+
+
 # ------------------------------------------------------------------------------------------ belief
 def test_local_frame_distances_match_the_ellipsoid() -> None:
     """0.001° of longitude on the equator is a·π/180·0.001 = 111.3195 m east; 0.001° of latitude at

@@ -472,10 +472,9 @@ class Verifier:
         if not (0 < r < _N and 0 < s <= _HALF_N):
             return Verdict(False, "bad signature (not a canonical r, s)", alert, signer)
         pub, valid_from, valid_to = unit
-        try:
-            pub.verify(encode_dss_signature(r, s), data[:_SIGNED_FIELDS], ec.ECDSA(hashes.SHA256()))
-        except InvalidSignature:
-            return Verdict(False, "bad signature", alert, signer)
+        # relevance checks first (IEEE 1609.2's order): a stale, future, replayed or mislabelled
+        # message costs a decode, not an ECDSA verification, so a flood of them cannot starve the
+        # alerts that matter. Nothing is recorded until the signature has been checked.
         if alert.station_id != station_id_of(signer):
             return Verdict(False, "station id is not the signer's", alert, signer)
         gen_ms = alert.generation_time_ms
@@ -493,5 +492,9 @@ class Verifier:
             self._pruned_ms = now_ms
         if self.replay.seen(signer, alert.sequence):
             return Verdict(False, "replay: this signer's sequence was already accepted", alert, signer)
+        try:
+            pub.verify(encode_dss_signature(r, s), data[:_SIGNED_FIELDS], ec.ECDSA(hashes.SHA256()))
+        except InvalidSignature:
+            return Verdict(False, "bad signature", alert, signer)
         self.replay.add(signer, alert.sequence, gen_ms)
         return Verdict(True, "ok", alert, signer)
