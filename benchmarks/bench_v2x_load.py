@@ -385,7 +385,7 @@ def main() -> None:
     print(f"  memory flat (every sample after the first minute within ± {FLAT_PCT:g} %): {r['rss_flat_pct']}")
     lags = r["lag_ms_p50_p99_max_per_proc"]
     print(
-        "  generated → verified lag per car process, p50/p99/max ms: "
+        f"  generated → {'verified' if r['verify'] else 'decoded'} lag per car process, p50/p99/max ms: "
         + "; ".join("/".join(f"{x:.1f}" for x in lag) for lag in lags)
     )
     print(
