@@ -85,6 +85,7 @@ def main() -> int:
     ap.add_argument("--sirens", default="synth,real", help="siren kinds: synth, real (needs the data)")
     ap.add_argument("--scenarios", default=",".join(SCENARIOS), help="scenario names (comma-separated)")
     ap.add_argument("--no-ev-runs", type=int, default=20, help="no-EV drives through real street noise")
+    ap.add_argument("--no-anchor", action="store_true", help="skip the modelled-perception anchor runs")
     ap.add_argument("--rangers", default="default", choices=sorted(RANGERS), help="distance networks")
     args = ap.parse_args()
     seeds = [int(s) for s in args.seeds.split(",") if s]
@@ -110,15 +111,16 @@ def main() -> int:
     )
     for name in names:
         sc = SCENARIOS[name]()
-        t0 = time.perf_counter()
-        anchor = _row(run_scenario(sc), time.perf_counter() - t0, sc.duration_s)
-        runs.append({"scenario": name, "perception": "simulated", "seed": 0, **anchor})
-        print(
-            f"{name:13s} {'simulated':16s} "
-            + " ".join(f"{_fmt(anchor[c]):>13s}" for c in cols)
-            + f" {anchor['real_time_factor']:>10.2f}",
-            flush=True,
-        )
+        if not args.no_anchor:
+            t0 = time.perf_counter()
+            anchor = _row(run_scenario(sc), time.perf_counter() - t0, sc.duration_s)
+            runs.append({"scenario": name, "perception": "simulated", "seed": 0, **anchor})
+            print(
+                f"{name:13s} {'simulated':16s} "
+                + " ".join(f"{_fmt(anchor[c]):>13s}" for c in cols)
+                + f" {anchor['real_time_factor']:>10.2f}",
+                flush=True,
+            )
         for kind in sirens:
             for seed in seeds:
                 noise = "real" if kind == "real" else "generated"
