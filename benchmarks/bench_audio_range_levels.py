@@ -37,7 +37,7 @@ For every combination it also prints, on labels out to 300 m (the networks learn
 
 ``σ scale``: the factor ``k`` by which a combination's σ would have to be multiplied for ±kσ to
 hold 68.3 % of those windows, and the share within ±2kσ after that scaling (fit ``k`` on
-validation recordings, check it held out).
+validation recordings, check it held out); the JSON also has quantiles of ``|ln d̂ − ln d| / σ``.
 
 **Misses**: every siren with a missed window at 10–50 m — its recording, kind, name, emitted level,
 the distances of the missed windows, the street noise's level at the array and the recording's
@@ -87,6 +87,7 @@ FAR_NEAR_M = 100.0
 SIGMA_RANGE_M = (5.0, 100.0)
 SHIPPED = "shipped"
 ONE_SIGMA = 0.6827
+Z_QUANTILES = (0.5, 0.6827, 0.8, 0.9, 0.9545, 0.99)
 MARGIN_BANDS_DB = (-20.0, -10.0, -5.0, 0.0, 5.0, 10.0, 20.0, 40.0)
 
 
@@ -304,6 +305,7 @@ def far_rows(
             "median_sigma": round(float(np.median(sigma[sel])), 4),
             "scale_68": round(k, 3),
             "within_2_scaled": round(float(np.mean(z <= 2.0 * k)), 4),
+            "z_quantiles": {f"{q:g}": round(float(np.quantile(z, q)), 3) for q in Z_QUANTILES},
         }
     return row
 
