@@ -25,7 +25,9 @@ there) and the listener's per-window false-alarm rate on the same audio.
 ``--rangers`` picks the networks that place the siren: ``default`` (the shipped
 :data:`~makeway.perceive.audio.siren_model.DEFAULT_SIREN_RANGERS`), ``prior`` (the rangers trained
 on sirens of 110–120 dB at 1 m) or ``wide`` (those trained on 105–140 dB), each averaged with the
-localizer's distance; to compare them on the same scenes and seeds.
+localizer's distance; to compare them on the same scenes and seeds. ``--siren-level LO,HI`` draws the
+heard siren's emitted level from that range (dB SPL at 1 m; default 110–120, the networks' training
+prior; real sirens span about 110–135).
 
 The last line is one JSON object with every run.
 """
@@ -85,12 +87,14 @@ def main() -> int:
     ap.add_argument("--sirens", default="synth,real", help="siren kinds: synth, real (needs the data)")
     ap.add_argument("--scenarios", default=",".join(SCENARIOS), help="scenario names (comma-separated)")
     ap.add_argument("--no-ev-runs", type=int, default=20, help="no-EV drives through real street noise")
+    ap.add_argument("--siren-level", default="110,120", help="siren level range, dB SPL at 1 m")
     ap.add_argument("--no-anchor", action="store_true", help="skip the modelled-perception anchor runs")
     ap.add_argument("--rangers", default="default", choices=sorted(RANGERS), help="distance networks")
     args = ap.parse_args()
     seeds = [int(s) for s in args.seeds.split(",") if s]
     sirens = [s for s in args.sirens.split(",") if s]
     names = [s for s in args.scenarios.split(",") if s]
+    lo, hi = (float(v) for v in args.siren_level.split(","))
     model = SirenModel(threads=1, ranger=RANGERS[args.rangers], localizer_distance=True)
     print(f"siren stack: {model!r}")
     runs: list[dict[str, Any]] = []
@@ -125,7 +129,8 @@ def main() -> int:
             for seed in seeds:
                 noise = "real" if kind == "real" else "generated"
                 cfg = SirenPerceptionConfig(
-                    audio=LiveAudioConfig(seed=seed, siren=kind, noise=noise), model=model
+                    audio=LiveAudioConfig(seed=seed, siren=kind, noise=noise, siren_level_db=(lo, hi)),
+                    model=model,
                 )
                 t0 = time.perf_counter()
                 res = run_scenario(sc, perception=cfg)
