@@ -183,13 +183,13 @@ def test_combination_rule(sigma_model: tuple[Path, np.ndarray, dict]) -> None:
     # member that has it, widened because the localizer has none
     both = SirenModel(threads=1, ranger=[path]).predict(w)
     np.testing.assert_allclose(both.distance, gmean(loc, alone[path]), rtol=1e-5)
-    assert both.distance_sigma is not None and alone[path].distance_sigma is not None
-    widened = SIGMA_SCALE_UNRATED * alone[path].distance_sigma
-    np.testing.assert_allclose(both.distance_sigma, widened, rtol=1e-6)
+    own_sigma = alone[path].distance_sigma
+    assert both.distance_sigma is not None and own_sigma is not None
+    np.testing.assert_allclose(both.distance_sigma, SIGMA_SCALE_UNRATED * own_sigma, rtol=1e-6)
     only = SirenModel(threads=1, ranger=[path], localizer_distance=False).predict(w)
     np.testing.assert_allclose(only.distance, alone[path].distance, rtol=1e-5)
     assert only.distance_sigma is not None  # every member rated: its own σ, not widened
-    np.testing.assert_allclose(only.distance_sigma, alone[path].distance_sigma, rtol=1e-6)
+    np.testing.assert_allclose(only.distance_sigma, own_sigma, rtol=1e-6)
     np.testing.assert_allclose(only.theta, loc.theta, atol=1e-6)  # bearing stays the localizer's
     # the shipped combination follows LOCALIZER_DISTANCE
     shipped = SirenModel(threads=1).predict(w)
