@@ -95,7 +95,7 @@ def main() -> int:
     sirens = [s for s in args.sirens.split(",") if s]
     names = [s for s in args.scenarios.split(",") if s]
     lo, hi = (float(v) for v in args.siren_level.split(","))
-    model = SirenModel(threads=1, ranger=RANGERS[args.rangers], localizer_distance=True)
+    model = SirenModel(ranger=RANGERS[args.rangers], localizer_distance=True)
     print(f"siren stack: {model!r}")
     runs: list[dict[str, Any]] = []
     cols = (
