@@ -466,7 +466,7 @@ def print_combinations(rows: dict[str, dict[str, Any]]) -> None:
                 f"{100 * sig['within_1']:>6.0f}%{100 * sig['within_2']:>6.0f}%"
                 f"{sig['scale_68']:>8.2f}{100 * sig['within_2_scaled']:>7.0f}%"
                 if sig
-                else f"{'–':>7s}{'–':>7s}"
+                else f"{'–':>7s}{'–':>7s}{'–':>8s}{'–':>8s}"
             )
         )
     print(
