@@ -1,7 +1,7 @@
 """Approaching or receding (issue 4, item 3): the distance-trend classifier against the level/Doppler rule.
 
     .venv/bin/python benchmarks/bench_audio_approach.py [--data DIR ... | --n 30 --seeds 2026,2027]
-        [--approach-model FILE] [--json FILE]
+        [--approach-model FILE] [--rangers default|prior|wide] [--json FILE]
 
 1. Held-out recordings: ``--data`` (folders of recordings, repeatable), or ``--n`` recordings per
    seed simulated with ``--seeds`` from the **test** groups only (``makeway audio simulate --split
@@ -21,6 +21,11 @@
    relative speed, and the two errors apart (an approaching siren called receding is the costly
    one: the yield decision lets a receding EV go); plus the share of approaching windows (what
    always answering "approaching" would score).
+
+``--rangers`` picks the distance networks whose distance the trend classifier reads (``default``:
+the shipped ones; ``prior`` or ``wide``: :data:`~makeway.perceive.audio.siren_model.PRIOR_SIREN_RANGERS`
+or :data:`~makeway.perceive.audio.siren_model.WIDE_SIREN_RANGERS`, with the localizer's distance):
+the classifier was trained on one combination's distances, and another changes what it reads.
 """
 
 from __future__ import annotations
@@ -37,12 +42,18 @@ from makeway.eval.siren_approach import approach_recordings, approach_scores
 from makeway.eval.siren_labels import label_recording
 from makeway.perceive.audio.features import window_batch
 from makeway.perceive.audio.motion import APPROACH_METHODS, DEFAULT_APPROACH_MODEL, TrendApproach
-from makeway.perceive.audio.siren_model import SirenModel
+from makeway.perceive.audio.siren_model import (
+    DEFAULT_SIREN_RANGERS,
+    PRIOR_SIREN_RANGERS,
+    WIDE_SIREN_RANGERS,
+    SirenModel,
+)
 from makeway.progress import progress_bar
 from makeway.sense.recording import read_recording
 from makeway.sim.audio_scenarios import held_out_folders
 
 ROWS = {"level": "level (anchor)", "trend": "trend"}
+RANGERS = {"default": DEFAULT_SIREN_RANGERS, "prior": PRIOR_SIREN_RANGERS, "wide": WIDE_SIREN_RANGERS}
 
 
 def _pct(v: float | None) -> str:
@@ -81,10 +92,12 @@ def main() -> int:
     ap.add_argument("--seeds", default="2026,2027", help="seeds of the simulated held-out sets")
     ap.add_argument("--duration", type=float, default=8.0, help="seconds per simulated recording")
     ap.add_argument("--approach-model", type=Path, default=DEFAULT_APPROACH_MODEL)
+    ap.add_argument("--rangers", default="default", choices=sorted(RANGERS), help="distance networks")
     ap.add_argument("--json", type=Path, default=None, help="also write the results to this JSON file")
     args = ap.parse_args()
 
-    networks = SirenModel(threads=2)
+    networks = SirenModel(threads=2, ranger=RANGERS[args.rangers], localizer_distance=True)
+    print(f"siren networks: {networks!r}")
     trend = TrendApproach(args.approach_model)
     seeds = [int(s) for s in args.seeds.split(",")]
     with tempfile.TemporaryDirectory() as tmp:

@@ -35,6 +35,16 @@ For every combination it also prints, on labels out to 300 m (the networks learn
   share of windows at 5–100 m whose ln distance error lies within ±1σ and ±2σ (a calibrated
   Gaussian: 68 % and 95 %).
 
+``σ scale``: the factor ``k`` by which a combination's σ would have to be multiplied for ±kσ to
+hold 68.3 % of those windows, and the share within ±2kσ after that scaling (fit ``k`` on
+validation recordings, check it held out); the JSON also has quantiles of ``|ln d̂ − ln d| / σ``.
+
+**Misses**: every siren with a missed window at 10–50 m — its recording, kind, name, emitted level,
+the distances of the missed windows, the street noise's level at the array and the recording's
+in-band siren-to-noise ratio — and the recall per 5 dB band of the *nominal margin*: the siren's
+level at the array by spherical spreading alone (``L₁ₘ − 20·log₁₀ d``) minus the street noise's
+A-weighted level (``meta.yaml``): whether misses are quiet, far sirens under loud streets.
+
 ``--keep DIR`` keeps the simulated scenes, so ``bench_audio_range_cues.py --data DIR`` measures the
 level-independent cues on the very same scenes.
 """
@@ -42,6 +52,7 @@ level-independent cues on the very same scenes.
 from __future__ import annotations
 
 import argparse
+import itertools
 import json
 import os
 import tempfile
@@ -75,6 +86,9 @@ FAR_LABEL_M = 300.0
 FAR_NEAR_M = 100.0
 SIGMA_RANGE_M = (5.0, 100.0)
 SHIPPED = "shipped"
+ONE_SIGMA = 0.6827
+Z_QUANTILES = (0.5, 0.6827, 0.8, 0.9, 0.9545, 0.99)
+MARGIN_BANDS_DB = (-20.0, -10.0, -5.0, 0.0, 5.0, 10.0, 20.0, 40.0)
 
 
 def parse_combo(text: str) -> tuple[str, list[Path]]:
@@ -167,6 +181,7 @@ def window_facts(folders: list[Path]) -> dict[str, np.ndarray]:
     level: list[np.ndarray] = []
     kind: list[np.ndarray] = []
     ident: list[np.ndarray] = []
+    street: list[np.ndarray] = []
     for i, folder in enumerate(folders):
         rec = read_recording(folder)
         labels = label_recording(rec)
@@ -177,11 +192,66 @@ def window_facts(folders: list[Path]) -> dict[str, np.ndarray]:
         level.append(lv)
         kind.append(kd)
         ident.append(np.where(k >= 0, 100 * i + k, -1))
+        street.append(np.full(len(k), street_dba(rec)))
     return {
         "level": np.concatenate(level),
         "kind": np.concatenate(kind),
         "id": np.concatenate(ident),
+        "street_dba": np.concatenate(street),
     }
+
+
+def street_dba(rec: Recording) -> float:
+    """The street noise's A-weighted level at the array (dB, the simulator's ``meta.yaml``; NaN
+    when it states none)."""
+    noise = rec.meta.get("street_noise") if rec.meta else None
+    value = noise.get("level_dba") if isinstance(noise, dict) else None
+    return float(value) if isinstance(value, int | float) else float("nan")
+
+
+def miss_rows(
+    folders: list[Path], a: dict[str, np.ndarray], sel: np.ndarray, threshold: float
+) -> list[dict[str, Any]]:
+    """Every siren with a missed window among ``sel`` (module docstring, **Misses**), most missed
+    first."""
+    missed = sel & (a["prob"] < threshold)
+    rows = []
+    for sid in sorted(set(a["id"][missed].tolist())):
+        mine = sel & (a["id"] == sid)
+        gone = mine & missed
+        rec = read_recording(folders[sid // 100])
+        info = siren_table(rec)[sid % 100]
+        snr = rec.meta.get("snr_band_db") if rec.meta else None
+        d = a["distance"][gone]
+        rows.append(
+            {
+                "recording": f"{folders[sid // 100].parent.name}/{folders[sid // 100].name}",
+                "kind": siren_kind(info),
+                "name": str(info.get("name", "")),
+                "level_db_1m": round(float(info["level_db_1m"]), 1),
+                "missed": int(gone.sum()),
+                "windows": int(mine.sum()),
+                "missed_distance_m": [round(float(d.min()), 1), round(float(d.max()), 1)],
+                "street_dba": round(float(a["street_dba"][gone][0]), 1),
+                "snr_band_db": float(snr) if isinstance(snr, int | float) else None,
+            }
+        )
+    return sorted(rows, key=lambda r: -r["missed"])
+
+
+def margin_rows(a: dict[str, np.ndarray], sel: np.ndarray, threshold: float) -> dict[str, Any]:
+    """Recall per band of the nominal margin, ``L₁ₘ − 20·log₁₀ d`` minus the street noise's level
+    (module docstring, **Misses**)."""
+    margin = a["level"] - 20.0 * np.log10(np.maximum(a["distance"], 1e-3)) - a["street_dba"]
+    out = {}
+    edges = (-np.inf, *MARGIN_BANDS_DB, np.inf)
+    for lo, hi in itertools.pairwise(edges):
+        inside = sel & (margin >= lo) & (margin < hi)
+        out[f"{lo:g}..{hi:g}"] = {
+            "n": int(inside.sum()),
+            "recall": round(float(np.mean(a["prob"][inside] >= threshold)), 4) if inside.any() else None,
+        }
+    return out
 
 
 def _stats(err: np.ndarray) -> dict[str, float | None]:
@@ -227,11 +297,15 @@ def far_rows(
     if sigma is not None:
         sel = np.isfinite(d100) & (d100 >= SIGMA_RANGE_M[0]) & (d100 <= SIGMA_RANGE_M[1])
         z = np.abs(np.log(np.maximum(d_hat[sel], 1e-3)) - np.log(d100[sel])) / np.maximum(sigma[sel], 1e-6)
+        k = float(np.quantile(z, ONE_SIGMA)) if len(z) else float("nan")
         row["sigma"] = {
             "n": int(sel.sum()),
             "within_1": round(float(np.mean(z <= 1.0)), 4),
             "within_2": round(float(np.mean(z <= 2.0)), 4),
             "median_sigma": round(float(np.median(sigma[sel])), 4),
+            "scale_68": round(k, 3),
+            "within_2_scaled": round(float(np.mean(z <= 2.0 * k)), 4),
+            "z_quantiles": {f"{q:g}": round(float(np.quantile(z, q)), 3) for q in Z_QUANTILES},
         }
     return row
 
@@ -335,6 +409,8 @@ def score(
         "by_level_db": by_band,
         "by_kind": by_kind,
         "combinations": combined,
+        "misses": miss_rows(folders, a, in_range, model.threshold),
+        "recall_by_margin_db": margin_rows(a, in_range, model.threshold),
         "seconds": round(time.perf_counter() - t0, 1),
     }
 
@@ -372,7 +448,7 @@ def print_combinations(rows: dict[str, dict[str, Any]]) -> None:
         f"\n{'relative error':18s}"
         + "".join(f"{h:>12s}" for h in heads)
         + f"{'far/near':>10s}"
-        + f"{'far→far':>9s}{'±1σ':>7s}{'±2σ':>7s}"
+        + f"{'far→far':>9s}{'±1σ':>7s}{'±2σ':>7s}{'σ scale':>8s}{'±2kσ':>8s}"
     )
     for name, r in rows.items():
         cells = []
@@ -388,14 +464,37 @@ def print_combinations(rows: dict[str, dict[str, Any]]) -> None:
             + f"{far:>9s}"
             + (
                 f"{100 * sig['within_1']:>6.0f}%{100 * sig['within_2']:>6.0f}%"
+                f"{sig['scale_68']:>8.2f}{100 * sig['within_2_scaled']:>7.0f}%"
                 if sig
-                else f"{'–':>7s}{'–':>7s}"
+                else f"{'–':>7s}{'–':>7s}{'–':>8s}{'–':>8s}"
             )
         )
     print(
         f"{'target':18s}{'≤ 25 %':>12s}{'≤ 25 %':>12s}{'≤ 25 %':>12s}{'':>12s}{'≥ 95 %':>10s}"
-        f"{'':>9s}{'68 %':>7s}{'95 %':>7s}"
+        f"{'':>9s}{'68 %':>7s}{'95 %':>7s}{'1':>8s}{'95 %':>8s}"
     )
+
+
+def print_misses(misses: list[dict[str, Any]], margins: dict[str, Any], limit: int = 15) -> None:
+    """The sirens with missed windows and the recall by nominal margin (module docstring)."""
+    print(f"\nmissed sirens at 10–50 m ({len(misses)}; the {min(limit, len(misses))} most missed)")
+    print(
+        f"{'recording':26s}{'kind':14s}{'name':22s}{'dB 1 m':>7s}{'missed':>10s}{'at m':>13s}"
+        f"{'street':>8s}{'SNR':>7s}"
+    )
+    for r in misses[:limit]:
+        lo, hi = r["missed_distance_m"]
+        snr = "–" if r["snr_band_db"] is None else f"{r['snr_band_db']:.1f}"
+        print(
+            f"{r['recording']:26s}{r['kind']:14s}{r['name'][:21]:22s}{r['level_db_1m']:>7.1f}"
+            f"{r['missed']:>4d} of {r['windows']:<3d}{lo:>6.1f}–{hi:<5.1f}{r['street_dba']:>7.1f} {snr:>6s}"
+        )
+    print("\nrecall by nominal margin (siren level at the array by spreading − street dB(A)), 10–50 m")
+    cells = []
+    for k, v in margins.items():
+        rec = "–" if v["recall"] is None else f"{100 * v['recall']:.1f}%"
+        cells.append(f"{k} dB: {rec} ({v['n']})")
+    print("  " + "  ".join(cells))
 
 
 def main() -> int:
@@ -445,6 +544,7 @@ def main() -> int:
     print_table("emitted level", {"all": result["all_10_50"], **result["by_level_db"]})
     print_table("siren kind", result["by_kind"])
     print_combinations(result["combinations"])
+    print_misses(result["misses"], result["recall_by_margin_db"])
     print(f"\nscored in {result['seconds']:.0f} s, load average {os.getloadavg()}")
     text = json.dumps(to_jsonable(result), ensure_ascii=False)
     if args.json is not None:

@@ -22,6 +22,13 @@ held-out real street recordings (scene seeds 100, 101, …): how often the car y
 false yields per hour of driving, beside the modelled perception (which never hears what is not
 there) and the listener's per-window false-alarm rate on the same audio.
 
+``--rangers`` picks the networks that place the siren: ``default`` (the shipped
+:data:`~makeway.perceive.audio.siren_model.DEFAULT_SIREN_RANGERS`), ``prior`` (the rangers trained
+on sirens of 110–120 dB at 1 m) or ``wide`` (those trained on 105–140 dB), each averaged with the
+localizer's distance; to compare them on the same scenes and seeds. ``--siren-level LO,HI`` draws the
+heard siren's emitted level from that range (dB SPL at 1 m; default 110–120, the networks' training
+prior; real sirens span about 110–135).
+
 The last line is one JSON object with every run.
 """
 
@@ -33,11 +40,19 @@ import sys
 import time
 from typing import Any
 
-from makeway.perceive.audio.siren_model import SirenModel
+from makeway.perceive.audio.siren_model import (
+    DEFAULT_SIREN_RANGERS,
+    PRIOR_SIREN_RANGERS,
+    WIDE_SIREN_RANGERS,
+    SirenModel,
+)
 from makeway.pipeline.closed_loop import ClosedLoopResult, run_scenario
 from makeway.pipeline.siren_perception import SirenPerceptionConfig
 from makeway.sim.live_array import LiveAudioConfig
 from makeway.sim.scenarios import SCENARIOS
+
+RANGERS = {"default": DEFAULT_SIREN_RANGERS, "prior": PRIOR_SIREN_RANGERS, "wide": WIDE_SIREN_RANGERS}
+"""The ranger sets ``--rangers`` chooses from (module docstring)."""
 
 
 def _row(res: ClosedLoopResult, wall_s: float, duration_s: float) -> dict[str, Any]:
@@ -72,11 +87,16 @@ def main() -> int:
     ap.add_argument("--sirens", default="synth,real", help="siren kinds: synth, real (needs the data)")
     ap.add_argument("--scenarios", default=",".join(SCENARIOS), help="scenario names (comma-separated)")
     ap.add_argument("--no-ev-runs", type=int, default=20, help="no-EV drives through real street noise")
+    ap.add_argument("--siren-level", default="110,120", help="siren level range, dB SPL at 1 m")
+    ap.add_argument("--no-anchor", action="store_true", help="skip the modelled-perception anchor runs")
+    ap.add_argument("--rangers", default="default", choices=sorted(RANGERS), help="distance networks")
     args = ap.parse_args()
     seeds = [int(s) for s in args.seeds.split(",") if s]
     sirens = [s for s in args.sirens.split(",") if s]
     names = [s for s in args.scenarios.split(",") if s]
-    model = SirenModel()
+    lo, hi = (float(v) for v in args.siren_level.split(","))
+    model = SirenModel(ranger=RANGERS[args.rangers], localizer_distance=True)
+    print(f"siren stack: {model!r}")
     runs: list[dict[str, Any]] = []
     cols = (
         "action",
@@ -95,20 +115,22 @@ def main() -> int:
     )
     for name in names:
         sc = SCENARIOS[name]()
-        t0 = time.perf_counter()
-        anchor = _row(run_scenario(sc), time.perf_counter() - t0, sc.duration_s)
-        runs.append({"scenario": name, "perception": "simulated", "seed": 0, **anchor})
-        print(
-            f"{name:13s} {'simulated':16s} "
-            + " ".join(f"{_fmt(anchor[c]):>13s}" for c in cols)
-            + f" {anchor['real_time_factor']:>10.2f}",
-            flush=True,
-        )
+        if not args.no_anchor:
+            t0 = time.perf_counter()
+            anchor = _row(run_scenario(sc), time.perf_counter() - t0, sc.duration_s)
+            runs.append({"scenario": name, "perception": "simulated", "seed": 0, **anchor})
+            print(
+                f"{name:13s} {'simulated':16s} "
+                + " ".join(f"{_fmt(anchor[c]):>13s}" for c in cols)
+                + f" {anchor['real_time_factor']:>10.2f}",
+                flush=True,
+            )
         for kind in sirens:
             for seed in seeds:
                 noise = "real" if kind == "real" else "generated"
                 cfg = SirenPerceptionConfig(
-                    audio=LiveAudioConfig(seed=seed, siren=kind, noise=noise), model=model
+                    audio=LiveAudioConfig(seed=seed, siren=kind, noise=noise, siren_level_db=(lo, hi)),
+                    model=model,
                 )
                 t0 = time.perf_counter()
                 res = run_scenario(sc, perception=cfg)
@@ -158,7 +180,8 @@ def main() -> int:
         f"{summary['siren_collisions']} collisions, {summary['siren_extra_yields']} extra yields "
         f"(simulated perception: expected action in {summary['simulated_action_ok']})"
     )
-    print(json.dumps({"summary": summary, "no_ev": no_ev, "runs": runs}))
+    rangers = [r.path.name for r in model.rangers]
+    print(json.dumps({"rangers": rangers, "summary": summary, "no_ev": no_ev, "runs": runs}))
     return 0
 
 

@@ -26,6 +26,7 @@ from makeway.perceive.audio.siren_model import (
     DEFAULT_SIREN_RANGERS,
     LOCALIZER_DISTANCE,
     PRIOR_SIREN_RANGERS,
+    SIGMA_SCALE_UNRATED,
     WIDE_SIREN_RANGERS,
     SirenModel,
 )
@@ -363,7 +364,9 @@ def test_shipped_rangers_join_the_distance(windows: tuple[np.ndarray, ...]) -> N
     got = wide.predict(w)
     np.testing.assert_allclose(got.distance, (p.distance * r1.distance * r2.distance) ** (1 / 3), rtol=1e-5)
     assert got.distance_sigma is not None and r1.distance_sigma is not None and r2.distance_sigma is not None
-    np.testing.assert_allclose(got.distance_sigma, np.sqrt((r1.distance_sigma**2 + r2.distance_sigma**2) / 2))
+    # σ: the RMS of the rangers', widened because the localizer (no σ of its own) joins
+    rms = np.sqrt((r1.distance_sigma**2 + r2.distance_sigma**2) / 2)
+    np.testing.assert_allclose(got.distance_sigma, SIGMA_SCALE_UNRATED * rms)
     one = SirenModel(threads=1, ranger=DEFAULT_SIREN_RANGER)  # one named ranger: the eighth session's pair
     np.testing.assert_allclose(one.predict(w).distance, np.sqrt(p.distance * q1.distance), rtol=1e-5)
     sel = siren & (dist > 20) & (dist < 80)

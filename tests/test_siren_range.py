@@ -21,6 +21,7 @@ from makeway.perceive.audio.siren_model import (
     DEFAULT_SIREN_RANGERS,
     LOCALIZER_DISTANCE,
     SIGMA_OUTPUT,
+    SIGMA_SCALE_UNRATED,
     SirenModel,
     SirenPrediction,
     combine_distances,
@@ -179,13 +180,16 @@ def test_combination_rule(sigma_model: tuple[Path, np.ndarray, dict]) -> None:
         return np.exp(np.mean([np.log(p.distance) for p in preds], axis=0))
 
     # named rangers join the localizer's distance unless told otherwise; the σ comes from the one
-    # member that has it
+    # member that has it, widened because the localizer has none
     both = SirenModel(threads=1, ranger=[path]).predict(w)
     np.testing.assert_allclose(both.distance, gmean(loc, alone[path]), rtol=1e-5)
-    assert both.distance_sigma is not None
-    np.testing.assert_allclose(both.distance_sigma, alone[path].distance_sigma, rtol=1e-6)
+    own_sigma = alone[path].distance_sigma
+    assert both.distance_sigma is not None and own_sigma is not None
+    np.testing.assert_allclose(both.distance_sigma, SIGMA_SCALE_UNRATED * own_sigma, rtol=1e-6)
     only = SirenModel(threads=1, ranger=[path], localizer_distance=False).predict(w)
     np.testing.assert_allclose(only.distance, alone[path].distance, rtol=1e-5)
+    assert only.distance_sigma is not None  # every member rated: its own σ, not widened
+    np.testing.assert_allclose(only.distance_sigma, own_sigma, rtol=1e-6)
     np.testing.assert_allclose(only.theta, loc.theta, atol=1e-6)  # bearing stays the localizer's
     # the shipped combination follows LOCALIZER_DISTANCE
     shipped = SirenModel(threads=1).predict(w)
@@ -201,7 +205,15 @@ def test_combination_rule(sigma_model: tuple[Path, np.ndarray, dict]) -> None:
         ]
     )
     np.testing.assert_allclose(d, [20.0, 20.0])
-    assert s is not None
+    assert s is not None  # the third member has no σ: the RMS of the other two, widened
+    np.testing.assert_allclose(s, SIGMA_SCALE_UNRATED * np.sqrt((s1**2 + s2**2) / 2))
+    rated = [
+        SirenPrediction(np.zeros(2), np.zeros(2), np.array(dd), None, sg)
+        for dd, sg in (([10.0, 40.0], s1), ([40.0, 10.0], s2))
+    ]
+    d, s = combine_distances(rated)
+    np.testing.assert_allclose(d, [20.0, 20.0])
+    assert s is not None and SIGMA_SCALE_UNRATED > 1.0
     np.testing.assert_allclose(s, np.sqrt((s1**2 + s2**2) / 2))
     assert combine_distances([SirenPrediction(np.zeros(1), np.zeros(1), np.ones(1), None)])[1] is None
 

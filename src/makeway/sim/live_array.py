@@ -39,8 +39,10 @@ from makeway.sim.acoustics import FULL_SCALE_DB_SPL, db_spl_to_pa, self_noise, s
 from makeway.sim.audio_scenarios import (
     AMBIENT_WIND_MPS,
     PRE_ROLL_S,
+    SIREN_LEVEL_DB_1M,
     STREET_NOISE_DBA,
     WIND_LEVEL_10_DB,
+    check_siren_level,
     pick_by_group,
     siren_point_source,
     source_pools,
@@ -62,7 +64,9 @@ class LiveAudioConfig:
 
     ``siren``: ``"synth"`` (procedural; needs no data) or ``"real"`` (a held-out siren of the shared
     data, ``split``); ``noise``: ``"generated"`` or ``"real"`` likewise; ``street_dba``: the range
-    the street noise's A-weighted level is drawn from.
+    the street noise's A-weighted level is drawn from; ``siren_level_db``: the range the siren's
+    emitted level is drawn from (dB SPL at 1 m; default the networks' training prior, real sirens
+    span about 110–135 dB).
     """
 
     seed: int = 0
@@ -70,8 +74,10 @@ class LiveAudioConfig:
     noise: str = "generated"
     split: str = "test"
     street_dba: tuple[float, float] = STREET_NOISE_DBA
+    siren_level_db: tuple[float, float] = SIREN_LEVEL_DB_1M
 
     def __post_init__(self) -> None:
+        check_siren_level(self.siren_level_db)
         if self.siren not in ("synth", "real"):
             raise ValueError(f"siren must be synth or real, not {self.siren!r}")
         if self.noise not in ("generated", "real"):
@@ -122,7 +128,10 @@ class LiveArraySimulator:
             self.siren_name = f"synth:{params.mode}"
         # the EV's trajectory is set per render; this one is a placeholder
         self._source, self.siren_draws = siren_point_source(
-            raw, Trajectory(np.array([0.0, 1.0]), np.zeros(2), np.zeros(2)), rng
+            raw,
+            Trajectory(np.array([0.0, 1.0]), np.zeros(2), np.zeros(2)),
+            rng,
+            level_db=self.config.siren_level_db,
         )
         self._raw = self._source.signal.copy()
         self._source.signal[:] = 0.0

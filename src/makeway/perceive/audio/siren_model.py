@@ -32,9 +32,11 @@ emitted at 110–120 dB at 1 m). :data:`WIDE_SIREN_RANGERS` are two networks tra
 105–140 dB, the real range with margin (issue 25): with the localizer they were chosen on validation
 recordings at 105–140 dB (the mean over the 5 dB bands of 110–135 dB of the median distance error
 at 10–50 m) and place loud sirens far better, quiet ones somewhat worse (model card). They are not
-the default yet: every closed-loop figure was measured with the default rangers, and is to be
-measured again before the default changes. ``ranger=WIDE_SIREN_RANGERS`` (``--ranger`` on the
-command line, once per file) selects them.
+the default: in the closed loop heard by the siren stack they gave about four times the extra
+yields of the default rangers, with sirens at 110–120 dB and at 120–135 dB alike (the approach
+classifier, trained on the default rangers' distances, reads theirs worse; model card, "In the
+closed loop"). ``ranger=WIDE_SIREN_RANGERS`` (``--ranger`` on the command line, once per file)
+selects them.
 
 **Combination.** :data:`LOCALIZER_DISTANCE` says whether the localizer's distance joins the
 shipped rangers' (``localizer_distance=`` overrides it); :func:`combine_distances` is the rule.
@@ -44,7 +46,9 @@ output, :data:`SIGMA_OUTPUT`: ln σ, σ the spread of the error of ln distance i
 window. It is read when present (``SirenPrediction.distance_sigma``; ``None`` for older files);
 the distance's ±1σ interval is ``distance · e^(±σ)``. For a mean of networks, σ is the root mean
 square of the members' σ (their errors share the level ambiguity, so averaging does not shrink
-it).
+it); when a member without σ (the localizer) joins, that RMS is multiplied by
+:data:`SIGMA_SCALE_UNRATED`, fitted on validation recordings so that ±1σ holds 68 % of the errors
+(:func:`combine_distances`).
 
 **Calibration.** The networks read absolute levels at the scale they were trained at
 (:attr:`SirenModel.full_scale_db_spl`, from the ONNX metadata; 135 dB SPL for every shipped one and
@@ -73,6 +77,7 @@ __all__ = [
     "DEFAULT_SIREN_RANGER",
     "DEFAULT_SIREN_RANGERS",
     "PRIOR_SIREN_RANGERS",
+    "SIGMA_SCALE_UNRATED",
     "WIDE_SIREN_RANGERS",
     "SirenModel",
     "SirenPrediction",
@@ -102,6 +107,13 @@ DEFAULT_SIREN_RANGERS = PRIOR_SIREN_RANGERS
 SIGMA_OUTPUT = "distance_log_sigma"
 """Name of the optional ONNX output of networks trained with ``makeway audio train
 --distance-sigma``: ln σ of the ln distance error the network expects (module docstring)."""
+SIGMA_SCALE_UNRATED = 1.094
+"""Factor on the σ of a combination in which members without σ (the localizer) join members with
+one (:func:`combine_distances`). Their errors are not in the members' σ: with the localizer and
+:data:`WIDE_SIREN_RANGERS`, ±1σ of the plain RMS held 63 % of the ln distance errors at 5–100 m on
+validation recordings (seeds 77 + 78, sirens of 105–140 dB at 1 m; a calibrated Gaussian: 68 %).
+The factor is the 68.3 % quantile of ``|ln d̂ − ln d| / σ`` there
+(``benchmarks/bench_audio_range_levels.py``, "σ scale"; model card)."""
 LOCALIZER_DISTANCE = True
 """Whether the localizer's distance (or, without a localizer, this network's) joins the shipped
 rangers' in the geometric mean when the rangers are the shipped ones (``ranger=True``); named
@@ -131,17 +143,22 @@ class SirenPrediction:
         return len(self.prob)
 
 
-def combine_distances(members: Sequence[SirenPrediction]) -> tuple[np.ndarray, np.ndarray | None]:
+def combine_distances(
+    members: Sequence[SirenPrediction], unrated_scale: float = SIGMA_SCALE_UNRATED
+) -> tuple[np.ndarray, np.ndarray | None]:
     """The combined distance of several networks: the geometric mean of their distances, and the
     root mean square of the σ of ln distance of those members that give one (``None`` when none
-    does). The RMS is the spread of one member, not of the mean: the members share the level cue
-    and its ambiguity, so their errors are far from independent."""
+    does), times ``unrated_scale`` (:data:`SIGMA_SCALE_UNRATED`) when some members give none. The
+    RMS is the spread of one member, not of the mean: the members share the level cue and its
+    ambiguity, so their errors are far from independent."""
     dists = np.array([m.distance for m in members], dtype=np.float64)
     with np.errstate(divide="ignore"):
         distance = np.exp(np.mean(np.log(np.maximum(dists, 0.0)), axis=0))
     sigmas = [m.distance_sigma for m in members if m.distance_sigma is not None]
-    sigma = np.sqrt(np.mean(np.square(sigmas), axis=0)) if sigmas else None
-    return distance, sigma
+    if not sigmas:
+        return distance, None
+    sigma = np.sqrt(np.mean(np.square(sigmas), axis=0))
+    return distance, sigma * unrated_scale if len(sigmas) < len(members) else sigma
 
 
 class SirenModel:
