@@ -7,11 +7,12 @@ colour); a proposal whose IoU with a labelled lit light is ≥ 0.5 is a positive
 negative (the labelled hard negatives are such proposals). With ``label_positives`` the labelled boxes
 themselves are added as extra positives (train split only).
 
-**Model.** Gradient-boosted trees (:data:`XGB_PARAMS`) fitted on the train split; the operating
-threshold is the one of :data:`THRESHOLDS` that maximises the lower of array precision and recall of
-the full detector (NMS included) on the validation split, which is used for nothing else (ties go
-to the lowest threshold: when the validation frames give no true positive at all, that is
-:data:`THRESHOLDS`' first). The
+**Model.** Gradient-boosted trees (:data:`XGB_PARAMS`) fitted on the train split. **Operating
+threshold**: the one of :data:`THRESHOLDS` that maximises the lower of array precision and recall of
+the full detector (NMS included) over the train split's *out-of-fold* scores (:func:`out_of_fold`:
+:data:`CV_FOLDS` folds grouped by clip and by photo, :func:`frame_group`, each fold scored by trees
+that never saw it) pooled with the validation split's scores (ties go to the lowest threshold). The
+validation clip alone cannot choose: its 5-px lamps give no true positive at any threshold. The
 booster is exported to ONNX (onnxmltools) with the feature names, threshold and figures in its
 metadata, read by :class:`makeway.perceive.vision.light_verify.LightVerifier`.
 """
@@ -20,7 +21,7 @@ from __future__ import annotations
 
 import json
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -37,7 +38,20 @@ from makeway.perceive.vision.light_verify import (
     verifier_features,
 )
 
-__all__ = ["THRESHOLDS", "XGB_PARAMS", "fit_verifier", "train_light_verifier", "verifier_rows"]
+__all__ = [
+    "CV_FOLDS",
+    "CV_NEGATIVES",
+    "THRESHOLDS",
+    "XGB_PARAMS",
+    "choose_threshold",
+    "detector_results",
+    "fit_verifier",
+    "frame_group",
+    "grouped_folds",
+    "out_of_fold",
+    "train_light_verifier",
+    "verifier_rows",
+]
 
 XGB_PARAMS: dict[str, Any] = {
     "n_estimators": 300,
@@ -51,6 +65,10 @@ XGB_PARAMS: dict[str, Any] = {
 THRESHOLDS = (0.01, 0.02, 0.03, *(round(float(x), 2) for x in np.arange(0.05, 0.96, 0.05)))
 """Operating thresholds tried on the validation split (ties: the lowest, which favours recall)."""
 ONNX_OPSET = 15
+CV_FOLDS = 4
+"""Grouped cross-validation folds over the train split that choose the operating threshold."""
+CV_NEGATIVES = 0.25
+"""Fraction of the negative rows each cross-validation fold is fitted on (inverse-weighted)."""
 
 
 def verifier_rows(
@@ -62,13 +80,15 @@ def verifier_rows(
 ) -> dict[str, Any]:
     """Feature rows of one split: ``x`` (n, F), ``y`` (n,) bool, ``frame`` (n,) frame index, and per
     frame ``frames`` (source, key, gt boxes, vehicles) and ``boxes`` of its proposals (module
-    docstring; the extra label positives carry frame index -1 so they never enter an evaluation)."""
+    docstring; the extra label positives carry frame index -1 so they never enter an evaluation;
+    ``origin`` (n,) is the frame every row came from, extra positives included)."""
     from makeway.train.light_split import load_split
 
     frames, _ = load_split(split, data_root, input_size=None)
     xs: list[np.ndarray] = []
     ys: list[np.ndarray] = []
     fi: list[np.ndarray] = []
+    origin: list[np.ndarray] = []
     info: list[tuple[str, str, np.ndarray, list[int]]] = []
     boxes: list[np.ndarray] = []
     colours: list[list[str]] = []
@@ -82,6 +102,7 @@ def verifier_rows(
         xs.append(x)
         ys.append(y)
         fi.append(np.full(len(props), k))
+        origin.append(np.full(len(props), k))
         info.append((f.source, f.key, f.boxes, list(f.vehicles)))
         boxes.append(b)
         colours.append([p["colour"] for p in props])
@@ -99,41 +120,125 @@ def verifier_rows(
             xs.append(verifier_features(f.image, extra))
             ys.append(np.ones(len(extra), bool))
             fi.append(np.full(len(extra), -1))
+            origin.append(np.full(len(extra), k))
         if advance is not None:
             advance(1)
     return {
         "x": np.concatenate(xs) if xs else np.zeros((0, len(FEATURE_NAMES)), np.float32),
         "y": np.concatenate(ys) if ys else np.zeros(0, bool),
         "frame": np.concatenate(fi) if fi else np.zeros(0, np.int64),
+        "origin": np.concatenate(origin) if origin else np.zeros(0, np.int64),
         "frames": info,
         "boxes": boxes,
         "colours": colours,
     }
 
 
-def fit_verifier(x: np.ndarray, y: np.ndarray, *, seed: int = 0, threads: int = 2) -> Any:
-    """An :class:`xgboost.XGBClassifier` (:data:`XGB_PARAMS`) fitted to predict ``y``."""
+def fit_verifier(
+    x: np.ndarray, y: np.ndarray, *, seed: int = 0, threads: int = 2, negatives: float = 1.0
+) -> Any:
+    """An :class:`xgboost.XGBClassifier` (:data:`XGB_PARAMS`) fitted to predict ``y``. With
+    ``negatives`` < 1 only that random fraction of the negative rows is used, each weighted by its
+    inverse (the same expected loss, several times faster; the cross-validation folds use it)."""
     import xgboost as xgb
 
     y = np.asarray(y, bool)
+    x = np.asarray(x, np.float32)
     if len(np.unique(y)) < 2:
         raise ValueError("the training proposals hold only one class")
+    if not 0.0 < negatives <= 1.0:
+        raise ValueError(f"negatives is a fraction in (0, 1], got {negatives}")
+    weight = None
+    if negatives < 1.0:
+        keep = y | (np.random.default_rng(seed).random(len(y)) < negatives)
+        x, y = x[keep], y[keep]
+        weight = np.where(y, 1.0, 1.0 / negatives)
     clf = xgb.XGBClassifier(**XGB_PARAMS, random_state=seed, n_jobs=threads, eval_metric="logloss")
-    return clf.fit(np.asarray(x, np.float32), y)
+    return clf.fit(x, y, sample_weight=weight)
 
 
 def detector_results(rows: dict[str, Any], prob: np.ndarray, threshold: float) -> list[FrameResult]:
     """What the full detector returns per frame when its verifier gives ``prob`` per row of
     ``rows`` and keeps those ≥ ``threshold`` (then NMS)."""
     out = []
+    frame = np.asarray(rows["frame"])
+    order = np.argsort(frame, kind="stable")
+    bounds = np.searchsorted(frame[order], np.arange(len(rows["frames"]) + 1))
     for k, (source, key, gt, veh) in enumerate(rows["frames"]):
-        sel = np.flatnonzero(rows["frame"] == k)
+        sel = order[bounds[k] : bounds[k + 1]]
         p = prob[sel]
         b = rows["boxes"][k]
         keep = np.flatnonzero(p >= threshold)
         kept = keep[nms(b[keep], p[keep])] if len(keep) else keep
         out.append(FrameResult(source, key, gt, veh, b[kept], p[kept]))
     return out
+
+
+def frame_group(source: str, key: str) -> str:
+    """The cross-validation group of one labelled frame: its clip for a video source; for a photo of
+    ``ambulance_yolo``, the photo's name before ``.rf.`` (the folder holds photometric copies of one
+    photo under that name, which must stay in one fold)."""
+    if source.startswith("ambulance_yolo"):
+        return f"{source}:{Path(key).name.split('.rf.')[0]}"
+    return source
+
+
+def grouped_folds(groups: Sequence[str], n_folds: int) -> np.ndarray:
+    """Fold index (0 … ``n_folds`` − 1) per item of ``groups``, a whole group in one fold: groups
+    sorted by size (largest first, then by name) each go to the fold with the fewest items so far
+    (deterministic, no randomness)."""
+    if n_folds < 2:
+        raise ValueError(f"need at least 2 folds, got {n_folds}")
+    names, counts = np.unique(np.asarray(groups, dtype=object).astype(str), return_counts=True)
+    if len(names) < n_folds:
+        raise ValueError(f"{len(names)} groups cannot fill {n_folds} folds")
+    order = sorted(range(len(names)), key=lambda i: (-counts[i], names[i]))
+    load = np.zeros(n_folds, np.int64)
+    fold_of: dict[str, int] = {}
+    for i in order:
+        f = int(np.argmin(load))
+        fold_of[str(names[i])] = f
+        load[f] += counts[i]
+    return np.array([fold_of[str(g)] for g in groups], np.int64)
+
+
+def out_of_fold(
+    rows: dict[str, Any],
+    n_folds: int = CV_FOLDS,
+    *,
+    seed: int = 0,
+    threads: int = 2,
+    advance: Callable[[int], Any] | None = None,
+) -> np.ndarray:
+    """Out-of-fold probabilities of every row of ``rows`` (a split of :func:`verifier_rows`): the rows
+    of each frame group (:func:`frame_group`, folds by :func:`grouped_folds`) scored by a verifier
+    fitted on the other folds' rows (extra label positives go with their frame's group)."""
+    frame_groups = [frame_group(src, key) for src, key, _, _ in rows["frames"]]
+    fold_of_frame = grouped_folds(frame_groups, n_folds)
+    fold = fold_of_frame[rows["origin"]]
+    prob = np.zeros(len(rows["y"]), np.float64)
+    for f in range(n_folds):
+        test = fold == f
+        clf = fit_verifier(
+            rows["x"][~test], rows["y"][~test], seed=seed, threads=threads, negatives=CV_NEGATIVES
+        )
+        prob[test] = clf.predict_proba(rows["x"][test])[:, 1]
+        if advance is not None:
+            advance(1)
+    return prob
+
+
+def choose_threshold(results_at: Callable[[float], list[FrameResult]]) -> tuple[float, float]:
+    """``(threshold, min(P, R))``: the threshold of :data:`THRESHOLDS` that maximises the lower of array
+    precision and recall over the frames ``results_at(threshold)`` returns (ties: the lowest)."""
+    best: tuple[float, float] = (-1.0, THRESHOLDS[0])
+    for t in THRESHOLDS:
+        m = metrics(results_at(t))
+        p, r = m.array_precision, m.array_recall
+        val = min(p, r) if np.isfinite(p) and np.isfinite(r) else 0.0
+        if val > best[0]:
+            best = (val, t)
+    return best[1], max(0.0, best[0])
 
 
 def _export(clf: Any, path: Path, meta_extra: dict[str, Any]) -> None:
@@ -169,9 +274,10 @@ def train_light_verifier(
     seed: int = 0,
     progress: bool = True,
 ) -> dict[str, Any]:
-    """Train the verifier on the train split, pick its threshold on the validation split and write
-    it as ONNX to ``out`` (default: the shipped ``models/lights_verifier.onnx``). Returns the counts,
-    the threshold, the validation figures (all frames and worst source) and the seconds taken.
+    """Train the verifier on the train split, pick its threshold on the train split's grouped
+    out-of-fold scores pooled with the validation split (module docstring) and write it as ONNX to
+    ``out`` (default: the shipped ``models/lights_verifier.onnx``). Returns the counts, the
+    threshold, the validation and train cross-validation figures and the seconds taken.
 
     Raises:
         InputError: no shared data folder, or ``out``'s folder does not exist.
@@ -197,19 +303,16 @@ def train_light_verifier(
                 split, root, label_positives=label_positives and split == "train", advance=advance
             )
     tr, va = rows["train"], rows["val"]
+    with progress_bar("cross-validation folds", CV_FOLDS, enabled=progress, unit="fold") as advance:
+        oof = out_of_fold(tr, CV_FOLDS, seed=seed, advance=advance)
     clf = fit_verifier(tr["x"], tr["y"], seed=seed)
     prob = clf.predict_proba(va["x"])[:, 1]
-    best: tuple[float, float] = (-1.0, 0.5)
-    for t in THRESHOLDS:
-        m = metrics(detector_results(va, prob, t))
-        p, r = m.array_precision, m.array_recall
-        val = min(p, r) if np.isfinite(p) and np.isfinite(r) else 0.0
-        if val > best[0]:
-            best = (val, t)
-    threshold = best[1]
+    threshold, _ = choose_threshold(lambda t: detector_results(tr, oof, t) + detector_results(va, prob, t))
+    cv_summ = summarise(detector_results(tr, oof, threshold))
     summ = summarise(detector_results(va, prob, threshold))
     keys = ("array_precision", "array_recall", "vehicle_precision", "vehicle_recall")
     figures = {k: summ["all"][k] for k in keys}
+    cv_figures = {k: cv_summ["all"][k] for k in keys}
     train_recall = float(tr["y"][tr["frame"] >= 0].sum())
     result = {
         "model": str(target),
@@ -220,6 +323,8 @@ def train_light_verifier(
         "val_positives": int(va["y"].sum()),
         "threshold": threshold,
         "validation": figures,
+        "train_cv": cv_figures,
+        "threshold_from": f"train {CV_FOLDS}-fold grouped CV (out-of-fold) + validation, max min(P, R)",
         "params": XGB_PARAMS,
         "seed": seed,
         "label_positives": label_positives,
