@@ -20,7 +20,13 @@ Test split (by source clip, :mod:`makeway.train.light_split`): ``night_ambulance
 counts (colour set ``all``). Anchors: array P ≥ 0.90 / R ≥ 0.88, vehicle P ≥ 0.95 / R ≥ 0.94 (issue 23);
 seed 004 with attention on ABLDataset: P 88.8 / R 86.4 (array).
 
-    PYTHONPATH=src python benchmarks/bench_lights.py [--json out.json] [--threads 1]
+With ``--colours all,eu`` (the default) two tables: every labelled colour counts, and seed 004's
+setting (``eu``: only blue and bluish-white lamps are ground truth, and detectors return only those
+colours; seed 004 detects blue lights only). ``--breakdown`` adds where the false positives come from
+(colour, size, near miss / on a labelled lamp / near the EV / elsewhere / negative frame).
+
+    PYTHONPATH=src python benchmarks/bench_lights.py [--json out.json] [--threads 1] [--breakdown]
+        [--colours all,eu] [--detectors colour,verified] [--compare-verifier OTHER.onnx]
 """
 
 from __future__ import annotations
@@ -32,7 +38,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from makeway.eval.lights import run_detector, summarise
+from makeway.eval.lights import false_positive_breakdown, run_detector, summarise
 from makeway.paths import data_dir
 from makeway.perceive.vision.light_cnn import default_lights_model
 from makeway.perceive.vision.light_verify import DEFAULT_VERIFIER_MODEL
@@ -135,6 +141,11 @@ def main(argv: list[str] | None = None) -> int:
         help="comma-separated rows to run (default: all available)",
     )
     ap.add_argument(
+        "--breakdown",
+        action="store_true",
+        help="also print where each detector's false positives come from (per source)",
+    )
+    ap.add_argument(
         "--map-threshold",
         type=float,
         default=0.05,
@@ -193,8 +204,19 @@ def main(argv: list[str] | None = None) -> int:
                 threshold=min(args.map_threshold, probe_v.threshold),
             )
         report: dict[str, Any] = {"colours": list(colours), "thresholds": operating, "detectors": {}}
+        breakdowns: dict[str, dict[str, Any]] = {}
         for name, det in detectors.items():
-            report["detectors"][name] = summarise(run_detector(det, items), score_threshold=operating[name])
+            results = run_detector(det, items)
+            report["detectors"][name] = summarise(results, score_threshold=operating[name])
+            if args.breakdown:
+                breakdowns[name] = {
+                    src: false_positive_breakdown(
+                        [r for r in results if r.source == src], score_threshold=operating[name]
+                    )
+                    for src in sorted({r.source for r in results})
+                }
+        if breakdowns:
+            report["false_positives"] = breakdowns
         n_gt = sum(len(it[3]) for it in items)
         _table(
             report,
@@ -204,6 +226,16 @@ def main(argv: list[str] | None = None) -> int:
             + ", ".join(f"{k} {v:.2f}" for k, v in operating.items())
             + ")",
         )
+        for name, per_src in breakdowns.items():
+            for src, bd in per_src.items():
+                print(
+                    f"false positives of {name} on {src}: "
+                    + "; ".join(
+                        f"{cat} " + ", ".join(f"{k} {v}" for k, v in sorted(d.items(), key=lambda kv: -kv[1]))
+                        for cat, d in bd.items()
+                        if d
+                    )
+                )
         if "cnn+att" in report["detectors"] and "cnn-att" in report["detectors"]:
             a, b = report["detectors"]["cnn+att"]["all"], report["detectors"]["cnn-att"]["all"]
             gains = {

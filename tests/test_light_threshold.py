@@ -95,3 +95,53 @@ def test_choose_threshold_prefers_balance_and_breaks_ties_low() -> None:
     # no true positive anywhere: the lowest candidate, score 0
     t0, s0 = choose_threshold(lambda t: [FrameResult("s", "0", gt, [1, 1], boxes[2:], scores[2:])])
     assert t0 == THRESHOLDS[0] and s0 == 0.0
+
+
+def test_box_targets_invert_refine_boxes() -> None:
+    from makeway.perceive.vision.light_verify import refine_boxes
+    from makeway.train.light_verifier import box_targets
+
+    rows, _ = _rows(3, np.random.default_rng(1))
+    rows["boxes"][0] = rows["boxes"][0] + np.array([1.0, -1.0, 3.0, 1.0])  # true lamp box off by a bit
+    t = box_targets(rows, min_iou=0.3)
+    near = ~np.isnan(t[:, 0])
+    assert near.sum() == 3  # one proposal per frame near its label; the far ones get NaN
+    for k in range(3):
+        sel = np.flatnonzero((rows["frame"] == k) & near)
+        moved = refine_boxes(rows["boxes"][k][[0]], t[sel], (100, 100))
+        assert np.allclose(moved, rows["frames"][k][2])
+
+
+def test_refine_boxes_clips_to_the_frame_and_keeps_a_pixel() -> None:
+    from makeway.perceive.vision.light_verify import refine_boxes
+
+    b = np.array([[0.0, 0.0, 10.0, 10.0], [90.0, 40.0, 100.0, 50.0]])
+    out = refine_boxes(b, np.array([[-1.0, -1.0, 0.2, 0.0], [0.0, 0.0, 9.0, -2.0]]), (100, 60))
+    assert out[0].tolist() == [0.0, 0.0, 12.0, 10.0]
+    # offsets clip at ±1.5 box sizes; x2 clips at the frame's width; y2 < y1 is kept 1 px high
+    assert out[1, 2] == 100.0 and out[1, 3] - out[1, 1] >= 1.0
+
+
+def test_exported_verifier_with_box_refiner_runs_in_onnx_runtime(tmp_path) -> None:
+    require_module("xgboost")
+    from pathlib import Path
+
+    from makeway.perceive.vision.light_verify import FEATURE_NAMES, LightVerifier
+    from makeway.train.light_verifier import _export, fit_refiner, fit_verifier, predict_offsets
+
+    rng = np.random.default_rng(2)
+    x = rng.normal(size=(300, len(FEATURE_NAMES))).astype(np.float32)
+    y = x[:, 0] > 0.5
+    t = np.stack([0.1 * x[:, 1], -0.1 * x[:, 2], 0.05 * x[:, 3], np.zeros(300)], axis=1)
+    clf = fit_verifier(x, y, threads=1)
+    ref = fit_refiner(x, t, threads=1)
+    path = Path(tmp_path) / "v.onnx"
+    _export(clf, path, {"threshold": "0.4"}, refiner=ref)
+    v = LightVerifier(path)
+    assert v.refines_boxes and v.threshold == 0.4
+    p, off = v.score_and_offsets(x[:20])
+    assert np.allclose(p, clf.predict_proba(x[:20])[:, 1], atol=1e-4)
+    assert off is not None and np.allclose(off, predict_offsets(ref, x[:20]), atol=1e-4)
+    plain = Path(tmp_path) / "plain.onnx"
+    _export(clf, plain, {"threshold": "0.4"})
+    assert not LightVerifier(plain).refines_boxes and LightVerifier(plain).score_and_offsets(x[:3])[1] is None

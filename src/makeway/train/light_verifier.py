@@ -67,6 +67,17 @@ THRESHOLDS = (0.01, 0.02, 0.03, *(round(float(x), 2) for x in np.arange(0.05, 0.
 ONNX_OPSET = 15
 CV_FOLDS = 4
 """Grouped cross-validation folds over the train split that choose the operating threshold."""
+REFINE_PARAMS: dict[str, Any] = {
+    "n_estimators": 200,
+    "max_depth": 5,
+    "learning_rate": 0.08,
+    "subsample": 0.8,
+    "colsample_bytree": 0.6,
+    "tree_method": "hist",
+}
+"""The box refiner's regressors' settings."""
+REFINE_MIN_IOU = 0.3
+"""Proposals at least this close (IoU) to a labelled light teach the box refiner."""
 CV_NEGATIVES = 0.25
 """Fraction of the negative rows each cross-validation fold is fitted on (inverse-weighted)."""
 
@@ -241,18 +252,127 @@ def choose_threshold(results_at: Callable[[float], list[FrameResult]]) -> tuple[
     return best[1], max(0.0, best[0])
 
 
-def _export(clf: Any, path: Path, meta_extra: dict[str, Any]) -> None:
-    import onnx
+def box_targets(rows: dict[str, Any], min_iou: float = REFINE_MIN_IOU) -> np.ndarray:
+    """Per row of ``rows`` the corrections ``(n, 4)`` that move its proposal onto the labelled box it
+    overlaps most — ``(gx1 − x1) / w, (gy1 − y1) / h, (gx2 − x2) / w, (gy2 − y2) / h`` with the
+    proposal's width ``w`` and height ``h`` (the inverse of
+    :func:`~makeway.perceive.vision.light_verify.refine_boxes`) — or NaN where that IoU is below
+    ``min_iou`` (and for the extra label positives)."""
+    frame = np.asarray(rows["frame"])
+    out = np.full((len(frame), 4), np.nan)
+    order = np.argsort(frame, kind="stable")
+    bounds = np.searchsorted(frame[order], np.arange(len(rows["frames"]) + 1))
+    for k, (_, _, gt, _) in enumerate(rows["frames"]):
+        sel = order[bounds[k] : bounds[k + 1]]
+        b = rows["boxes"][k]
+        if not len(gt) or not len(sel):
+            continue
+        iou = box_iou_matrix(b, gt)
+        g = gt[iou.argmax(axis=1)]
+        w = np.maximum(1.0, b[:, 2] - b[:, 0])
+        h = np.maximum(1.0, b[:, 3] - b[:, 1])
+        off = np.stack(
+            [
+                (g[:, 0] - b[:, 0]) / w,
+                (g[:, 1] - b[:, 1]) / h,
+                (g[:, 2] - b[:, 2]) / w,
+                (g[:, 3] - b[:, 3]) / h,
+            ],
+            1,
+        )
+        near = iou.max(axis=1) >= min_iou
+        out[sel[near]] = off[near]
+    return out
+
+
+def fit_refiner(x: np.ndarray, targets: np.ndarray, *, seed: int = 0, threads: int = 1) -> list[Any]:
+    """Four :class:`xgboost.XGBRegressor` (:data:`REFINE_PARAMS`), one per corner correction, fitted
+    on the rows whose ``targets`` (:func:`box_targets`) are known; targets clipped to ±1.5."""
+    import xgboost as xgb
+
+    ok = ~np.isnan(np.asarray(targets)[:, 0])
+    if ok.sum() < 10:
+        raise ValueError(
+            f"only {int(ok.sum())} proposals near a labelled light: cannot learn box corrections"
+        )
+    x = np.asarray(x, np.float32)[ok]
+    t = np.clip(np.asarray(targets, np.float64)[ok], -1.5, 1.5)
+    return [
+        xgb.XGBRegressor(**REFINE_PARAMS, random_state=seed, n_jobs=threads).fit(x, t[:, c]) for c in range(4)
+    ]
+
+
+def predict_offsets(refiner: Sequence[Any], x: np.ndarray) -> np.ndarray:
+    """The four regressors' corrections ``(n, 4)`` of feature rows ``x``."""
+    if len(x) == 0:
+        return np.zeros((0, 4))
+    return np.stack([m.predict(np.asarray(x, np.float32)) for m in refiner], axis=1).astype(np.float64)
+
+
+def refined_rows(rows: dict[str, Any], offsets: np.ndarray) -> dict[str, Any]:
+    """A copy of ``rows`` whose proposal boxes are moved by ``offsets`` (one row each, extra label
+    positives ignored) and whose ``y`` says whether the moved box has IoU ≥ 0.5 with a label."""
+    from makeway.perceive.vision.light_verify import refine_boxes
+
+    frame = np.asarray(rows["frame"])
+    order = np.argsort(frame, kind="stable")
+    bounds = np.searchsorted(frame[order], np.arange(len(rows["frames"]) + 1))
+    y = np.asarray(rows["y"], bool).copy()
+    boxes = []
+    for k, (_, _, gt, _) in enumerate(rows["frames"]):
+        sel = order[bounds[k] : bounds[k + 1]]
+        b = rows["boxes"][k]
+        size = (10**9, 10**9)  # clipping to the frame happens at run time; labels lie inside it anyway
+        nb = refine_boxes(b, offsets[sel], size) if len(sel) else b
+        boxes.append(nb)
+        if len(sel):
+            y[sel] = box_iou_matrix(nb, gt).max(axis=1) >= 0.5 if len(gt) else False
+    return {**rows, "boxes": boxes, "y": y}
+
+
+def _to_onnx(model: Any) -> Any:
     from onnxmltools import convert_xgboost
     from onnxmltools.convert.common.data_types import FloatTensorType
 
-    from makeway.atomic import atomic_path
-
-    onx = convert_xgboost(
-        clf,
+    return convert_xgboost(
+        model,
         initial_types=[("features", FloatTensorType([None, len(FEATURE_NAMES)]))],
         target_opset=ONNX_OPSET,
     )
+
+
+def _export(clf: Any, path: Path, meta_extra: dict[str, Any], refiner: Sequence[Any] | None = None) -> None:
+    """Write the classifier (an XGBoost model or its ONNX export) and the box refiner's four
+    regressors (their outputs concatenated as ``box_offsets`` (n, 4)) as one ONNX graph reading
+    ``features``, with the metadata."""
+    import onnx
+    from onnx import helper
+
+    from makeway.atomic import atomic_path
+    from makeway.perceive.vision.light_verify import BOX_OUTPUT
+
+    if isinstance(clf, onnx.ModelProto):  # an exported classifier (its old metadata is replaced)
+        onx = onnx.ModelProto()
+        onx.CopyFrom(clf)
+        del onx.metadata_props[:]
+    else:
+        onx = _to_onnx(clf)
+    if refiner:
+        graph = onx.graph
+        parts = []
+        for c, reg in enumerate(refiner):
+            sub = onnx.compose.add_prefix(_to_onnx(reg), prefix=f"refine{c}_")
+            inp = sub.graph.input[0].name
+            for node in sub.graph.node:
+                node.input[:] = ["features" if i == inp else i for i in node.input]
+            graph.node.extend(sub.graph.node)
+            graph.initializer.extend(sub.graph.initializer)
+            parts.append(sub.graph.output[0].name)
+        graph.node.append(helper.make_node("Concat", parts, [BOX_OUTPUT], axis=1, name="box_offsets_concat"))
+        if not any(op.domain in ("", "ai.onnx") for op in onx.opset_import):
+            onx.opset_import.append(helper.make_opsetid("", ONNX_OPSET))
+        graph.output.append(helper.make_tensor_value_info(BOX_OUTPUT, onnx.TensorProto.FLOAT, [None, 4]))
+        onnx.checker.check_model(onx)
     meta = {
         "makeway_model": "light_verifier",
         "format_version": "1",
@@ -266,12 +386,72 @@ def _export(clf: Any, path: Path, meta_extra: dict[str, Any]) -> None:
         onnx.save(onx, str(tmp))
 
 
+def fit_from_rows(
+    tr: dict[str, Any],
+    va: dict[str, Any],
+    *,
+    seed: int = 0,
+    refine: bool = False,
+    progress: bool = False,
+) -> dict[str, Any]:
+    """Fit the verifier on train rows ``tr`` and choose its threshold (module docstring); with
+    ``refine`` also fit the box refiner (:func:`fit_refiner` on :func:`box_targets`), whose grouped
+    out-of-fold corrections move the train proposals (and the final refiner the validation ones)
+    before the threshold is chosen. Returns ``classifier``, ``refiner`` (None without ``refine``),
+    ``threshold`` and a JSON-able ``summary``."""
+    from makeway.eval.lights import summarise
+    from makeway.progress import progress_bar
+
+    with progress_bar("cross-validation folds", CV_FOLDS, enabled=progress, unit="fold") as advance:
+        oof = out_of_fold(tr, CV_FOLDS, seed=seed, advance=advance)
+    clf = fit_verifier(tr["x"], tr["y"], seed=seed)
+    prob = clf.predict_proba(va["x"])[:, 1]
+    refiner = None
+    tr_eval, va_eval = tr, va
+    if refine:
+        targets = box_targets(tr)
+        keep = np.asarray(tr["frame"]) >= 0  # the extra label positives are their own box
+        targets[~keep] = np.nan
+        fold = grouped_folds([frame_group(s, k) for s, k, _, _ in tr["frames"]], CV_FOLDS)[tr["origin"]]
+        oof_off = np.zeros((len(tr["y"]), 4))
+        for f in range(CV_FOLDS):
+            test = fold == f
+            part = fit_refiner(tr["x"][~test], targets[~test], seed=seed)
+            oof_off[test] = predict_offsets(part, tr["x"][test])
+        refiner = fit_refiner(tr["x"], targets, seed=seed)
+        tr_eval = refined_rows(tr, oof_off)
+        va_eval = refined_rows(va, predict_offsets(refiner, va["x"]))
+    threshold, _ = choose_threshold(
+        lambda t: detector_results(tr_eval, oof, t) + detector_results(va_eval, prob, t)
+    )
+    keys = ("array_precision", "array_recall", "vehicle_precision", "vehicle_recall")
+    cv_summ = summarise(detector_results(tr_eval, oof, threshold))["all"]
+    va_summ = summarise(detector_results(va_eval, prob, threshold))["all"]
+    summary = {
+        "train_rows": len(tr["y"]),
+        "train_positives": int(tr["y"].sum()),
+        "train_proposal_positives": int(tr["y"][np.asarray(tr["frame"]) >= 0].sum()),
+        "val_rows": len(va["y"]),
+        "val_positives": int(va["y"].sum()),
+        "threshold": threshold,
+        "threshold_from": f"train {CV_FOLDS}-fold grouped CV (out-of-fold) + validation, max min(P, R)",
+        "validation": {k: va_summ[k] for k in keys},
+        "train_cv": {k: cv_summ[k] for k in keys},
+        "refine_boxes": refine,
+        "params": XGB_PARAMS,
+        "refine_params": REFINE_PARAMS if refine else None,
+        "seed": seed,
+    }
+    return {"classifier": clf, "refiner": refiner, "threshold": threshold, "summary": summary, "oof": oof}
+
+
 def train_light_verifier(
     out: str | Path | None = None,
     *,
     data_root: str | Path | None = None,
     label_positives: bool = True,
     seed: int = 0,
+    refine: bool = False,
     progress: bool = True,
 ) -> dict[str, Any]:
     """Train the verifier on the train split, pick its threshold on the train split's grouped
@@ -283,7 +463,6 @@ def train_light_verifier(
         InputError: no shared data folder, or ``out``'s folder does not exist.
     """
     from makeway.errors import InputError
-    from makeway.eval.lights import summarise
     from makeway.paths import data_dir
     from makeway.progress import progress_bar
     from makeway.train.light_split import load_split
@@ -302,37 +481,16 @@ def train_light_verifier(
             rows[split] = verifier_rows(
                 split, root, label_positives=label_positives and split == "train", advance=advance
             )
-    tr, va = rows["train"], rows["val"]
-    with progress_bar("cross-validation folds", CV_FOLDS, enabled=progress, unit="fold") as advance:
-        oof = out_of_fold(tr, CV_FOLDS, seed=seed, advance=advance)
-    clf = fit_verifier(tr["x"], tr["y"], seed=seed)
-    prob = clf.predict_proba(va["x"])[:, 1]
-    threshold, _ = choose_threshold(lambda t: detector_results(tr, oof, t) + detector_results(va, prob, t))
-    cv_summ = summarise(detector_results(tr, oof, threshold))
-    summ = summarise(detector_results(va, prob, threshold))
-    keys = ("array_precision", "array_recall", "vehicle_precision", "vehicle_recall")
-    figures = {k: summ["all"][k] for k in keys}
-    cv_figures = {k: cv_summ["all"][k] for k in keys}
-    train_recall = float(tr["y"][tr["frame"] >= 0].sum())
-    result = {
-        "model": str(target),
-        "train_rows": len(tr["y"]),
-        "train_positives": int(tr["y"].sum()),
-        "train_proposal_positives": int(train_recall),
-        "val_rows": len(va["y"]),
-        "val_positives": int(va["y"].sum()),
-        "threshold": threshold,
-        "validation": figures,
-        "train_cv": cv_figures,
-        "threshold_from": f"train {CV_FOLDS}-fold grouped CV (out-of-fold) + validation, max min(P, R)",
-        "params": XGB_PARAMS,
-        "seed": seed,
-        "label_positives": label_positives,
-    }
+    fitted = fit_from_rows(rows["train"], rows["val"], seed=seed, refine=refine, progress=progress)
+    result = {"model": str(target), **fitted["summary"], "label_positives": label_positives}
     _export(
-        clf,
+        fitted["classifier"],
         target,
-        {"threshold": str(threshold), "training": {k: v for k, v in result.items() if k != "model"}},
+        {
+            "threshold": str(fitted["threshold"]),
+            "training": {k: v for k, v in result.items() if k != "model"},
+        },
+        refiner=fitted["refiner"],
     )
     result["seconds"] = round(time.perf_counter() - t0, 1)
     result["size_bytes"] = target.stat().st_size
