@@ -334,7 +334,7 @@ def false_positive_breakdown(
         sc = np.asarray(r.scores, np.float64).ravel()
         keep = np.flatnonzero(sc >= score_threshold)
         boxes, scores = _boxes(r.boxes)[keep], sc[keep]
-        colours = [r.colours[i] for i in keep] if len(r.colours) == len(sc) else ["?"] * len(keep)
+        colours = [r.colours[int(i)] for i in keep] if len(r.colours) == len(sc) else ["?"] * len(keep)
         gt = _boxes(r.gt_boxes)
         match = match_frame(boxes, scores, gt, iou_threshold)
         matched = set(match[match >= 0].tolist())
