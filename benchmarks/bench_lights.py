@@ -235,6 +235,8 @@ def main(argv: list[str] | None = None) -> int:
                         for cat, d in bd.items()
                         if d
                     )
+                    if any(bd.values())
+                    else f"false positives of {name} on {src}: none"
                 )
         if "cnn+att" in report["detectors"] and "cnn-att" in report["detectors"]:
             a, b = report["detectors"]["cnn+att"]["all"], report["detectors"]["cnn-att"]["all"]
