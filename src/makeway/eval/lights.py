@@ -48,6 +48,7 @@ __all__ = [
     "FrameResult",
     "LightsMetrics",
     "evaluate_frames",
+    "false_positive_breakdown",
     "match_frame",
     "metrics",
     "run_detector",
@@ -68,7 +69,8 @@ def _boxes(b: Any) -> np.ndarray:
 @dataclass
 class FrameResult:
     """One evaluated frame: its ``source`` and ``key``, ground truth (``gt_boxes``, ``gt_vehicles``)
-    and detections (``boxes``, ``scores``) in its pixels, and the detector's time (ms)."""
+    and detections (``boxes``, ``scores``, and ``colours`` when known) in its pixels, and the
+    detector's time (ms)."""
 
     source: str
     key: str
@@ -77,6 +79,7 @@ class FrameResult:
     boxes: np.ndarray
     scores: np.ndarray
     ms: float = 0.0
+    colours: Sequence[str] = ()
 
 
 def match_frame(boxes: Any, scores: Any, gt_boxes: Any, iou_threshold: float = 0.5) -> np.ndarray:
@@ -289,10 +292,76 @@ def run_detector(
         ms = (time.perf_counter() - t0) * 1000.0
         boxes = np.array([[d.box.x1, d.box.y1, d.box.x2, d.box.y2] for d in dets], np.float64).reshape(-1, 4)
         scores = np.array([d.score for d in dets], np.float64)
-        out.append(FrameResult(source, key, _boxes(gt), list(veh), boxes, scores, ms))
+        colours = [d.colour for d in dets]
+        out.append(FrameResult(source, key, _boxes(gt), list(veh), boxes, scores, ms, colours))
     return out
 
 
 def evaluate_frames(results: Sequence[FrameResult]) -> dict[str, dict[str, Any]]:
     """:func:`summarise` with the default IoU threshold 0.5 (the benchmark's entry)."""
     return summarise(results)
+
+
+def _size_bin(side: float) -> str:
+    for lim in (4, 8, 16, 32):
+        if side < lim:
+            return f"<{lim}px"
+    return ">=32px"
+
+
+def false_positive_breakdown(
+    results: Sequence[FrameResult], iou_threshold: float = 0.5, score_threshold: float = 0.0
+) -> dict[str, dict[str, int]]:
+    """Where the false positives at ``score_threshold`` come from, counted per category:
+
+    * ``colour``: the detection's colour (``?`` when the results carry none);
+    * ``size``: the longer side of its box (<4, <8, <16, <32, ≥32 px);
+    * ``where``: ``near miss`` (IoU 0.3–0.5 with a labelled lamp: box-size disagreement),
+      ``on a labelled lamp`` (IoU < 0.3 but ≥ half of the smaller box inside a labelled lamp's:
+      a glow or part box), ``near the EV`` (centre inside the vehicle region of the vehicle-level
+      count: the bounding box of one vehicle's lamps grown by half its size — the EV's head, tail
+      and sign lights, reflections on its body), ``negative frame`` (a frame without any labelled
+      lamp), ``elsewhere`` (other cars' lights, street lamps, reflections away from the EV);
+    * ``near_miss_on_missed_lamp``: near misses on a labelled lamp no detection matched (what a box
+      fix could turn into a true positive), under ``where``.
+    """
+    out: dict[str, dict[str, int]] = {"colour": {}, "size": {}, "where": {}}
+
+    def bump(cat: str, key: str) -> None:
+        out[cat][key] = out[cat].get(key, 0) + 1
+
+    for r in results:
+        sc = np.asarray(r.scores, np.float64).ravel()
+        keep = np.flatnonzero(sc >= score_threshold)
+        boxes, scores = _boxes(r.boxes)[keep], sc[keep]
+        colours = [r.colours[int(i)] for i in keep] if len(r.colours) == len(sc) else ["?"] * len(keep)
+        gt = _boxes(r.gt_boxes)
+        match = match_frame(boxes, scores, gt, iou_threshold)
+        matched = set(match[match >= 0].tolist())
+        regions = _vehicle_regions(gt, list(r.gt_vehicles)) if len(gt) else {}
+        iou = box_iou_matrix(boxes, gt) if len(gt) and len(boxes) else np.zeros((len(boxes), 0))
+        for d in np.flatnonzero(match < 0):
+            b = boxes[d]
+            bump("colour", colours[d])
+            bump("size", _size_bin(float(max(b[2] - b[0], b[3] - b[1]))))
+            if not len(gt):
+                bump("where", "negative frame")
+                continue
+            j = int(np.argmax(iou[d]))
+            if iou[d, j] >= 0.3:
+                bump("where", "near miss")
+                if j not in matched:
+                    bump("where", "near_miss_on_missed_lamp")
+                continue
+            iw = np.clip(np.minimum(b[2], gt[:, 2]) - np.maximum(b[0], gt[:, 0]), 0, None)
+            ih = np.clip(np.minimum(b[3], gt[:, 3]) - np.maximum(b[1], gt[:, 1]), 0, None)
+            small = np.minimum(
+                max(1e-9, (b[2] - b[0]) * (b[3] - b[1])), (gt[:, 2] - gt[:, 0]) * (gt[:, 3] - gt[:, 1])
+            )
+            if np.max(iw * ih / np.maximum(small, 1e-9)) >= 0.5:
+                bump("where", "on a labelled lamp")
+                continue
+            cx, cy = (b[0] + b[2]) / 2, (b[1] + b[3]) / 2
+            inside = any(q[0] <= cx <= q[2] and q[1] <= cy <= q[3] for q in regions.values())
+            bump("where", "near the EV" if inside else "elsewhere")
+    return out

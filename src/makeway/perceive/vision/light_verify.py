@@ -10,8 +10,12 @@ Stage 2 (:func:`verifier_features` and :class:`LightVerifier`): each proposal be
 and colour-mask statistics of the box and of its context ring (the box grown by its longer side on
 every side); the context patch's value and saturation resized to 8×8; the proposal's colour, score,
 cues and the settings that found it — and gradient-boosted trees (ONNX, ONNX Runtime only) give the
-probability that it is a lit emergency light. Kept boxes (probability ≥ the model's threshold) pass a
-greedy non-maximum suppression (IoU > 0.3, or one box at least 80 % inside a higher-scoring one).
+probability that it is a lit emergency light. A model with the output ``box_offsets`` also refines
+each kept box (:func:`refine_boxes`: boosted-tree regressors on the same features predict how far each
+side of the proposal lies from the lit part a person would box — the rules often box a lamp with
+its glow, or only part of it, which misses IoU 0.5 on a lamp of a few pixels). Kept boxes
+(probability ≥ the model's threshold, refined) pass a greedy non-maximum suppression (IoU > 0.3, or
+one box at least 80 % inside a higher-scoring one).
 Boxes are pixels of the input frame, ``x2``/``y2`` exclusive. Trained by
 :mod:`makeway.train.light_verifier` (``makeway lights-train --verifier``).
 """
@@ -32,6 +36,7 @@ from makeway.onnx_models import model_metadata, smoke_run
 from makeway.perceive.vision.light_colour import COLOURS, WIDE_HSV, ProposalConfig, colour_masks, propose
 
 __all__ = [
+    "BOX_OUTPUT",
     "DEFAULT_VERIFIER_MODEL",
     "FEATURE_NAMES",
     "PROPOSAL_CONFIGS",
@@ -39,6 +44,7 @@ __all__ = [
     "VerifiedLightDetector",
     "nms",
     "proposals",
+    "refine_boxes",
     "verifier_features",
 ]
 
@@ -52,6 +58,8 @@ PROPOSAL_CONFIGS: tuple[dict[str, Any], ...] = (
 )
 
 PATCH = 8
+#: Name of the optional output of a verifier model that refines boxes (:func:`refine_boxes`).
+BOX_OUTPUT = "box_offsets"
 _CUES = ("colour", "core")
 _STATS = ("b", "g", "r", "s", "v", "v2", "clip", "wcore", "hcos", "hsin", *(f"m_{c}" for c in COLOURS))
 
@@ -189,6 +197,26 @@ def verifier_features(frame_bgr: np.ndarray, props: Sequence[dict[str, Any]]) ->
     return np.concatenate([geo, core, ring, contrast, meta, patches], axis=1).astype(np.float32)
 
 
+def refine_boxes(boxes: np.ndarray, offsets: np.ndarray, size: tuple[int, int]) -> np.ndarray:
+    """Proposal boxes ``(n, 4)`` moved by predicted corrections ``(n, 4)``: each corner moves by its
+    offset times the box's width (x) or height (y), the result is clipped to the frame ``size``
+    ``(width, height)`` and kept at least 1 px wide and high. Offsets are clipped to ±1.5 (a box
+    may at most grow or shrink by 1.5× its size per side)."""
+    b = np.asarray(boxes, np.float64).reshape(-1, 4)
+    o = np.clip(np.asarray(offsets, np.float64).reshape(-1, 4), -1.5, 1.5)
+    bw = np.maximum(1.0, b[:, 2] - b[:, 0])
+    bh = np.maximum(1.0, b[:, 3] - b[:, 1])
+    out = b + o * np.stack([bw, bh, bw, bh], axis=1)
+    w, h = size
+    out[:, [0, 2]] = np.clip(out[:, [0, 2]], 0, w)
+    out[:, [1, 3]] = np.clip(out[:, [1, 3]], 0, h)
+    out[:, 2] = np.maximum(out[:, 2], np.minimum(out[:, 0] + 1, w))
+    out[:, 3] = np.maximum(out[:, 3], np.minimum(out[:, 1] + 1, h))
+    out[:, 0] = np.minimum(out[:, 0], out[:, 2] - 1)
+    out[:, 1] = np.minimum(out[:, 1], out[:, 3] - 1)
+    return out
+
+
 def nms(boxes: np.ndarray, scores: np.ndarray, iou: float = 0.3, inside: float = 0.8) -> np.ndarray:
     """Indices kept by greedy non-maximum suppression in descending score order: a box is dropped
     when its IoU with a kept box exceeds ``iou`` or at least ``inside`` of its area lies in one."""
@@ -249,6 +277,10 @@ class LightVerifier:
         if len(inputs) != 1:
             raise InputError(path, f"expected one input of feature rows; found {len(inputs)}")
         self._input = inputs[0].name
+        outputs = [o.name for o in self.session.get_outputs()]
+        #: Whether the model also predicts box corrections (output ``box_offsets``, see :meth:`refine`).
+        self.refines_boxes = BOX_OUTPUT in outputs
+        self._outputs = [outputs[1], *([BOX_OUTPUT] if self.refines_boxes else [])]
         smoke_run(self.session, path)
         try:  # two rows of zeros must give two probabilities
             probe = self.score(np.zeros((2, len(FEATURE_NAMES)), np.float32))
@@ -260,16 +292,24 @@ class LightVerifier:
 
     def score(self, features: np.ndarray) -> np.ndarray:
         """P(lit emergency light) per feature row ``(n, len(FEATURE_NAMES))``."""
+        return self.score_and_offsets(features)[0]
+
+    def score_and_offsets(self, features: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+        """P(lit emergency light) per feature row and, when the model refines boxes, the predicted
+        corrections ``(n, 4)`` (see :func:`refine_boxes`), else None."""
         x = np.asarray(features, np.float32)
         if x.ndim != 2 or x.shape[1] != len(FEATURE_NAMES):
             raise ValueError(f"expected features (n, {len(FEATURE_NAMES)}), got {x.shape}")
         if len(x) == 0:
-            return np.zeros(0, np.float64)
-        outs = self.session.run(None, {self._input: x})
-        prob = outs[1]
+            return np.zeros(0, np.float64), (np.zeros((0, 4)) if self.refines_boxes else None)
+        outs = self.session.run(self._outputs, {self._input: x})
+        prob = outs[0]
         if isinstance(prob, list):  # ZipMap output: list of {label: p}
-            return np.array([d[1] for d in prob], np.float64)
-        return np.asarray(prob, np.float64)[:, 1]
+            p = np.array([d[1] for d in prob], np.float64)
+        else:
+            p = np.asarray(prob, np.float64)[:, 1]
+        offsets = np.asarray(outs[1], np.float64).reshape(len(x), 4) if self.refines_boxes else None
+        return p, offsets
 
 
 class VerifiedLightDetector:
@@ -300,13 +340,19 @@ class VerifiedLightDetector:
         props = [p for p in proposals(frame_bgr, self.colours) if p["colour"] in self.colours]
         if not props:
             return []
-        prob = self.verifier.score(verifier_features(frame_bgr, props))
+        prob, offsets = self.verifier.score_and_offsets(verifier_features(frame_bgr, props))
         sel = np.flatnonzero(prob >= self.threshold)
         if len(sel) == 0:
             return []
         boxes = np.array([props[i]["box"] for i in sel], np.float64)
-        keep = sel[nms(boxes, prob[sel])]
-        return [
-            LightDetection(Box(*props[i]["box"]), props[i]["colour"], float(prob[i]), frame)
-            for i in sorted(keep, key=lambda i: props[i]["box"])
+        if offsets is not None:
+            h, w = frame_bgr.shape[:2]
+            boxes = refine_boxes(boxes, offsets[sel], (w, h))
+        keep = nms(boxes, prob[sel])
+        out = [
+            LightDetection(
+                Box(*(float(v) for v in boxes[k])), props[sel[k]]["colour"], float(prob[sel[k]]), frame
+            )
+            for k in keep
         ]
+        return sorted(out, key=lambda d: (d.box.x1, d.box.y1, d.box.x2, d.box.y2))
