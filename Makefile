@@ -99,7 +99,7 @@ bench-roadside: venv
 
 # lit-light detection on the held-out sources: rule baseline, CNN with and without colour attention
 bench-lights: venv
-	$(BIN)/python benchmarks/bench_lights.py
+	$(BIN)/python benchmarks/bench_lights.py --breakdown
 
 # the video pipeline's active-EV rules (crop / lights / lights+crop) on the labelled clips; lights speed
 bench-active-rule: venv
