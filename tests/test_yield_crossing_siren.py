@@ -15,6 +15,7 @@ import pytest
 from makeway.decide import YieldConfig, YieldStateMachine
 from makeway.decide.yield_fsm import firm_stop_distance_m
 from makeway.fuse import MultiEVFusion
+from makeway.fuse.relation import classify_relation
 from makeway.messages import (
     EVBelief,
     EVRelation,
@@ -180,3 +181,16 @@ def test_siren_and_light_on_one_bearing_confirm_in_three_scans_clutter_does_not(
                 LightObservation(t, float(rng.uniform(-math.pi, math.pi)), math.radians(1.5), probability=0.8)
             )
         assert clutter.update(t, ego_at(t), obs) == []
+
+
+def test_on_our_road_only_within_a_bend_of_the_road() -> None:
+    """A track heading along our road 39 m ahead and 15 m to the right (crossing seed 12: a crossing
+    EV whose compressed siren distances made it seem to pace the ego) is not on our road — a road
+    bending at R ≥ 250 m is 9 m aside there — so it is not placed: UNKNOWN, not AHEAD. Far out the
+    0.4·|x| bound still holds, and a car on a R = 250 m curve 100 m back stays BEHIND."""
+    assert classify_relation(39.0, -15.0, 0.1) is EVRelation.UNKNOWN
+    assert classify_relation(39.0, -8.0, 0.1) is EVRelation.AHEAD
+    assert classify_relation(-100.0, 20.0, 0.2) is EVRelation.BEHIND
+    assert classify_relation(300.0, 100.0, 0.0) is EVRelation.AHEAD  # within 0.4·|x|
+    assert classify_relation(300.0, 130.0, 0.0) is EVRelation.UNKNOWN
+    assert classify_relation(39.0, -15.0, 0.1, min_curve_radius_m=50.0) is EVRelation.AHEAD
