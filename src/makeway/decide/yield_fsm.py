@@ -74,6 +74,19 @@ alert, lights alone, or a siren alone that is close and approaching). One whose 
 carries ``"prepare"`` (default: a siren alone, far or not placed) gets ``prepare`` instead: keep the
 lane at ``prepare_speed_fraction`` of the speed limit until the evidence grows to a yield.
 
+**Not into an intersection with a siren coming.** A siren the duty only prepares for (heard, not
+seen), heard approaching (``belief.approaching`` True: the siren stack's call or the track's range
+rate) while its way is unknown (relation UNKNOWN: not placed, or placed where no road relation fits)
+or crosses ours (CROSSING), is a yield once the car reaches its decision point for the intersection
+ahead: ``decide_ahead_s`` of travel before the last point where it can still stop comfortably
+(:func:`firm_stop_distance_m` at ``comfort_decel_mps2``, after ``reaction_time_s``, from the
+deceleration it already has) ``intersection_margin_m`` before it. The car then stops before the
+intersection (firmly if comfort can no longer make it, below), as a driver who hears a siren coming
+but cannot yet tell from where does not drive into the crossing; before that point it only
+prepares, so a siren that is placed or seen by then is yielded to as what it is
+(``stop_for_unplaced_siren=False`` turns this off). A map with no intersection ahead leaves the duty
+as it is.
+
 **Several EVs** (:meth:`YieldStateMachine.update_all`, one belief per EV track): the machine follows
 one EV — one that needs a yield first, the one it followed last time next, then the nearest — and
 does not leave STOPPED_WAITING while any other EV still needs a yield: it yields until every EV
@@ -225,6 +238,11 @@ class YieldConfig:
             past its point).
         pull_over_before_intersection: for a crossing EV, also move to the right edge when there is
             room before the intersection (``False``: stop in lane).
+        stop_for_unplaced_siren: a siren the duty only prepares for, heard approaching while its way
+            is unknown (not placed) or crosses ours, stops the car before the intersection ahead
+            once it must decide (module docstring, "Not into an intersection").
+        decide_ahead_s: how many seconds of travel before the last point where a comfortable stop
+            before the intersection is still possible the car decides to stop for such a siren.
         arrive_tolerance_m: stopped within this distance of the stop point counts as arrived.
         stuck_timeout_s: stopped short of the stop point for this long counts as arrived too.
 
@@ -261,6 +279,8 @@ class YieldConfig:
     firm_jerk_mps3: float = 8.0
     firm_min_margin_m: float = 3.0
     pull_over_before_intersection: bool = True
+    stop_for_unplaced_siren: bool = True
+    decide_ahead_s: float = 1.0
     arrive_tolerance_m: float = 3.0
     stuck_timeout_s: float = 3.0
     duty: DutyToYield = field(default_factory=DutyToYield)
@@ -520,6 +540,8 @@ class YieldStateMachine:
         self._lights_since: dict[int | None, float] = {}  # per track: lights shown without a break since
         self._road_s = 0.0  # the ego's arc length and the map's intersections, this period
         self._boxes: tuple[tuple[float, float], ...] = ()
+        self._ego_v = 0.0  # the ego's speed (m/s) and deceleration (m/s², >= 0), this period
+        self._ego_brake = 0.0
 
     def update(self, belief: EVBelief, ego: VehicleState, road: RoadContext) -> YieldDecision:
         """:meth:`update_all` with one belief."""
@@ -543,6 +565,7 @@ class YieldStateMachine:
         if not beliefs:
             raise ValueError("update_all needs at least one belief")
         self._road_s, self._boxes = float(road.s_m), tuple(road.intersections)
+        self._ego_v, self._ego_brake = max(float(ego.vx_mps), 0.0), max(-float(ego.ax_mps2), 0.0)
         for b in beliefs:  # how long each track has shown lights without a break
             if b.detected and b.lights:
                 self._lights_since.setdefault(b.track_id, b.time_s)
@@ -571,7 +594,29 @@ class YieldStateMachine:
             return cfg.duty.siren_and_lights if b.detected else "ignore"
         since = self._lights_since.get(b.track_id)
         lights_for = b.time_s - since if since is not None else 0.0
-        return duty_of(b, cfg.duty, lights_for)
+        duty = duty_of(b, cfg.duty, lights_for)
+        if duty == "prepare" and self._must_decide_before_intersection(b):
+            return "yield"
+        return duty
+
+    def _must_decide_before_intersection(self, b: EVBelief) -> bool:
+        """Whether a prepared-for siren makes the car stop before the intersection ahead now (module
+        docstring, "Not into an intersection"): heard approaching, its way unknown or crossing ours,
+        and the car ``decide_ahead_s`` of travel from the last point where it can still stop
+        comfortably ``intersection_margin_m`` before the intersection."""
+        cfg = self.config
+        if not (cfg.stop_for_unplaced_siren and b.siren and b.approaching is True):
+            return False
+        if b.relation not in (EVRelation.UNKNOWN, EVRelation.CROSSING):
+            return False
+        s, v = self._road_s, self._ego_v
+        start = min((float(a) for a, _ in self._boxes if float(a) > s), default=math.inf)
+        if not math.isfinite(start):
+            return False
+        reach = firm_stop_distance_m(
+            v, cfg.comfort_decel_mps2, cfg.comfort_jerk_mps3, cfg.reaction_time_s, self._ego_brake
+        )
+        return start - cfg.intersection_margin_m - s <= reach + v * cfg.decide_ahead_s
 
     def _relevant(self, b: EVBelief) -> bool:
         dist = _distance(b)
