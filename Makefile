@@ -8,7 +8,7 @@ OUT    ?= reports/demo
 
 .PHONY: venv demo test lint typecheck bench bench-sort bench-video bench-crops bench-detection bench-pull-over \
 	bench-siren-loop bench-audio bench-rig bench-v2x bench-fusion bench-roadside bench-lights bench-active-rule \
-	bench-rsu bench-fusion-ablation bench-mcap bench-engine bench-robust bench-speed bench-crossing bench-no-ev-2h bench-range-loop bench-faults bench-overload bench-overload-listener bench-range bench-clip-fusion bench-framework-ab fuzz clean
+	bench-rsu bench-fusion-ablation bench-mcap bench-engine bench-robust bench-speed bench-crossing bench-crossing-fresh bench-no-ev-2h bench-range-loop bench-faults bench-overload bench-overload-listener bench-range bench-clip-fusion bench-framework-ab fuzz clean
 
 # `make demo` installs the runtime only; `make test` and the benchmarks add the dev extra (linters,
 # scikit-learn, XGBoost, torch for the training tests).
@@ -124,6 +124,10 @@ bench-robust: venv
 # the crossing with every sense fused: 20 seeds, stop before the intersection (target ≥ 95 %)
 bench-crossing: venv
 	$(BIN)/python benchmarks/bench_fusion_ablation.py --scenarios crossing --perceptions fused --seeds 20 --no-ev-runs 0
+
+# the crossing on 20 fresh seeds (20–39)
+bench-crossing-fresh: venv
+	$(BIN)/python benchmarks/bench_fusion_ablation.py --scenarios crossing --perceptions fused --seeds 20 --first-seed 20 --no-ev-runs 0
 
 # 2 h of no-EV driving with every sense fused (two processes of 180 drives of 20 s)
 bench-no-ev-2h: venv
