@@ -488,9 +488,9 @@ class MultiEVFusion:
         approaching = t.siren_approaching
         if placed and moving:
             relation = classify_relation(rel_x, rel_y, math.atan2(vy, vx) - ego.yaw_rad)
+            # placed where no road relation fits, the track's motion is not to be trusted (a
+            # siren's distances compressed beyond the rangers' reach): the listener's call stands
             if relation is not EVRelation.UNKNOWN or approaching is None:
-                # placed where no road relation fits, the track's motion is not to be trusted (a
-                # siren's distances compressed beyond the rangers' reach): the listener's call stands
                 c, s = math.cos(ego.yaw_rad), math.sin(ego.yaw_rad)
                 evx, evy = ego.vx_mps * c - ego.vy_mps * s, ego.vx_mps * s + ego.vy_mps * c
                 approaching = float(los @ np.array([vx - evx, vy - evy])) < 0.0
