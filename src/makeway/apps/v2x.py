@@ -42,7 +42,7 @@ def _next_sequence(key: Path) -> int:
             last = int(path.read_text(encoding="utf-8").strip())
         except ValueError:
             raise InputError(path, "is not a sequence counter (one integer)") from None
-    seq = (last + 1) % 2**32
+    seq = (last + 1) % 2**16  # DENM sequence numbers are 16 bits
     write_text_atomic(path, f"{seq}\n")
     return seq
 

@@ -31,8 +31,8 @@ The profile (what an :class:`Alert` fills; any other DENM is refused as "not thi
   these flags in a DENM; CAM's EmergencyContainer uses the same data element.
 
 Units are the ETSI ones, so an :class:`Alert` holds exactly what is on the wire: latitude and
-longitude in 1e-7 degree (WGS-84), heading in 0.1 degree clockwise from WGS-84 north (3601
-unavailable), speed in 0.01 m/s (16383 unavailable), confidence-ellipse semi-axes in cm (4094 out
+longitude in 1e-7 degree (WGS-84), heading in 0.1 degree clockwise from WGS-84 north (always
+given: this profile refuses 3601, unavailable), speed in 0.01 m/s (16383 unavailable), confidence-ellipse semi-axes in cm (4094 out
 of range, 4095 unavailable), heading/speed confidence in 0.1 degree / 0.01 m/s (1..127; 126 out
 of range, 127 unavailable). :meth:`Alert.from_physical` quantizes physical values (rounding to
 the nearest unit); nothing is lost after that.
@@ -180,7 +180,7 @@ class Alert:
         sequence: int,
         lat_deg: float,
         lon_deg: float,
-        heading_deg: float | None,
+        heading_deg: float,
         speed_mps: float | None,
         siren: bool = True,
         lights: bool = True,
@@ -193,18 +193,15 @@ class Alert:
     ) -> Alert:
         """An alert from physical values: times in Unix seconds (detection defaults to
         generation), WGS-84 degrees, heading in degrees clockwise from true north (any value;
-        wrapped to [0, 360); ``None``: unavailable), speed in m/s (``None``: unavailable; above
+        wrapped to [0, 360)), speed in m/s (``None``: unavailable; above
         163.82 m/s kept at that), ``sequence`` any running count ≥ 0 (kept modulo 65536), and the
         standard deviations of an isotropic position (m), the heading (degree) and the speed (m/s),
         turned into DENM's 95 % confidences (ellipse semi-axes 2.448 σ, others 1.96 σ; ``None``:
         unavailable). Values are rounded to the DENM units; out-of-range values raise
         :class:`MalformedAlertError`."""
-        if heading_deg is None:
-            heading = HEADING_UNAVAILABLE
-        else:
-            if heading_deg != heading_deg or abs(heading_deg) == float("inf"):
-                raise MalformedAlertError(f"heading must be finite, not {heading_deg}")
-            heading = round((heading_deg % 360.0) * 10.0) % 3600
+        if heading_deg != heading_deg or abs(heading_deg) == float("inf"):
+            raise MalformedAlertError(f"heading must be finite, not {heading_deg}")
+        heading = round((heading_deg % 360.0) * 10.0) % 3600
         if speed_mps is None:
             speed = SPEED_UNAVAILABLE
         else:
@@ -250,9 +247,9 @@ class Alert:
         return self.lon_e7 / 1e7
 
     @property
-    def heading_deg(self) -> float | None:
-        """Heading, degrees clockwise from true north, in [0, 360); ``None`` when unavailable."""
-        return None if self.heading_decideg == HEADING_UNAVAILABLE else self.heading_decideg / 10.0
+    def heading_deg(self) -> float:
+        """Heading, degrees clockwise from true north, in [0, 360)."""
+        return self.heading_decideg / 10.0
 
     @property
     def speed_mps(self) -> float | None:
@@ -313,7 +310,7 @@ def _check(a: Alert) -> None:
         ("sequence", 0 <= a.sequence < SEQUENCE_MODULUS),
         ("latitude", -900_000_000 <= a.lat_e7 <= 900_000_000),
         ("longitude", -1_800_000_000 <= a.lon_e7 <= 1_800_000_000),
-        ("heading", 0 <= a.heading_decideg <= 3599 or a.heading_decideg == HEADING_UNAVAILABLE),
+        ("heading", 0 <= a.heading_decideg <= 3599),  # this profile always has one
         ("speed", 0 <= a.speed_cms <= SPEED_UNAVAILABLE),
         ("response type", 0 <= int(a.response_type) <= 2),
         ("semi-major confidence", 0 <= a.semi_major_cm <= AXIS_UNAVAILABLE),

@@ -87,6 +87,7 @@ __all__ = [
     "STATION_ID_OFFSET",
     "Identity",
     "SignedAlert",
+    "encode_signed",
     "ReplayCache",
     "TrustStore",
     "Verdict",
@@ -324,16 +325,25 @@ def sign_alert(alert: Alert, identity: Identity) -> bytes:
         tbs: bytes = types.ToBeSignedData.to_oer()
     der = identity.key.sign(_signing_input(tbs, identity.cert_hash), ec.ECDSA(hashes.SHA256()))
     r, s = decode_dss_signature(der)
-    if s > _HALF_N:
-        s = _N - s
+    data = encode_signed(alert, identity.signer, r, min(s, _N - s))
+    if data[_TBS] != tbs:  # the profile fixes every length; a change here is a bug
+        raise AssertionError("tbsData is not where the profile has it")
+    return data
+
+
+def encode_signed(alert: Alert, signer: bytes, r: int, s: int) -> bytes:
+    """The signed alert's bytes with a given signer HashedId8 and signature ``(r, s)`` (each
+    0 … 2²⁵⁶ − 1), encoded by pycrate; :func:`sign_alert` computes a real signature, this also
+    builds the forgeries of attack suites."""
+    denm = encode_alert(alert)
     value = {
         "protocolVersion": 3,
         "content": (
             "signedData",
             {
                 "hashId": "sha256",
-                "tbsData": tbs_value,
-                "signer": ("digest", identity.signer),
+                "tbsData": _tbs_value(denm, unix_ms_to_its_ms(alert.generation_time_ms) * 1000),
+                "signer": ("digest", signer),
                 "signature": (
                     "ecdsaNistP256Signature",
                     {"rSig": ("x-only", r.to_bytes(32, "big")), "sSig": s.to_bytes(32, "big")},
@@ -345,7 +355,7 @@ def sign_alert(alert: Alert, identity: Identity) -> bytes:
         types = _signed_type()
         types.Ieee1609Dot2Data.set_val(value)
         data: bytes = types.Ieee1609Dot2Data.to_oer()
-    if len(data) != SIGNED_SIZE or data[_TBS] != tbs:  # the profile fixes every length
+    if len(data) != SIGNED_SIZE:  # the profile fixes every length; a change here is a bug
         raise AssertionError(f"signed alert of {len(data)} bytes, the profile has {SIGNED_SIZE}")
     return data
 
