@@ -78,7 +78,9 @@ def _attacks(keys: dict, now: float) -> dict[str, list[bytes]]:
     fresh = sign_alert(_alert(good, 100, now), good)
     rng = random.Random(5)
     forger = ec.generate_private_key(ec.SECP256R1())  # signs as the real unit would, wrong key
-    r, s = decode_dss_signature(forger.sign(parse_signed(fresh).tbs + good.cert_hash, ec.ECDSA(hashes.SHA256())))
+    r, s = decode_dss_signature(
+        forger.sign(parse_signed(fresh).tbs + good.cert_hash, ec.ECDSA(hashes.SHA256()))
+    )
     forged = encode_signed(_alert(good, 100, now), good.signer, r, min(s, N_P256 - s))
     r0, s0 = int.from_bytes(fresh[-64:-32], "big"), int.from_bytes(fresh[-32:], "big")
     tampered = []

@@ -69,7 +69,25 @@ def _alerts() -> st.SearchStrategy[Alert]:
 
 
 def _extremes() -> list[Alert]:
-    low = Alert(0, _T_MIN, 0, -900_000_000, -1_800_000_000, 0, 0, False, False, ResponseType.NOT_IN_USE, _T_MIN, 0, 0, 0, 1, 1, 0)
+    low = Alert(
+        0,
+        _T_MIN,
+        0,
+        -900_000_000,
+        -1_800_000_000,
+        0,
+        0,
+        False,
+        False,
+        ResponseType.NOT_IN_USE,
+        _T_MIN,
+        0,
+        0,
+        0,
+        1,
+        1,
+        0,
+    )
     high = Alert(
         2**32 - 1, _T_MAX, 65535, 900_000_000, 1_800_000_000, 3599, 16383, True, True,
         ResponseType.NON_EMERGENCY, _T_MAX, 4095, 4095, 3601, 127, 127, 7,
@@ -99,7 +117,7 @@ def test_every_bit_flip_agrees_with_pycrate() -> None:
     reader accepts it as this profile (decoded, re-encoded to the same bytes, in range), with the
     same alert."""
     accepted = 0
-    for a in _extremes()[1:] + [_physical(7, 1_764_000_000.5, 3)]:
+    for a in [*_extremes()[1:], _physical(7, 1764000000.5, 3)]:
         base = encode_alert(a)
         for bit in range(8 * ALERT_SIZE):
             b = bytearray(base)
@@ -168,7 +186,13 @@ def test_the_fields_sit_where_the_etsi_types_put_them() -> None:
         _physical(1, 1_000.0, 0)  # before 2004: no TimestampIts
     with pytest.raises(MalformedAlertError):
         Alert.from_physical(
-            station_id=1, generation_time_s=1.7e9, sequence=0, lat_deg=91.0, lon_deg=0.0, heading_deg=0, speed_mps=1
+            station_id=1,
+            generation_time_s=1.7e9,
+            sequence=0,
+            lat_deg=91.0,
+            lon_deg=0.0,
+            heading_deg=0,
+            speed_mps=1,
         )
 
 
@@ -242,7 +266,12 @@ def test_signed_alert_is_ieee1609dot2_signed_data(unit: tuple[Identity, TrustSto
 
 
 @settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
-@given(a=_alerts(), r=st.integers(0, 2**256 - 1), s=st.integers(0, 2**256 - 1), signer=st.binary(min_size=8, max_size=8))
+@given(
+    a=_alerts(),
+    r=st.integers(0, 2**256 - 1),
+    s=st.integers(0, 2**256 - 1),
+    signer=st.binary(min_size=8, max_size=8),
+)
 def test_signed_reader_agrees_with_pycrate(a: Alert, r: int, s: int, signer: bytes) -> None:
     data = encode_signed(a, signer, r, s)
     assert parse_signed(data) == parse_signed_reference(data)

@@ -32,9 +32,9 @@ The profile (what an :class:`Alert` fills; any other DENM is refused as "not thi
 
 Units are the ETSI ones, so an :class:`Alert` holds exactly what is on the wire: latitude and
 longitude in 1e-7 degree (WGS-84), heading in 0.1 degree clockwise from WGS-84 north (always
-given: this profile refuses 3601, unavailable), speed in 0.01 m/s (16383 unavailable), confidence-ellipse semi-axes in cm (4094 out
-of range, 4095 unavailable), heading/speed confidence in 0.1 degree / 0.01 m/s (1..127; 126 out
-of range, 127 unavailable). :meth:`Alert.from_physical` quantizes physical values (rounding to
+given: this profile refuses 3601, unavailable), speed in 0.01 m/s (16383 unavailable),
+confidence-ellipse semi-axes in cm (4094 out of range, 4095 unavailable), heading/speed
+confidence in 0.1 degree / 0.01 m/s (1..127; 126 out of range, 127 unavailable). :meth:`Alert.from_physical` quantizes physical values (rounding to
 the nearest unit); nothing is lost after that.
 
 Time. TimestampIts counts milliseconds elapsed since 2004-01-01T00:00:00.000Z UTC, leap seconds
@@ -94,7 +94,8 @@ ITS_EPOCH_UNIX_MS = calendar.timegm((2004, 1, 1, 0, 0, 0)) * 1000
 """2004-01-01T00:00:00Z in Unix milliseconds: TimestampIts 0."""
 
 LEAP_SECONDS = tuple(
-    calendar.timegm((y, m, 1, 0, 0, 0)) * 1000 for y, m in ((2006, 1), (2009, 1), (2012, 7), (2015, 7), (2017, 1))
+    calendar.timegm((y, m, 1, 0, 0, 0)) * 1000
+    for y, m in ((2006, 1), (2009, 1), (2012, 7), (2015, 7), (2017, 1))
 )
 """The UTC midnights (Unix ms) right after each leap second inserted since 2004 (IERS Bulletin C)."""
 # the same instants as TimestampIts values: a leap second's 1000 ms lie just below each
@@ -341,7 +342,11 @@ def _denm_type() -> Any:
 def _denm_value(a: Alert) -> dict[str, Any]:
     assert a.detection_time_ms is not None
     return {
-        "header": {"protocolVersion": PROTOCOL_VERSION, "messageID": MESSAGE_ID_DENM, "stationID": a.station_id},
+        "header": {
+            "protocolVersion": PROTOCOL_VERSION,
+            "messageID": MESSAGE_ID_DENM,
+            "stationID": a.station_id,
+        },
         "denm": {
             "management": {
                 "actionID": {"originatingStationID": a.station_id, "sequenceNumber": a.sequence},
@@ -361,11 +366,17 @@ def _denm_value(a: Alert) -> dict[str, Any]:
             },
             "situation": {
                 "informationQuality": a.information_quality,
-                "eventType": {"causeCode": CAUSE_EMERGENCY_VEHICLE_APPROACHING, "subCauseCode": int(a.response_type)},
+                "eventType": {
+                    "causeCode": CAUSE_EMERGENCY_VEHICLE_APPROACHING,
+                    "subCauseCode": int(a.response_type),
+                },
             },
             "location": {
                 "eventSpeed": {"speedValue": a.speed_cms, "speedConfidence": a.speed_confidence},
-                "eventPositionHeading": {"headingValue": a.heading_decideg, "headingConfidence": a.heading_confidence},
+                "eventPositionHeading": {
+                    "headingValue": a.heading_decideg,
+                    "headingConfidence": a.heading_confidence,
+                },
                 "traces": [[]],
             },
             # LightBarSirenInUse ::= BIT STRING {lightBarActivated (0), sirenActivated (1)} (SIZE(2))

@@ -86,12 +86,12 @@ __all__ = [
     "SIGNER_OFFSET",
     "STATION_ID_OFFSET",
     "Identity",
-    "SignedAlert",
-    "encode_signed",
     "ReplayCache",
+    "SignedAlert",
     "TrustStore",
     "Verdict",
     "Verifier",
+    "encode_signed",
     "hashed_id8",
     "keygen",
     "load_identity",
@@ -325,7 +325,7 @@ def sign_alert(alert: Alert, identity: Identity) -> bytes:
         tbs: bytes = types.ToBeSignedData.to_oer()
     der = identity.key.sign(_signing_input(tbs, identity.cert_hash), ec.ECDSA(hashes.SHA256()))
     r, s = decode_dss_signature(der)
-    data = encode_signed(alert, identity.signer, r, min(s, _N - s))
+    data = _encode_signed(denm, tbs_value, identity.signer, r, min(s, _N - s))
     if data[_TBS] != tbs:  # the profile fixes every length; a change here is a bug
         raise AssertionError("tbsData is not where the profile has it")
     return data
@@ -336,13 +336,19 @@ def encode_signed(alert: Alert, signer: bytes, r: int, s: int) -> bytes:
     0 … 2²⁵⁶ − 1), encoded by pycrate; :func:`sign_alert` computes a real signature, this also
     builds the forgeries of attack suites."""
     denm = encode_alert(alert)
+    return _encode_signed(
+        denm, _tbs_value(denm, unix_ms_to_its_ms(alert.generation_time_ms) * 1000), signer, r, s
+    )
+
+
+def _encode_signed(denm: bytes, tbs_value: dict[str, Any], signer: bytes, r: int, s: int) -> bytes:
     value = {
         "protocolVersion": 3,
         "content": (
             "signedData",
             {
                 "hashId": "sha256",
-                "tbsData": _tbs_value(denm, unix_ms_to_its_ms(alert.generation_time_ms) * 1000),
+                "tbsData": tbs_value,
                 "signer": ("digest", signer),
                 "signature": (
                     "ecdsaNistP256Signature",
