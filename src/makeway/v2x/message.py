@@ -34,8 +34,9 @@ Units are the ETSI ones, so an :class:`Alert` holds exactly what is on the wire:
 longitude in 1e-7 degree (WGS-84), heading in 0.1 degree clockwise from WGS-84 north (always
 given: this profile refuses 3601, unavailable), speed in 0.01 m/s (16383 unavailable),
 confidence-ellipse semi-axes in cm (4094 out of range, 4095 unavailable), heading/speed
-confidence in 0.1 degree / 0.01 m/s (1..127; 126 out of range, 127 unavailable). :meth:`Alert.from_physical` quantizes physical values (rounding to
-the nearest unit); nothing is lost after that.
+confidence in 0.1 degree / 0.01 m/s (1..127; 126 out of range, 127 unavailable).
+:meth:`Alert.from_physical` quantizes physical values (rounding to the nearest unit); nothing is
+lost after that.
 
 Time. TimestampIts counts milliseconds elapsed since 2004-01-01T00:00:00.000Z UTC, leap seconds
 included (TAI time since that instant; IEEE 1609.2's Time64 counts the same in microseconds). An
