@@ -4,10 +4,13 @@ The wire format is the Decentralized Environmental Notification Message of ETSI 
 V1.3.1 — ASN.1 module ``DENM-PDU-Descriptions`` version 2 with the common data dictionary
 ``ITS-Container`` of ETSI TS 102 894-2 V1.3.1 (version 2), as pycrate compiles them
 (``pycrate_asn1dir.ITS_DENM_3``) — in unaligned PER (UPER), DENM's transfer syntax. pycrate
-(LGPL, used as a library) is the encoder (:func:`encode_alert`) and the reference decoder
-(:func:`decode_alert_reference`); :func:`decode_alert` is a small exact reader of our fixed
-profile, 30 times faster than pycrate's decoder, that accepts exactly the bytes pycrate produces
-for an :class:`Alert` (the tests cross-check the two, byte for byte).
+(LGPL, used as a library) is the reference codec (:func:`encode_alert_reference`,
+:func:`decode_alert_reference`); :func:`encode_alert` and :func:`decode_alert` are a small exact
+writer and reader of our fixed profile, 30–80 times faster than pycrate (measured in
+``benchmarks/bench_v2x.py``: pycrate's encoding alone took the loopback latency's p99 past 5 ms),
+that produce exactly pycrate's bytes and accept exactly the bytes pycrate produces for an
+:class:`Alert` (the tests cross-check them, byte for byte, over random alerts, every field's
+extremes and every bit flipped).
 
 The profile (what an :class:`Alert` fills; any other DENM is refused as "not this profile"):
 
@@ -70,6 +73,7 @@ __all__ = [
     "decode_alert",
     "decode_alert_reference",
     "encode_alert",
+    "encode_alert_reference",
     "its_ms_to_unix_ms",
     "unix_ms_to_its_ms",
 ]
@@ -386,8 +390,9 @@ def _denm_value(a: Alert) -> dict[str, Any]:
     }
 
 
-def encode_alert(alert: Alert) -> bytes:
-    """The alert's DENM in UPER (:data:`ALERT_SIZE` bytes), encoded by pycrate."""
+def encode_alert_reference(alert: Alert) -> bytes:
+    """The alert's DENM in UPER (:data:`ALERT_SIZE` bytes), encoded by pycrate: the reference
+    :func:`encode_alert` is tested against, byte for byte. About 0.2–0.3 ms."""
     _check(alert)
     value = _denm_value(alert)
     with _PYCRATE_LOCK:
@@ -413,7 +418,7 @@ def decode_alert_reference(data: bytes) -> Alert:
     if again != bytes(data):
         raise MalformedAlertError("not canonical: the bytes differ from their re-encoding")
     try:
-        h, d = v["header"], v["denm"]
+        h, d = v["header"], v["denm"]  # pycrate's value tree: a missing part raises KeyError
         m, s, loc = d["management"], d["situation"], d["location"]
         pos, ell = m["eventPosition"], m["eventPosition"]["positionConfidenceEllipse"]
         bits, nbits = d["alacarte"]["roadWorks"]["lightBarSirenInUse"]
@@ -505,6 +510,36 @@ def _compile_layout() -> tuple[int, int, dict[str, tuple[int, int]]]:
 _FIXED_MASK, _FIXED_VALUE, _FIELDS = _compile_layout()
 _F = {name: shift for name, (shift, _) in _FIELDS.items()}
 _M = {name: m for name, (_, m) in _FIELDS.items()}
+
+
+def encode_alert(alert: Alert) -> bytes:
+    """The alert's DENM in UPER (:data:`ALERT_SIZE` bytes): the profile's fixed bits with the
+    alert's fields put in place; the same bytes as pycrate's encoder
+    (:func:`encode_alert_reference`), about 30 times faster."""
+    _check(alert)
+    assert alert.detection_time_ms is not None
+    f = _F
+    n = (
+        _FIXED_VALUE
+        | alert.station_id << f["stationID"]
+        | alert.station_id << f["originatingStationID"]
+        | alert.sequence << f["sequenceNumber"]
+        | unix_ms_to_its_ms(alert.detection_time_ms) << f["detectionTime"]
+        | unix_ms_to_its_ms(alert.generation_time_ms) << f["referenceTime"]
+        | (alert.lat_e7 + 900_000_000) << f["latitude"]
+        | (alert.lon_e7 + 1_800_000_000) << f["longitude"]
+        | alert.semi_major_cm << f["semiMajorConfidence"]
+        | alert.semi_minor_cm << f["semiMinorConfidence"]
+        | alert.semi_major_orientation << f["semiMajorOrientation"]
+        | alert.information_quality << f["informationQuality"]
+        | int(alert.response_type) << f["subCauseCode"]
+        | alert.speed_cms << f["speedValue"]
+        | (alert.speed_confidence - 1) << f["speedConfidence"]
+        | alert.heading_decideg << f["headingValue"]
+        | (alert.heading_confidence - 1) << f["headingConfidence"]
+        | (alert.lights << 1 | alert.siren) << f["lightBarSirenInUse"]
+    )
+    return n.to_bytes(ALERT_SIZE, "big")
 
 
 def decode_alert(data: bytes) -> Alert:
