@@ -14,9 +14,10 @@ Layout (all zenoh peers on 127.0.0.1, TCP, scouting off):
   zenoh session (connected to the publisher), its own :class:`~makeway.v2x.transport.AlertSubscriber`
   on all unit segments, its own :class:`~makeway.v2x.security.Verifier` (replay cache included) and
   its own thread that verifies every payload — so each car does the verification work a real car
-  would. ``--no-verify`` has each car read its payloads only (1609.2 envelope and DENM, no signature): the transport's share of the load
-  alone, for a host with too few cores for every car's signature checks (each real car has its own
-  CPU: 200 alerts/s at 70–110 µs is 1.4–2.2 % of one core).
+  would. ``--no-verify`` has each car read its payloads only (the 1609.2 envelope and the DENM, no
+  signature check): the transport's share of the load alone, for a host with too few cores for
+  every car's signature checks (each real car has its own CPU: 200 alerts/s at 120–160 µs is
+  2.4–3.2 % of one core).
 
 Per car: alerts lost (published by the units minus distinct (unit, sequence) verified by the car —
 so an alert still queued unverified at the end counts as lost), verification failures (by reason),
