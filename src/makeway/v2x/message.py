@@ -56,6 +56,7 @@ count modulo 65536, and the replay cache compares sequences in serial-number ari
 
 from __future__ import annotations
 
+import bisect
 import calendar
 import threading
 from dataclasses import dataclass
@@ -123,13 +124,13 @@ class MalformedAlertError(ValueError):
 
 def unix_ms_to_its_ms(unix_ms: int) -> int:
     """TimestampIts (ms since 2004-01-01 UTC, leap seconds counted) of a Unix time in ms."""
-    leaps = sum(1 for u in LEAP_SECONDS if unix_ms >= u)
+    leaps = bisect.bisect_right(LEAP_SECONDS, unix_ms)
     return unix_ms - ITS_EPOCH_UNIX_MS + 1000 * leaps
 
 
 def its_ms_to_unix_ms(its_ms: int) -> int:
     """The Unix time (ms) of a TimestampIts; :class:`MalformedAlertError` inside a leap second."""
-    leaps = sum(1 for t in _LEAP_ITS if its_ms >= t)
+    leaps = bisect.bisect_right(_LEAP_ITS, its_ms)
     if leaps < len(_LEAP_ITS) and its_ms >= _LEAP_ITS[leaps] - 1000:
         raise MalformedAlertError(f"TimestampIts {its_ms} falls inside a leap second")
     return its_ms + ITS_EPOCH_UNIX_MS - 1000 * leaps
@@ -560,24 +561,42 @@ def decode_alert(data: bytes) -> Alert:
     sub_cause = (n >> f["subCauseCode"]) & 0xFF
     if sub_cause > 2:
         raise MalformedAlertError(f"sub-cause code {sub_cause} is not one of this profile's (0, 1, 2)")
-    alert = Alert(
-        station_id=station,
-        generation_time_ms=its_ms_to_unix_ms((n >> f["referenceTime"]) & m["referenceTime"]),
-        sequence=(n >> f["sequenceNumber"]) & 0xFFFF,
-        lat_e7=((n >> f["latitude"]) & m["latitude"]) - 900_000_000,
-        lon_e7=((n >> f["longitude"]) & m["longitude"]) - 1_800_000_000,
-        heading_decideg=(n >> f["headingValue"]) & 0xFFF,
-        speed_cms=(n >> f["speedValue"]) & 0x3FFF,
-        siren=bool(lights_siren & 1),
-        lights=bool(lights_siren & 2),
-        response_type=ResponseType(sub_cause),
-        detection_time_ms=its_ms_to_unix_ms((n >> f["detectionTime"]) & m["detectionTime"]),
-        semi_major_cm=(n >> f["semiMajorConfidence"]) & 0xFFF,
-        semi_minor_cm=(n >> f["semiMinorConfidence"]) & 0xFFF,
-        semi_major_orientation=(n >> f["semiMajorOrientation"]) & 0xFFF,
-        heading_confidence=((n >> f["headingConfidence"]) & 0x7F) + 1,
-        speed_confidence=((n >> f["speedConfidence"]) & 0x7F) + 1,
-        information_quality=(n >> f["informationQuality"]) & 7,
+    # the ranges :func:`_check` tests that the field widths do not already bound (a 31-bit
+    # latitude holds more than −90° … 90°; a 12-bit heading more than 0 … 359.9°; …)
+    lat = ((n >> f["latitude"]) & m["latitude"]) - 900_000_000
+    lon = ((n >> f["longitude"]) & m["longitude"]) - 1_800_000_000
+    heading = (n >> f["headingValue"]) & 0xFFF
+    orientation = (n >> f["semiMajorOrientation"]) & 0xFFF
+    heading_conf = ((n >> f["headingConfidence"]) & 0x7F) + 1
+    speed_conf = ((n >> f["speedConfidence"]) & 0x7F) + 1
+    if lat > 900_000_000:
+        raise MalformedAlertError("latitude out of range")
+    if lon > 1_800_000_000:
+        raise MalformedAlertError("longitude out of range")
+    if heading > 3599:
+        raise MalformedAlertError("heading out of range")
+    if orientation > 3599 and orientation != HEADING_UNAVAILABLE:
+        raise MalformedAlertError("semi-major orientation out of range")
+    if heading_conf > CONFIDENCE_UNAVAILABLE:
+        raise MalformedAlertError("heading confidence out of range")
+    if speed_conf > CONFIDENCE_UNAVAILABLE:
+        raise MalformedAlertError("speed confidence out of range")
+    return Alert(
+        station,
+        its_ms_to_unix_ms((n >> f["referenceTime"]) & m["referenceTime"]),
+        (n >> f["sequenceNumber"]) & 0xFFFF,
+        lat,
+        lon,
+        heading,
+        (n >> f["speedValue"]) & 0x3FFF,
+        bool(lights_siren & 1),
+        bool(lights_siren & 2),
+        ResponseType(sub_cause),
+        its_ms_to_unix_ms((n >> f["detectionTime"]) & m["detectionTime"]),
+        (n >> f["semiMajorConfidence"]) & 0xFFF,
+        (n >> f["semiMinorConfidence"]) & 0xFFF,
+        orientation,
+        heading_conf,
+        speed_conf,
+        (n >> f["informationQuality"]) & 7,
     )
-    _check(alert)
-    return alert
