@@ -488,3 +488,18 @@ def test_replay_cache_is_a_window_per_signer(tmp_path: Path) -> None:
     cache.save(path)
     wrapped = ReplayCache.load(path)
     assert [wrapped.seen(a, q) for q in (65_529, 65_530, 5, 6)] == [False, True, True, False]
+
+
+def test_verify_reads_no_more_than_one_alert_of_a_file(keys: dict, tmp_path: Path) -> None:
+    """A 4 GiB (sparse) file is refused as oversized from its size, without being read; a valid
+    alert beside it still verifies, and the exit code is 1 (a rejection, not bad input)."""
+    big = tmp_path / "big.msg"
+    with big.open("wb") as f:
+        f.truncate(4 << 30)
+    ok = tmp_path / "ok.msg"
+    ok.write_bytes(sign_alert(_alert(keys["good"], 1, time.time()), keys["good"]))
+    res = runner.invoke(app, ["v2x", "verify", str(big), str(ok), "--trust", str(keys["trust"])])
+    assert res.exit_code == 1, res.output
+    rows = [json.loads(line) for line in res.stdout.splitlines()]
+    assert rows[0]["reason"] == f"oversized: {4 << 30} bytes, a signed alert has {SIGNED_SIZE}"
+    assert not rows[0]["valid"] and rows[1]["valid"]
