@@ -509,6 +509,7 @@ def _compile_layout() -> tuple[int, int, dict[str, tuple[int, int]]]:
 
 
 _FIXED_MASK, _FIXED_VALUE, _FIELDS = _compile_layout()
+_PADDING = (1 << _LAYOUT[-1][1]) - 1  # the last bits: padding to a whole byte
 _F = {name: shift for name, (shift, _) in _FIELDS.items()}
 _M = {name: m for name, (_, m) in _FIELDS.items()}
 
@@ -552,7 +553,9 @@ def decode_alert(data: bytes) -> Alert:
         raise MalformedAlertError(f"DENM is {len(data)} bytes, this profile's has {ALERT_SIZE}")
     n = int.from_bytes(data, "big")
     if n & _FIXED_MASK != _FIXED_VALUE:
-        raise MalformedAlertError("not this DENM profile (a fixed field or padding differs)")
+        if (n & _FIXED_MASK ^ _FIXED_VALUE) == n & _PADDING:  # decodes, but re-encodes otherwise
+            raise MalformedAlertError("not canonical: UPER padding bits set")
+        raise MalformedAlertError("not this DENM profile (a fixed field differs)")
     f, m = _F, _M
     station = (n >> f["stationID"]) & m["stationID"]
     if (n >> f["originatingStationID"]) & m["originatingStationID"] != station:
