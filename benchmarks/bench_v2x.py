@@ -1,12 +1,15 @@
-"""Signed V2X alerts: attack-suite counts, verification throughput on one core, and loopback latency
-from alert created to alert verified at the car over zenoh (issue 27, targets "Attack suite",
-"Latency", "Load").
+"""Signed V2X alerts: attack-suite counts, codec and verification times on one core, and loopback
+latency from alert created to alert verified at the car over zenoh (issue 27, targets "Attack
+suite", "Latency", "Load").
 
     .venv/bin/python benchmarks/bench_v2x.py [--alerts 10000] [--rate-hz 1000] [--verify-n 5000] [--json FILE]
 
 * **attacks** — forged, every byte tampered (3 masks per byte), wrong signer, revoked, replayed, stale,
   future, truncated (every length), oversized, random bytes: counts of rejected / total, and how
   many valid alerts were rejected (target: 100 % rejected, 0 valid rejected, 0 crashes);
+* **codec** — sizes (DENM, signed 1609.2 message) and µs per message of the exact profile writer
+  and reader against pycrate's UPER / COER codecs (the reference), and of signing (exact writer
+  plus ECDSA), on one CPU;
 * **throughput** — :meth:`makeway.v2x.security.Verifier.verify` on distinct valid alerts in one
   process pinned to one CPU (target ≥ 2,000 alerts/s);
 * **latency** — a unit process stamps each alert (monotonic clock, shared by processes on Linux),
@@ -34,14 +37,25 @@ from cryptography.hazmat.primitives import hashes
 from cryptography.hazmat.primitives.asymmetric import ec
 from cryptography.hazmat.primitives.asymmetric.utils import decode_dss_signature
 
-from makeway.v2x.message import ALERT_SIZE, Alert, encode_alert
+from makeway.v2x.message import (
+    ALERT_SIZE,
+    Alert,
+    decode_alert,
+    decode_alert_reference,
+    encode_alert,
+    encode_alert_reference,
+)
 from makeway.v2x.security import (
     SIGNED_SIZE,
     Identity,
     TrustStore,
     Verifier,
+    encode_signed,
+    encode_signed_reference,
     keygen,
     load_identity,
+    parse_signed,
+    parse_signed_reference,
     revoke,
     sign_alert,
 )
@@ -73,10 +87,11 @@ def attack_counts(keys: Path) -> dict[str, Any]:
     store = TrustStore.load(keys / "ours" / "trust")
     now, rng = time.time(), random.Random(27)
     fresh = sign_alert(_alert(good, 1, now), good)
-    forger = ec.generate_private_key(ec.SECP256R1())
-    body = encode_alert(_alert(good, 2, now)) + good.signer
-    r, s = decode_dss_signature(forger.sign(body, ec.ECDSA(hashes.SHA256())))
-    forged = body + r.to_bytes(32, "big") + s.to_bytes(32, "big")
+    forger = ec.generate_private_key(ec.SECP256R1())  # signs what the unit would, with another key
+    r, s = decode_dss_signature(
+        forger.sign(parse_signed(fresh).tbs + good.cert_hash, ec.ECDSA(hashes.SHA256()))
+    )
+    forged = encode_signed(_alert(good, 1, now), good.signer, r, s)
     tampered = [
         bytes(b ^ (mask if j == i else 0) for j, b in enumerate(fresh))
         for i in range(SIGNED_SIZE)
@@ -92,7 +107,8 @@ def attack_counts(keys: Path) -> dict[str, Any]:
         "truncated": [fresh[:n] for n in range(SIGNED_SIZE)],
         "oversized": [fresh + b"\0", fresh + bytes(1000)],
         "random bytes": [rng.randbytes(rng.choice([SIGNED_SIZE, rng.randrange(400)])) for _ in range(3000)]
-        + [fresh[:8] + rng.randbytes(ALERT_SIZE - 8) + good.signer + rng.randbytes(64) for _ in range(300)],
+        + [fresh[:-64] + rng.randbytes(64) for _ in range(300)]  # a real alert, a random signature
+        + [fresh[:7] + rng.randbytes(ALERT_SIZE) + fresh[7 + ALERT_SIZE :] for _ in range(300)],
     }
     out: dict[str, Any] = {}
     crashes = 0
@@ -112,6 +128,34 @@ def attack_counts(keys: Path) -> dict[str, Any]:
     out["valid alerts rejected"] = [sum(not v.verify(m, now).valid for m in valid), len(valid)]
     out["crashes"] = crashes
     return out
+
+
+def codec_timing(keys: Path, n: int = 300) -> dict[str, Any]:
+    """Sizes, and µs per message (best of 3 passes over ``n`` distinct alerts) of each step."""
+    ident = keygen(keys / "codec", "rsu")
+    now = time.time()
+    alerts = [_alert(ident, i, now) for i in range(n)]
+    msgs = [sign_alert(a, ident) for a in alerts]
+    denms = [encode_alert(a) for a in alerts]
+    steps = {
+        "denm_write_exact": lambda: [encode_alert(a) for a in alerts],
+        "denm_write_pycrate": lambda: [encode_alert_reference(a) for a in alerts],
+        "signed_write_pycrate": lambda: [encode_signed_reference(a, ident.signer, 1, 1) for a in alerts],
+        "sign_exact_and_ecdsa": lambda: [sign_alert(a, ident) for a in alerts],
+        "denm_read_exact": lambda: [decode_alert(d) for d in denms],
+        "denm_read_pycrate": lambda: [decode_alert_reference(d) for d in denms],
+        "signed_read_exact": lambda: [parse_signed(m) for m in msgs],
+        "signed_read_pycrate": lambda: [parse_signed_reference(m) for m in msgs],
+    }
+    us = {}
+    for name, run in steps.items():
+        best = float("inf")
+        for _ in range(3):
+            t0 = time.perf_counter()
+            run()
+            best = min(best, time.perf_counter() - t0)
+        us[name] = best / n * 1e6
+    return {"denm_bytes": ALERT_SIZE, "signed_bytes": SIGNED_SIZE, "us": us, "n": n}
 
 
 def verify_throughput(keys: Path, n: int) -> dict[str, Any]:
@@ -194,6 +238,8 @@ def latency(keys: Path, n: int, rate_hz: float) -> dict[str, Any]:
             str(created_file),
         ],
     )
+    if n > 65536:
+        raise SystemExit("--alerts: at most 65536 (DENM sequence numbers are 16 bits)")
     verified = np.full(n, -1, dtype=np.int64)
     order: list[int] = []
     rejected = 0
@@ -245,9 +291,16 @@ def main() -> None:
         attacks = attack_counts(keys)
         lat = latency(keys, args.alerts, args.rate_hz)
         tp = verify_throughput(keys, args.verify_n)  # pins this process to one CPU: last
+        codec = codec_timing(keys)
+    print(f"load average (1, 5, 15 min) at the end: {os.getloadavg()}")
     print("attack suite (rejected / total):")
     for name, value in attacks.items():
         print(f"  {name:24s} {value if isinstance(value, int) else f'{value[0]} / {value[1]}'}")
+    print(
+        f"message: DENM {codec['denm_bytes']} bytes (UPER) in a signed 1609.2 message of "
+        f"{codec['signed_bytes']} bytes (COER); µs per message, one core: "
+        + ", ".join(f"{k} {v:.1f}" for k, v in codec["us"].items())
+    )
     print(
         f"verification, one core: {tp['alerts_per_s']:,.0f} alerts/s ({tp['us_per_alert']:.0f} µs each)"
         f"   target ≥ {TARGET_VERIFY_PER_S:,.0f}"
@@ -265,7 +318,8 @@ def main() -> None:
     )
     if args.json:
         args.json.write_text(
-            json.dumps({"attacks": attacks, "throughput": tp, "latency": lat}, indent=1) + "\n"
+            json.dumps({"attacks": attacks, "codec": codec, "throughput": tp, "latency": lat}, indent=1)
+            + "\n"
         )
 
 

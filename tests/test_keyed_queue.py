@@ -6,6 +6,8 @@ subscriber, a flood of forged alerts claiming one unit's id cannot displace anot
 
 from __future__ import annotations
 
+import dataclasses
+import hashlib
 import threading
 import time
 
@@ -15,8 +17,18 @@ from cryptography.hazmat.primitives.asymmetric import ec
 from cryptography.hazmat.primitives.asymmetric.utils import decode_dss_signature
 
 from makeway.queues import KeyedLatestQueue, QueueClosedError
-from makeway.v2x.message import Alert, encode_alert
-from makeway.v2x.security import SIGNED_SIZE, Identity, TrustStore, Verifier, keygen, sign_alert
+from makeway.v2x.message import Alert
+from makeway.v2x.security import (
+    SIGNED_SIZE,
+    STATION_ID_OFFSET,
+    Identity,
+    TrustStore,
+    Verifier,
+    encode_signed,
+    keygen,
+    parse_signed,
+    sign_alert,
+)
 from makeway.v2x.transport import (
     AlertPublisher,
     AlertSubscriber,
@@ -158,11 +170,12 @@ def _alert(ident: Identity, seq: int, t: float) -> Alert:
 
 def _forged(claimed: Identity, attacker: Identity, seq: int, t: float) -> bytes:
     """An alert claiming ``claimed``'s station and signer id, signed with the attacker's own key."""
-    body = encode_alert(_alert(claimed, seq, t)) + claimed.signer
-    r, s = decode_dss_signature(attacker.key.sign(body, ec.ECDSA(hashes.SHA256())))
+    alert = _alert(claimed, seq, t)
+    tbs = parse_signed(encode_signed(alert, claimed.signer, 1, 1)).tbs  # what the claimed unit signs
+    signing_input = hashlib.sha256(tbs).digest() + claimed.cert_hash  # IEEE 1609.2's ECDSA input
+    r, s = decode_dss_signature(attacker.key.sign(signing_input, ec.ECDSA(hashes.SHA256())))
     n = int("FFFFFFFF00000000FFFFFFFFFFFFFFFFBCE6FAADA7179E84F3B9CAC2FC632551", 16)
-    s = min(s, n - s)
-    return body + r.to_bytes(32, "big") + s.to_bytes(32, "big")
+    return encode_signed(alert, claimed.signer, r, min(s, n - s))
 
 
 @pytest.fixture(scope="module")
@@ -185,7 +198,7 @@ def test_sender_key_reads_the_claimed_signer(units: dict[str, object]) -> None:
     assert sender_key("k", sign_alert(_alert(evil, 1, t), evil), known_signers={a.signer}) == ("k", "unknown")
     assert sender_key("k", genuine[:-1]) == ("k", "malformed")
     assert sender_key("k", b"x" * SIGNED_SIZE) == ("k", "malformed")
-    wrong_station = genuine[:8] + bytes(4) + genuine[12:]
+    wrong_station = genuine[:STATION_ID_OFFSET] + bytes(4) + genuine[STATION_ID_OFFSET + 4 :]
     assert sender_key("k", wrong_station) == ("k", "malformed")
 
 
@@ -266,9 +279,8 @@ def test_made_up_signers_do_not_evict_real_units(units: dict[str, object]) -> No
     junk = []
     for k in range(40):  # made-up signer ids, station id consistent with each
         fake = bytes([k]) * 8
-        body = encode_alert(_alert(evil, k, t))
-        body = body[:8] + fake[:4] + body[12:]
-        junk.append(body + fake + bytes(64))
+        alert = dataclasses.replace(_alert(evil, k, t), station_id=int.from_bytes(fake[:4], "big"))
+        junk.append(encode_signed(alert, fake, 0, 0))
     payloads = [genuine_b, *junk]
     served, _ = _flood(units, payloads, max_pending=16)  # 8 keys
     assert genuine_b not in {p for p, _, _ in served}

@@ -155,7 +155,10 @@ def test_node_alerts_verify_and_reach_a_car_process(segment: Path, tmp_path: Pat
         app, ["v2x", "verify", *files, "--trust", str(tmp_path / "k" / "trust"), "--max-age-s", "600"]
     )
     assert res.exit_code == 0, res.stdout
-    assert all(json.loads(line)["valid"] for line in res.stdout.splitlines())
+    verdicts = [json.loads(line) for line in res.stdout.splitlines()]
+    assert all(v["valid"] for v in verdicts)
+    for v, r in zip(verdicts, log, strict=True):  # the DENM carries the 95 % position confidence
+        assert v["position_semi_major_95_m"] == pytest.approx(2.4477 * r["position_sigma_m"], abs=0.0051)
 
 
 @pytest.mark.parametrize("case", ["video", "calib", "calib_no_origin", "key"])

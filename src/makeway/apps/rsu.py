@@ -7,7 +7,7 @@ first frame, runs the vision pipeline (:func:`makeway.pipeline.video.run_video`)
 made (a live unit's behaviour; the video time is logged beside it), signed with the unit's key, and
 
 * published on the road segment's zenoh key (:mod:`makeway.v2x.transport`) with ``publish``;
-* written with ``out``: ``OUT/alerts.bin`` (the signed alerts back to back, 110 bytes each),
+* written with ``out``: ``OUT/alerts.bin`` (the signed alerts back to back, 145 bytes each),
   ``OUT/alerts.jsonl`` (one line per alert: decoded fields, video time, track id, road-frame
   position and the 1-σ uncertainties) and ``OUT/summary.json``.
 """

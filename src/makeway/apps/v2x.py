@@ -4,6 +4,7 @@ and listen as a car (``makeway v2x …``, ``makeway vehicle listen``)."""
 from __future__ import annotations
 
 import math
+import os
 import time
 from collections.abc import Iterator, Sequence
 from dataclasses import asdict
@@ -42,7 +43,7 @@ def _next_sequence(key: Path) -> int:
             last = int(path.read_text(encoding="utf-8").strip())
         except ValueError:
             raise InputError(path, "is not a sequence counter (one integer)") from None
-    seq = (last + 1) % 2**32
+    seq = (last + 1) % 2**16  # DENM sequence numbers are 16 bits
     write_text_atomic(path, f"{seq}\n")
     return seq
 
@@ -107,17 +108,25 @@ def verify_files(
     from makeway.v2x.security import (
         DEFAULT_MAX_AGE_S,
         DEFAULT_MAX_FUTURE_S,
+        SIGNED_SIZE,
         ReplayCache,
         TrustStore,
+        Verdict,
         Verifier,
     )
 
-    data: list[bytes] = []
+    data: list[bytes | Verdict] = []
     for f in files:
         try:
-            data.append(Path(f).read_bytes())
+            with Path(f).open("rb") as fh:  # every alert is SIGNED_SIZE bytes: read no more than that
+                head = fh.read(SIGNED_SIZE + 1)
+                size = os.fstat(fh.fileno()).st_size
         except OSError as exc:
             raise InputError(f, f"cannot be read ({exc.strerror})") from None
+        too_big = len(head) > SIGNED_SIZE
+        data.append(
+            Verdict(False, f"oversized: {size} bytes, a signed alert has {SIGNED_SIZE}") if too_big else head
+        )
     verifier = Verifier(
         TrustStore.load(trust),
         max_age_s=DEFAULT_MAX_AGE_S if max_age_s is None else max_age_s,
@@ -125,7 +134,10 @@ def verify_files(
         replay=ReplayCache.load(replay_cache) if replay_cache is not None else None,
     )
     now = time.time() if now_s is None else now_s
-    rows = [{"file": str(f), **verifier.verify(d, now).to_json()} for f, d in zip(files, data, strict=True)]
+    rows = [
+        {"file": str(f), **(d if isinstance(d, Verdict) else verifier.verify(d, now)).to_json()}
+        for f, d in zip(files, data, strict=True)
+    ]
     if replay_cache is not None:
         verifier.replay.prune(round((now - verifier.max_age_ms / 1000) * 1000))
         verifier.replay.save(replay_cache)

@@ -65,10 +65,13 @@ def alert(
     ] = None,
     sequence: Annotated[
         int | None,
-        typer.Option(min=0, max=2**32 - 1, help="Sequence number (default: the counter in KEY.seq, +1)."),
+        typer.Option(min=0, max=65535, help="Sequence number (default: the counter in KEY.seq, +1)."),
     ] = None,
 ) -> None:
-    """Sign one emergency-vehicle alert and write it (110 bytes).
+    """Sign one emergency-vehicle alert and write it (145 bytes).
+
+    The alert is an ETSI DENM (cause 95, emergency vehicle approaching) signed
+    as IEEE 1609.2 data with the unit's ECDSA P-256 key.
 
     Prints its decoded fields as one JSON line.
     """

@@ -225,12 +225,15 @@ def sign_report(
     alert = Alert.from_physical(
         station_id=identity.station_id,
         generation_time_s=generation_time_s,
-        sequence=sequence % 2**32,
+        sequence=sequence,
         lat_deg=report.lat_deg,
         lon_deg=report.lon_deg,
         heading_deg=report.heading_deg,
         speed_mps=report.speed_mps,
         siren=siren,
         lights=True,
+        position_sigma_m=report.position_sigma_m,
+        heading_sigma_deg=report.heading_sigma_deg,
+        speed_sigma_mps=report.speed_sigma_mps,
     )
     return alert, sign_alert(alert, identity)

@@ -1,12 +1,35 @@
-"""Signed alerts as IEEE 1609.2 / ETSI TS 103 097 sign them: ECDSA P-256 with SHA-256, unit
-certificates issued by a local root, a trust store and a revocation list on the car.
+"""Signed alerts as IEEE 1609.2 signs them: an ``Ieee1609Dot2Data`` holding ``signedData`` with
+ECDSA P-256 / SHA-256, unit certificates issued by a local root, a trust store and a revocation
+list on the car.
 
-A signed alert (:data:`SIGNED_SIZE` = 110 bytes) is the alert's canonical body
-(:mod:`makeway.v2x.message`, 38 bytes), the signer's HashedId8 (8 bytes: the first 8 bytes of the
-SHA-256 of the signer certificate's DER, as 1609.2 names a certificate by digest) and the signature
-``r ‖ s`` (2 × 32 bytes, big-endian, ``s`` at most n/2 so that each signature has one encoding). The
-signature covers body and HashedId8. A unit's station id is the first 4 bytes of its HashedId8 read
-big-endian; an alert must carry its signer's station id.
+A signed alert (:data:`SIGNED_SIZE` = 145 bytes) is, in COER (IEEE Std 1609.2-2016's ASN.1 module
+``Ieee1609Dot2`` version 2.3 as pycrate compiles it, ``pycrate_asn1dir.ITS_IEEE1609_2``)::
+
+    Ieee1609Dot2Data { protocolVersion 3, content signedData {
+      hashId sha256,
+      tbsData { payload { data Ieee1609Dot2Data { protocolVersion 3,
+                                                  content unsecuredData <the DENM, 52 bytes> } },
+                headerInfo { psid 37 (DEN), generationTime Time64 } },
+      signer digest <HashedId8>,
+      signature ecdsaNistP256Signature { rSig x-only <r>, sSig <s> } } }
+
+with the DENM of :mod:`makeway.v2x.message`. ``generationTime`` (TAI µs since 2004-01-01 UTC)
+must equal the DENM's referenceTime × 1000 exactly. As 1609.2 (5.3.1) signs: the ECDSA input is
+SHA-256(tbsData's COER) ‖ SHA-256(signer identifier input), hashed again with SHA-256 by ECDSA;
+``s`` is at most n/2 so that each signature has one encoding. The signer is named by its
+HashedId8: the low-order 8 bytes (the last 8) of the SHA-256 of its certificate's encoding. A
+unit's station id is the first 4 bytes of its HashedId8 read big-endian; an alert must carry its
+signer's station id.
+
+What is not 1609.2 / ETSI TS 103 097: unit certificates are X.509 (DER), not 1609.2 explicit
+certificates, so the signer identifier input and the HashedId8 hash the X.509 DER; and the signer
+is always a digest with no generationLocation in the header, where TS 103 097's DENM profile asks
+for the full certificate and a location. The encoding is one fixed profile: every alert is
+:data:`SIGNED_SIZE` bytes, longer input is refused as oversized before any parsing.
+
+Writing (:func:`encode_signed`, :func:`sign_alert`) and reading (:func:`parse_signed`) are exact
+codecs of this profile, checked byte for byte against pycrate's (:func:`encode_signed_reference`,
+:func:`parse_signed_reference`), which are 50–80 times slower.
 
 On disk (``makeway v2x keygen --out DIR``):
 
@@ -16,11 +39,12 @@ On disk (``makeway v2x keygen --out DIR``):
   certificates the car accepts (each checked against the root when the store is loaded);
   ``DIR/trust/revoked.txt`` — the revocation list: one HashedId8 in hex per line, ``#`` comments.
 
-:class:`Verifier` rejects, each with a reason: input of the wrong length or not an alert, an unknown
-or revoked signer, a signer certificate not valid at the generation time, a station id that is not
-the signer's, a bad or non-canonical signature (so any changed byte), a generation time more than
-``max_future_s`` ahead of the car's clock or more than ``max_age_s`` behind it, and a replay (a
-signer and sequence already accepted within the freshness window).
+:class:`Verifier` rejects, each with a reason: input of the wrong length or not this profile
+(including any encoding that is not canonical), an unknown or revoked signer, a signer
+certificate not valid at the generation time, a station id that is not the signer's, a bad or
+non-canonical signature (so any changed byte), a generation time more than ``max_future_s``
+ahead of the car's clock or more than ``max_age_s`` behind it, and a replay (a signer and
+sequence already accepted within the freshness window).
 """
 
 from __future__ import annotations
@@ -43,26 +67,66 @@ from cryptography.hazmat.primitives.asymmetric.utils import decode_dss_signature
 from cryptography.x509.oid import NameOID
 
 from makeway.errors import InputError
-from makeway.v2x.message import ALERT_SIZE, Alert, MalformedAlertError, decode_alert, encode_alert
+from makeway.v2x.message import (
+    _PYCRATE_LOCK,
+    ALERT_SIZE,
+    SEQUENCE_MODULUS,
+    Alert,
+    MalformedAlertError,
+    decode_alert,
+    decode_alert_reference,
+    encode_alert,
+    encode_alert_reference,
+    unix_ms_to_its_ms,
+)
 
 __all__ = [
     "DEFAULT_MAX_AGE_S",
     "DEFAULT_MAX_FUTURE_S",
+    "PSID_DEN",
     "SIGNED_SIZE",
+    "SIGNER_OFFSET",
+    "STATION_ID_OFFSET",
     "Identity",
     "ReplayCache",
+    "SignedAlert",
     "TrustStore",
     "Verdict",
     "Verifier",
+    "encode_signed",
+    "encode_signed_reference",
     "hashed_id8",
     "keygen",
     "load_identity",
+    "parse_signed",
+    "parse_signed_reference",
     "revoke",
     "sign_alert",
     "station_id_of",
 ]
 
-SIGNED_SIZE = ALERT_SIZE + 8 + 64
+PSID_DEN = 37
+"""The 1609.2 PSID (ITS-AID) of ETSI's Decentralized Environmental Notification service."""
+
+# the profile's COER bytes around the DENM (see the module's notes)
+_PREFIX = bytes([0x03, 0x81, 0x00, 0x40, 0x03, 0x80, ALERT_SIZE])
+# protocolVersion 3 · signedData · hashId sha256 · payload {data present} · protocolVersion 3 ·
+# unsecuredData · its length
+_DENM_AT = len(_PREFIX)
+_HEADER = bytes([0x40, 0x01, PSID_DEN])  # headerInfo {generationTime present} · psid: 1 byte, 37
+_HEADER_AT = _DENM_AT + ALERT_SIZE
+_TIME_AT = _HEADER_AT + len(_HEADER)
+_TBS = slice(3, _TIME_AT + 8)  # tbsData: payload and headerInfo
+_SIGNER_TAG_AT = _TIME_AT + 8  # 0x80: signer digest
+SIGNER_OFFSET = _SIGNER_TAG_AT + 1
+"""Where the signer's HashedId8 starts in a signed alert."""
+STATION_ID_OFFSET = _DENM_AT + 2
+"""Where the DENM header's station id (4 bytes, big-endian) starts in a signed alert."""
+_SIG_TAGS = bytes([0x80, 0x80])  # ecdsaNistP256Signature · rSig x-only
+_SIG_TAGS_AT = SIGNER_OFFSET + 8
+_R_AT = _SIG_TAGS_AT + 2
+SIGNED_SIZE = _R_AT + 64
+"""Bytes of every signed alert (145); the largest message a car reads."""
 DEFAULT_MAX_AGE_S = 10.0
 """Freshness window (s): older alerts are stale. Alerts repeat at 10 Hz, so a car never needs an
 old one; the window also bounds how long the replay cache remembers a sequence number."""
@@ -74,12 +138,11 @@ DEFAULT_MAX_FUTURE_S = 1.0
 
 _N = int("FFFFFFFF00000000FFFFFFFFFFFFFFFFBCE6FAADA7179E84F3B9CAC2FC632551", 16)  # P-256 group order
 _HALF_N = _N // 2
-_SIGNED_FIELDS = ALERT_SIZE + 8
 
 
 def hashed_id8(cert: x509.Certificate) -> bytes:
-    """1609.2's HashedId8 of a certificate: the first 8 bytes of SHA-256 over its DER."""
-    return hashlib.sha256(cert.public_bytes(serialization.Encoding.DER)).digest()[:8]
+    """1609.2's HashedId8 of a certificate: the low-order (last) 8 bytes of SHA-256 over its DER."""
+    return hashlib.sha256(cert.public_bytes(serialization.Encoding.DER)).digest()[-8:]
 
 
 def station_id_of(signer: bytes) -> int:
@@ -96,6 +159,11 @@ class Identity:
     cert: x509.Certificate
     signer: bytes
     station_id: int
+
+    @property
+    def cert_hash(self) -> bytes:
+        """SHA-256 of the certificate's DER: 1609.2's hash of the signer identifier input."""
+        return hashlib.sha256(self.cert.public_bytes(serialization.Encoding.DER)).digest()
 
 
 def _write_private(path: Path, key: ec.EllipticCurvePrivateKey) -> None:
@@ -229,15 +297,174 @@ def load_identity(key_path: str | Path) -> Identity:
     return Identity(key, cert, signer, station_id_of(signer))
 
 
+def _signed_type() -> Any:
+    from pycrate_asn1dir import ITS_IEEE1609_2
+
+    return ITS_IEEE1609_2.Ieee1609Dot2
+
+
+def _tbs_value(denm: bytes, time64_us: int) -> dict[str, Any]:
+    return {
+        "payload": {"data": {"protocolVersion": 3, "content": ("unsecuredData", denm)}},
+        "headerInfo": {"psid": PSID_DEN, "generationTime": time64_us},
+    }
+
+
+def _signing_input(tbs: bytes, cert_hash: bytes) -> bytes:
+    """1609.2's ECDSA input: Hash(tbsData's COER) ‖ Hash(signer identifier input)."""
+    return hashlib.sha256(tbs).digest() + cert_hash
+
+
 def sign_alert(alert: Alert, identity: Identity) -> bytes:
-    """The signed alert (:data:`SIGNED_SIZE` bytes). The alert's station id must be the signer's."""
+    """The signed alert (:data:`SIGNED_SIZE` bytes of COER). The alert's station id must be the
+    signer's."""
     if alert.station_id != identity.station_id:
         raise ValueError(f"alert station id {alert.station_id} is not the signer's ({identity.station_id})")
-    signed = encode_alert(alert) + identity.signer
-    r, s = decode_dss_signature(identity.key.sign(signed, ec.ECDSA(hashes.SHA256())))
-    if s > _HALF_N:
-        s = _N - s
-    return signed + r.to_bytes(32, "big") + s.to_bytes(32, "big")
+    unsigned = encode_signed(alert, identity.signer, 0, 0)
+    der = identity.key.sign(_signing_input(unsigned[_TBS], identity.cert_hash), ec.ECDSA(hashes.SHA256()))
+    r, s = decode_dss_signature(der)
+    return unsigned[:_R_AT] + r.to_bytes(32, "big") + min(s, _N - s).to_bytes(32, "big")
+
+
+def encode_signed(alert: Alert, signer: bytes, r: int, s: int) -> bytes:
+    """The signed alert's bytes with a given signer HashedId8 and signature ``(r, s)`` (each
+    0 … 2²⁵⁶ − 1): the profile's fixed bytes with the fields in place, the same bytes as pycrate's
+    encoder (:func:`encode_signed_reference`). :func:`sign_alert` computes a real signature; this
+    also builds the forgeries of attack suites."""
+    if len(signer) != 8:
+        raise ValueError(f"a HashedId8 has 8 bytes, not {len(signer)}")
+    time64 = unix_ms_to_its_ms(alert.generation_time_ms) * 1000
+    return b"".join(
+        (
+            _PREFIX,
+            encode_alert(alert),
+            _HEADER,
+            time64.to_bytes(8, "big"),
+            b"\x80",
+            signer,
+            _SIG_TAGS,
+            r.to_bytes(32, "big"),
+            s.to_bytes(32, "big"),
+        )
+    )
+
+
+def encode_signed_reference(alert: Alert, signer: bytes, r: int, s: int) -> bytes:
+    """:func:`encode_signed` done by pycrate (UPER for the DENM, COER for the 1609.2 structure):
+    the reference the exact writer is tested against. About 0.5 ms."""
+    denm = encode_alert_reference(alert)
+    value = {
+        "protocolVersion": 3,
+        "content": (
+            "signedData",
+            {
+                "hashId": "sha256",
+                "tbsData": _tbs_value(denm, unix_ms_to_its_ms(alert.generation_time_ms) * 1000),
+                "signer": ("digest", signer),
+                "signature": (
+                    "ecdsaNistP256Signature",
+                    {"rSig": ("x-only", r.to_bytes(32, "big")), "sSig": s.to_bytes(32, "big")},
+                ),
+            },
+        ),
+    }
+    with _PYCRATE_LOCK:
+        types = _signed_type()
+        types.Ieee1609Dot2Data.set_val(value)
+        data: bytes = types.Ieee1609Dot2Data.to_oer()
+    return data
+
+
+@dataclass(frozen=True, slots=True)
+class SignedAlert:
+    """A signed alert's parts: the alert, 1609.2's generationTime (µs), the signer's HashedId8,
+    the signature ``(r, s)`` and the bytes of tbsData (what was signed)."""
+
+    alert: Alert
+    time64_us: int
+    signer: bytes
+    r: int
+    s: int
+    tbs: bytes
+
+
+def parse_signed(data: bytes) -> SignedAlert:
+    """Read one signed alert of this profile; :class:`MalformedAlertError` for anything else
+    (another length, another structure, option or tag, a non-canonical encoding, a DENM outside
+    :mod:`makeway.v2x.message`'s profile, a generationTime that is not the DENM's referenceTime).
+    The signature is not checked here."""
+    if len(data) != SIGNED_SIZE:
+        raise MalformedAlertError(f"{len(data)} bytes, a signed alert has {SIGNED_SIZE}")
+    data = bytes(data)
+    if (
+        data[:_DENM_AT] != _PREFIX
+        or data[_HEADER_AT:_TIME_AT] != _HEADER
+        or data[_SIGNER_TAG_AT] != 0x80
+        or data[_SIG_TAGS_AT:_R_AT] != _SIG_TAGS
+    ):
+        raise MalformedAlertError("not a 1609.2 signed DENM of this profile")
+    alert = decode_alert(data[_DENM_AT:_HEADER_AT])
+    time64 = int.from_bytes(data[_TIME_AT:_SIGNER_TAG_AT], "big")
+    if time64 != unix_ms_to_its_ms(alert.generation_time_ms) * 1000:
+        raise MalformedAlertError("generationTime is not the DENM's reference time")
+    return SignedAlert(
+        alert,
+        time64,
+        data[SIGNER_OFFSET:_SIG_TAGS_AT],
+        int.from_bytes(data[_R_AT : _R_AT + 32], "big"),
+        int.from_bytes(data[_R_AT + 32 :], "big"),
+        data[_TBS],
+    )
+
+
+def parse_signed_reference(data: bytes) -> SignedAlert:
+    """:func:`parse_signed` done by pycrate (COER and UPER decoders, then a re-encoding that must
+    give the same bytes); the reference the exact reader is tested against. About 1 ms."""
+    try:
+        with _PYCRATE_LOCK:
+            types = _signed_type()
+            types.Ieee1609Dot2Data.from_oer(bytes(data))
+            v = types.Ieee1609Dot2Data.get_val()
+            again = types.Ieee1609Dot2Data.to_oer()
+    except Exception as exc:  # pycrate raises several unrelated types on bad input
+        raise MalformedAlertError(f"not an Ieee1609Dot2Data ({type(exc).__name__})") from None
+    if again != bytes(data):
+        raise MalformedAlertError("not canonical: the bytes differ from their re-encoding")
+    try:
+        kind, sd = v["content"]
+        tbs = sd["tbsData"]
+        inner_kind, denm = tbs["payload"]["data"]["content"]
+        sig_kind, sig = sd["signature"]
+        r_kind, r = sig["rSig"]
+        signer_kind, signer = sd["signer"]
+        ok = (
+            v["protocolVersion"] == 3
+            and kind == "signedData"
+            and sd["hashId"] == "sha256"
+            and set(tbs["payload"]) == {"data"}
+            and tbs["payload"]["data"]["protocolVersion"] == 3
+            and inner_kind == "unsecuredData"
+            and set(tbs["headerInfo"]) == {"psid", "generationTime"}
+            and tbs["headerInfo"]["psid"] == PSID_DEN
+            and signer_kind == "digest"
+            and sig_kind == "ecdsaNistP256Signature"
+            and r_kind == "x-only"
+        )
+    except (KeyError, TypeError, ValueError):
+        ok = False
+    if not ok:
+        raise MalformedAlertError("not a 1609.2 signed DENM of this profile")
+    alert = decode_alert_reference(denm)
+    time64 = tbs["headerInfo"]["generationTime"]
+    if time64 != unix_ms_to_its_ms(alert.generation_time_ms) * 1000:
+        raise MalformedAlertError("generationTime is not the DENM's reference time")
+    with _PYCRATE_LOCK:
+        types = _signed_type()
+        types.ToBeSignedData.set_val(tbs)
+        tbs_bytes = types.ToBeSignedData.to_oer()
+    return SignedAlert(
+        alert, time64, signer, int.from_bytes(r, "big"), int.from_bytes(sig["sSig"], "big"), tbs_bytes
+    )
 
 
 # ---------------------------------------------------------------------------------------- trust
@@ -245,12 +472,13 @@ def sign_alert(alert: Alert, identity: Identity) -> bytes:
 class TrustStore:
     """What a car trusts: unit certificates issued by the root, minus the revoked ones.
 
-    ``units`` maps HashedId8 → (public key, not-valid-before, not-valid-after as Unix s);
+    ``units`` maps HashedId8 → (public key, not-valid-before, not-valid-after as Unix s, SHA-256
+    of the certificate's DER);
     ``refused`` lists unit certificate files that did not chain to the root, with the reason.
     """
 
     root: x509.Certificate
-    units: dict[bytes, tuple[ec.EllipticCurvePublicKey, float, float]]
+    units: dict[bytes, tuple[ec.EllipticCurvePublicKey, float, float, bytes]]
     revoked: set[bytes]
     refused: list[tuple[str, str]] = field(default_factory=list)
 
@@ -266,7 +494,7 @@ class TrustStore:
         root_pub = root.public_key()
         if not isinstance(root_pub, ec.EllipticCurvePublicKey):
             raise InputError(trust_dir / "root.pem", "holds no EC public key")
-        units: dict[bytes, tuple[ec.EllipticCurvePublicKey, float, float]] = {}
+        units: dict[bytes, tuple[ec.EllipticCurvePublicKey, float, float, bytes]] = {}
         refused: list[tuple[str, str]] = []
         for path in sorted((trust_dir / "units").glob("*.pem")):
             cert = _load_cert(path)
@@ -281,10 +509,12 @@ class TrustStore:
             if not isinstance(pub, ec.EllipticCurvePublicKey) or pub.curve.name != "secp256r1":
                 refused.append((str(path), "not a P-256 key"))
                 continue
+            der = cert.public_bytes(serialization.Encoding.DER)
             units[hashed_id8(cert)] = (
                 pub,
                 cert.not_valid_before_utc.timestamp(),
                 cert.not_valid_after_utc.timestamp(),
+                hashlib.sha256(der).digest(),
             )
         return TrustStore(root, units, _read_revoked(trust_dir / "revoked.txt"), refused)
 
@@ -326,20 +556,23 @@ def revoke(trust_dir: str | Path, cert_path: str | Path) -> str:
 class ReplayCache:
     """The sequences each signer has had accepted, for replay detection.
 
-    Sequences increase by one per alert of a station (:mod:`makeway.v2x.message`), so per signer the
-    cache keeps the newest accepted sequence, a bit for each of the :data:`REPLAY_WINDOW` sequences
-    below it (set: accepted), and the newest generation time (ms) — the sliding window of IPsec's
-    and DTLS's anti-replay checks. Its size is a few hundred bytes per signer, whatever the alert
-    rate (a set of every accepted pair within the freshness window grows with the rate: at ten
-    times the usual load the listener's memory grew 8 %). A sequence more than the window behind the
-    signer's newest counts as seen: it cannot be told from a replay (at 10 Hz it is 100 s old, far
-    beyond the freshness window). :meth:`prune` forgets signers whose newest alert is stale; a
-    unit that restarts its count is accepted again once that happens."""
+    Sequences increase by one per alert of a station, modulo 65536 (DENM's SequenceNumber), so per
+    signer the cache keeps the newest accepted sequence, a bit for each of the
+    :data:`REPLAY_WINDOW` sequences below it (set: accepted), and the newest generation time (ms)
+    — the sliding window of IPsec's and DTLS's anti-replay checks. "Newer" is serial-number
+    arithmetic (RFC 1982): a sequence up to 32767 ahead of the newest, counting across the wrap,
+    is newer. Its size is a few hundred bytes per signer, whatever the alert rate (a set of every
+    accepted pair within the freshness window grows with the rate: at ten times the usual load the
+    listener's memory grew 8 %). A sequence more than the window behind the signer's newest counts
+    as seen: it cannot be told from a replay (at 10 Hz it is 100 s old, far beyond the freshness
+    window). :meth:`prune` forgets signers whose newest alert is stale; a unit that restarts its
+    count is accepted again once that happens. A unit sending over 3,276 alerts/s would wrap
+    within the 10 s freshness window, which this cache does not tell apart."""
 
     def __init__(self, entries: Iterable[tuple[bytes, int, int]] = ()) -> None:
         # signer → [newest sequence, bit k = sequence (newest − k) accepted, newest generation ms]
         self._windows: dict[bytes, list[int]] = {}
-        for signer, sequence, generation_ms in sorted(entries, key=lambda e: e[1]):
+        for signer, sequence, generation_ms in entries:
             self.add(signer, sequence, generation_ms)
 
     def __len__(self) -> int:
@@ -351,13 +584,21 @@ class ReplayCache:
         """Signers with a window."""
         return len(self._windows)
 
+    @staticmethod
+    def _ahead(sequence: int, newest: int) -> int:
+        """How far ``sequence`` is ahead of ``newest`` (> 0) or behind it (≤ 0), across the wrap."""
+        d = (sequence - newest) % SEQUENCE_MODULUS
+        return d if d < SEQUENCE_MODULUS // 2 else d - SEQUENCE_MODULUS
+
     def seen(self, signer: bytes, sequence: int) -> bool:
         """Whether ``signer``'s ``sequence`` was accepted already (or is too far behind to tell)."""
         w = self._windows.get(signer)
-        if w is None or sequence > w[0]:
+        if w is None:
             return False
-        back = w[0] - sequence
-        return back >= REPLAY_WINDOW or bool((w[1] >> back) & 1)
+        ahead = self._ahead(sequence, w[0])
+        if ahead > 0:
+            return False
+        return -ahead >= REPLAY_WINDOW or bool((w[1] >> -ahead) & 1)
 
     def add(self, signer: bytes, sequence: int, generation_time_ms: int) -> None:
         """Record ``signer``'s accepted ``sequence``, generated at ``generation_time_ms``."""
@@ -365,12 +606,12 @@ class ReplayCache:
         if w is None:
             self._windows[signer] = [sequence, 1, generation_time_ms]
             return
-        if sequence > w[0]:
-            shift = sequence - w[0]
-            w[1] = ((w[1] << shift) | 1) & _WINDOW_MASK if shift < REPLAY_WINDOW else 1
+        ahead = self._ahead(sequence, w[0])
+        if ahead > 0:
+            w[1] = ((w[1] << ahead) | 1) & _WINDOW_MASK if ahead < REPLAY_WINDOW else 1
             w[0] = sequence
-        elif w[0] - sequence < REPLAY_WINDOW:
-            w[1] |= 1 << (w[0] - sequence)
+        elif -ahead < REPLAY_WINDOW:
+            w[1] |= 1 << -ahead
         w[2] = max(w[2], generation_time_ms)
 
     def prune(self, oldest_ms: int) -> None:
@@ -388,7 +629,9 @@ class ReplayCache:
             rows = json.loads(path.read_text(encoding="utf-8"))["seen"]
             entries = [(bytes.fromhex(s), q, g) for s, q, g in rows]
             for signer, q, g in entries:  # a HashedId8, a sequence number, a time in ms: whole numbers
-                if len(signer) != 8 or not all(type(v) is int and 0 <= v < 2**63 for v in (q, g)):
+                if len(signer) != 8 or not (type(q) is int and 0 <= q < SEQUENCE_MODULUS):
+                    raise ValueError("an entry is not [16 hex digits, sequence, generation time ms]")
+                if not (type(g) is int and 0 <= g < 2**63):
                     raise ValueError("an entry is not [16 hex digits, sequence, generation time ms]")
             return ReplayCache(entries)
         except (OSError, ValueError, KeyError, TypeError) as exc:
@@ -397,10 +640,10 @@ class ReplayCache:
     def save(self, path: str | Path) -> None:
         from makeway.atomic import write_text_atomic
 
-        rows = [
-            [signer.hex(), w[0] - k, w[2]]
+        rows = [  # newest first: loading adds them in this order
+            [signer.hex(), (w[0] - k) % SEQUENCE_MODULUS, w[2]]
             for signer, w in sorted(self._windows.items())
-            for k in range(min(REPLAY_WINDOW, w[0] + 1))
+            for k in range(REPLAY_WINDOW)
             if (w[1] >> k) & 1
         ]
         write_text_atomic(path, json.dumps({"seen": rows}) + "\n")
@@ -456,22 +699,19 @@ class Verifier:
             return Verdict(False, f"truncated: {len(data)} bytes, a signed alert has {SIGNED_SIZE}")
         if len(data) > SIGNED_SIZE:
             return Verdict(False, f"oversized: {len(data)} bytes, a signed alert has {SIGNED_SIZE}")
-        data = bytes(data)
         try:
-            alert = decode_alert(data[:ALERT_SIZE])
+            parsed = parse_signed(data)
         except MalformedAlertError as exc:
             return Verdict(False, f"malformed: {exc}")
-        signer = data[ALERT_SIZE:_SIGNED_FIELDS]
+        alert, signer, r, s = parsed.alert, parsed.signer, parsed.r, parsed.s
         unit = self.store.units.get(signer)
         if unit is None:
             return Verdict(False, "unknown signer", alert, signer)
         if signer in self.store.revoked:
             return Verdict(False, "revoked signer", alert, signer)
-        r = int.from_bytes(data[_SIGNED_FIELDS : _SIGNED_FIELDS + 32], "big")
-        s = int.from_bytes(data[_SIGNED_FIELDS + 32 :], "big")
         if not (0 < r < _N and 0 < s <= _HALF_N):
             return Verdict(False, "bad signature (not a canonical r, s)", alert, signer)
-        pub, valid_from, valid_to = unit
+        pub, valid_from, valid_to, cert_hash = unit
         # relevance checks first (IEEE 1609.2's order): a stale, future, replayed or mislabelled
         # message costs a decode, not an ECDSA verification, so a flood of them cannot starve the
         # alerts that matter. Nothing is recorded until the signature has been checked.
@@ -493,7 +733,9 @@ class Verifier:
         if self.replay.seen(signer, alert.sequence):
             return Verdict(False, "replay: this signer's sequence was already accepted", alert, signer)
         try:
-            pub.verify(encode_dss_signature(r, s), data[:_SIGNED_FIELDS], ec.ECDSA(hashes.SHA256()))
+            pub.verify(
+                encode_dss_signature(r, s), _signing_input(parsed.tbs, cert_hash), ec.ECDSA(hashes.SHA256())
+            )
         except InvalidSignature:
             return Verdict(False, "bad signature", alert, signer)
         self.replay.add(signer, alert.sequence, gen_ms)

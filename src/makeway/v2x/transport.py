@@ -22,8 +22,7 @@ from typing import Literal
 import zenoh
 
 from makeway.queues import KeyedLatestQueue, LatestQueue
-from makeway.v2x.message import ALERT_SIZE, MAGIC
-from makeway.v2x.security import SIGNED_SIZE
+from makeway.v2x.security import SIGNED_SIZE, SIGNER_OFFSET, STATION_ID_OFFSET
 
 __all__ = [
     "KEY_PREFIX",
@@ -125,14 +124,14 @@ class Received:
 def sender_key(key: str, payload: bytes, known_signers: Collection[bytes] | None = None) -> Hashable:
     """The queue key of a payload received on zenoh key ``key``, read from the envelope before any
     check of the signature: ``(key, signer HashedId8)``, where the signer is the one the payload
-    *claims*. Payloads that cannot be a signed alert (wrong length or magic, a station id that
+    *claims*. Payloads that cannot be a signed alert (wrong length or first byte, a station id that
     is not the claimed signer's) share the key ``(key, "malformed")``; when ``known_signers`` is
     given, a claimed signer outside it (unknown or revoked: the verifier will reject it) shares
     ``(key, "unknown")``, so made-up signer ids cannot create keys without end."""
-    if len(payload) != SIGNED_SIZE or payload[:4] != MAGIC:
+    if len(payload) != SIGNED_SIZE or payload[0] != 3:  # 1609.2 protocol version 3
         return (key, "malformed")
-    signer = bytes(payload[ALERT_SIZE : ALERT_SIZE + 8])
-    if payload[8:12] != signer[:4]:  # the alert's station id must be the signer's
+    signer = bytes(payload[SIGNER_OFFSET : SIGNER_OFFSET + 8])
+    if payload[STATION_ID_OFFSET : STATION_ID_OFFSET + 4] != signer[:4]:  # the station must be the signer's
         return (key, "malformed")
     if known_signers is not None and signer not in known_signers:
         return (key, "unknown")
