@@ -18,7 +18,7 @@ trained by ``makeway lights-train --verifier``).
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Protocol
+from typing import Protocol, runtime_checkable
 
 import numpy as np
 
@@ -36,6 +36,7 @@ __all__ = [
     "CnnLightDetector",
     "ColourLightDetector",
     "LightDetector",
+    "VehicleContextLightDetector",
     "VerifiedLightDetector",
     "colour_set",
 ]
@@ -76,6 +77,27 @@ class LightDetector(Protocol):
 
     def detect(self, frame_bgr: np.ndarray, frame: int = 0) -> list[LightDetection]:
         """Lit emergency lights in one BGR frame, in its pixels."""
+        ...
+
+
+@runtime_checkable
+class VehicleContextLightDetector(Protocol):
+    """A light detector that may read the frame's vehicle boxes (``uses_vehicles``): a caller that
+    has already detected the vehicles passes them (boxes, scores, COCO class ids, as
+    :meth:`~makeway.perceive.vision.detectors.Detector.detect_arrays` returns them) instead of
+    letting the detector find them again."""
+
+    colours: tuple[str, ...]
+    uses_vehicles: bool
+
+    def detect(
+        self,
+        frame_bgr: np.ndarray,
+        frame: int = 0,
+        *,
+        vehicles: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
+    ) -> list[LightDetection]:
+        """Lit emergency lights in one BGR frame, in its pixels, given its vehicle boxes if known."""
         ...
 
 
