@@ -44,6 +44,7 @@ from makeway.perceive.vision.light_verify import (
 __all__ = [
     "CV_FOLDS",
     "CV_NEGATIVES",
+    "IGNORED_CONTEXT_FEATURES",
     "IGNORED_FEATURES",
     "THRESHOLDS",
     "XGB_PARAMS",
@@ -85,6 +86,23 @@ proposal count, and the 8×8 context patches. They let the trees tell the traini
 — a frame size, a camera, a time of day — which does not transfer: without them the grouped
 cross-validation (out of fold, train split) rose from min(P, R) 0.240 to 0.281 and AP50 from 0.130
 to 0.179."""
+IGNORED_CONTEXT_FEATURES: tuple[str, ...] = (
+    "veh_aspect",
+    "veh_score",
+    "veh_car",
+    "veh_motorcycle",
+    "veh_bus",
+    "veh_truck",
+    "share_log_n",
+    *(f"share_{c}" for c in COLOURS),
+)
+"""Vehicle-context columns the trees may not use either (with ``vehicle_context``): the vehicle's
+class, score and shape, and the count and colour mix of the proposals sharing its box. The trees
+keep where the lamp sits in or near its vehicle (inside, distance, height and side, size ratios)
+and whether a red/blue bar partner shares the box at its height. Chosen by grouped
+cross-validation over the training sources and validation (docs/model_card_lights.md): with every
+context column the cross-validated min(P, R) fell below the model without context (0.268 against
+0.281); with these left out it rose to 0.299 (AP50 0.179 → 0.200)."""
 CV_FOLDS = 4
 """Grouped cross-validation folds over the train split that choose the operating threshold."""
 REFINE_PARAMS: dict[str, Any] = {
@@ -569,7 +587,10 @@ def train_light_verifier(
                 vehicles=vehicles,
                 advance=advance,
             )
-    fitted = fit_from_rows(rows["train"], rows["val"], seed=seed, refine=refine, progress=progress)
+    ignored = IGNORED_FEATURES + (IGNORED_CONTEXT_FEATURES if vehicle_context else ())
+    fitted = fit_from_rows(
+        rows["train"], rows["val"], seed=seed, refine=refine, ignored=ignored, progress=progress
+    )
     result = {"model": str(target), **fitted["summary"], "label_positives": label_positives}
     _export(
         fitted["classifier"],

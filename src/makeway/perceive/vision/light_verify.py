@@ -9,11 +9,15 @@ Stage 2 (:func:`verifier_features` and :class:`LightVerifier`): each proposal be
 — its box size, aspect and place in the frame; the frame's brightness; colour, brightness, clipping
 and colour-mask statistics of the box and of its context ring (the box grown by its longer side on
 every side); the context patch's value and saturation resized to 8×8; the proposal's colour, score,
-cues and the settings that found it — and gradient-boosted trees (ONNX, ONNX Runtime only) give the
-probability that it is a lit emergency light. A model with the output ``box_offsets`` also refines
-each kept box (:func:`refine_boxes`: boosted-tree regressors on the same features predict how far each
-side of the proposal lies from the lit part a person would box — the rules often box a lamp with
-its glow, or only part of it, which misses IoU 0.5 on a lamp of a few pixels). Kept boxes
+cues and the settings that found it — optionally followed by its **vehicle context**
+(:func:`context_features`: where it sits in or near the frame's vehicle boxes, found by YOLOX-nano or
+handed over by the video pipeline, and whether a red/blue partner shares the box) — and
+gradient-boosted trees (ONNX, ONNX Runtime only) give the probability that it is a lit emergency
+light. The model's metadata names the columns it reads; the shipped model reads the context.
+A model with the output ``box_offsets`` also refines each kept box (:func:`refine_boxes`:
+boosted-tree regressors on the same features predict how far each side of the proposal lies from
+the lit part a person would box — the rules often box a lamp with its glow, or only part of it,
+which misses IoU 0.5 on a lamp of a few pixels). Kept boxes
 (probability ≥ the model's threshold, refined) pass a greedy non-maximum suppression (IoU > 0.3, or
 one box at least 80 % inside a higher-scoring one).
 Boxes are pixels of the input frame, ``x2``/``y2`` exclusive. Trained by

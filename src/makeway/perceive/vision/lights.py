@@ -12,7 +12,9 @@ bright cores with a coloured halo): no training, a baseline and the labelling to
 (:mod:`makeway.perceive.vision.light_cnn`, ONNX Runtime; trained by ``makeway lights-train``).
 ``verified`` is two-stage: the rule finder's proposals (wide hue ranges, several settings) scored by
 a learned verifier, gradient-boosted trees in ONNX (:mod:`makeway.perceive.vision.light_verify`;
-trained by ``makeway lights-train --verifier``).
+trained by ``makeway lights-train --verifier``) that also read where each proposal sits relative to
+the frame's vehicle boxes (YOLOX-nano; a caller that has the boxes passes them, see
+:class:`VehicleContextLightDetector`).
 """
 
 from __future__ import annotations
