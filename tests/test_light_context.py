@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -153,3 +154,42 @@ def test_context_model_reads_given_or_own_vehicle_boxes(night_frame, tmp_path: P
     a = det_plain.detect(img, 1)
     b = det_plain.detect(img, 1, vehicles=(np.zeros((0, 4)), np.zeros(0), np.zeros(0, np.int64)))
     assert [(d.box, d.score) for d in a] == [(d.box, d.score) for d in b]
+
+
+def test_video_pipeline_hands_its_vehicle_boxes_to_the_light_detector(
+    data_root: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """``makeway detect``'s pipeline with the ``verified`` light detector: the shipped verifier reads
+    the vehicle context and gets the boxes the pipeline already found — its own vehicle pass never
+    runs — and lights are still found on the night clip."""
+    from makeway.pipeline.video import run_video
+
+    def own_pass(self: VerifiedLightDetector, frame_bgr: np.ndarray) -> None:
+        raise AssertionError("the light detector ran a second vehicle detector")
+
+    monkeypatch.setattr(VerifiedLightDetector, "vehicles", own_pass)
+    detect = VerifiedLightDetector.detect
+    given: list[bool] = []
+    found: list[int] = []
+
+    def recorded(
+        self: VerifiedLightDetector, frame_bgr: np.ndarray, frame: int = 0, *, vehicles: Any = None
+    ) -> list[Any]:
+        given.append(vehicles is not None and len(vehicles[0]) > 0)
+        out = detect(self, frame_bgr, frame, vehicles=vehicles)
+        found.append(len(out))
+        return out
+
+    monkeypatch.setattr(VerifiedLightDetector, "detect", recorded)
+    s = run_video(
+        data_root / "video" / "night_ambulance_lights.mp4",
+        None,
+        max_frames=4,
+        write_video=False,
+        progress=False,
+        rule="lights",
+        light_detector="verified",
+        light_colours="us",
+        detector_workers=1,
+    )
+    assert s.frames == 4 and len(given) == 4 and all(given) and sum(found) > 0
