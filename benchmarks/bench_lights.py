@@ -13,7 +13,11 @@ mAP50:95 and ms/frame for these detectors:
 * ``small+att`` — the earlier from-scratch network (``--arch small``), when
   ``benchmarks/out/lights_det_small.onnx`` exists (``git show 16d5812:src/makeway/models/lights_det.onnx``);
 * ``verified`` — rule proposals scored by the learned verifier (``LIGHT_DETECTORS["verified"]``,
-  ``src/makeway/models/lights_verifier.onnx``; ``makeway lights-train --verifier``).
+  ``src/makeway/models/lights_verifier.onnx``; ``makeway lights-train --verifier``). The shipped
+  verifier reads each proposal's vehicle context, so its ms/frame include its own YOLOX-nano pass
+  (as in ``makeway lights``; ``makeway detect`` hands over the boxes it already has).
+  ``--compare-verifier OLD.onnx`` scores another verifier beside it in the same run (with or
+  without the context columns: the model's metadata says which).
 
 Test split (by source clip, :mod:`makeway.train.light_split`): ``night_ambulance_lights``,
 ``highway_cam_no_ev`` and the held-out ``ambulance_yolo`` images once labelled. Every labelled colour

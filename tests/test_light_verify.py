@@ -12,11 +12,14 @@ from makeway.errors import InputError
 from makeway.eval.detection import box_iou_matrix
 from makeway.perceive.vision.light_cnn import default_lights_model
 from makeway.perceive.vision.light_verify import (
+    CONTEXT_FEATURE_NAMES,
     DEFAULT_VERIFIER_MODEL,
     FEATURE_NAMES,
     LightVerifier,
+    context_features,
     nms,
     proposals,
+    vehicle_detector,
     verifier_features,
 )
 from makeway.perceive.vision.lights import LIGHT_DETECTORS
@@ -57,21 +60,25 @@ def test_shipped_verifier_loads_and_scores_probabilities() -> None:
     assert DEFAULT_VERIFIER_MODEL.stat().st_size <= 5_000_000
     v = LightVerifier()
     assert 0.0 < v.threshold < 1.0
-    x = np.random.default_rng(0).random((7, len(FEATURE_NAMES)), dtype=np.float32)
+    assert v.feature_names[: len(FEATURE_NAMES)] == FEATURE_NAMES
+    assert v.uses_vehicles and v.feature_names == FEATURE_NAMES + CONTEXT_FEATURE_NAMES
+    x = np.random.default_rng(0).random((7, len(v.feature_names)), dtype=np.float32)
     p = v.score(x)
     assert p.shape == (7,) and np.all((p >= 0) & (p <= 1))
-    assert v.score(np.zeros((0, len(FEATURE_NAMES)), np.float32)).shape == (0,)
+    assert v.score(np.zeros((0, len(v.feature_names)), np.float32)).shape == (0,)
 
 
 def test_keeps_most_true_lights_and_drops_most_hard_negatives(frames) -> None:
     v = LightVerifier()
+    vehicles = vehicle_detector(1)
     kept_true = n_true = kept_neg = n_neg = 0
     for img, gt, neg in frames:
         props = proposals(img)
         feats = verifier_features(img, props)
         assert feats.shape == (len(props), len(FEATURE_NAMES)) and np.isfinite(feats).all()
-        prob = v.score(feats)
         boxes = np.array([p["box"] for p in props], float).reshape(-1, 4)
+        ctx = context_features(boxes, [p["colour"] for p in props], vehicles.detect_arrays(img))
+        prob = v.score(np.concatenate([feats, ctx], axis=1))
         iou_gt = box_iou_matrix(boxes, gt).max(axis=1) if len(gt) else np.zeros(len(boxes))
         iou_neg = box_iou_matrix(boxes, neg).max(axis=1) if len(neg) else np.zeros(len(boxes))
         true = iou_gt >= 0.5

@@ -50,7 +50,7 @@ from makeway.messages import EVObservation, EVTrackState, LightDetection, Percep
 from makeway.perceive.health import CameraHealth
 from makeway.perceive.vision.detectors import DETECTORS, Detector
 from makeway.perceive.vision.ev_classifier import TrackClassifier
-from makeway.perceive.vision.lights import DEFAULT_LIGHT_DETECTOR, LightDetector
+from makeway.perceive.vision.lights import DEFAULT_LIGHT_DETECTOR, LightDetector, VehicleContextLightDetector
 from makeway.progress import progress_bar
 from makeway.queues import LiveSource, paced
 from makeway.sense.logs import open_frame_source
@@ -355,7 +355,17 @@ def _detect_in_order(
         t0 = time.perf_counter()
         arrays = det.detect_arrays(image)
         t1 = time.perf_counter()
-        found = light.detect(image, index) if light is not None else []
+        found: list[LightDetection] = []
+        if (
+            isinstance(light, VehicleContextLightDetector)
+            and light.uses_vehicles
+            and isinstance(det, Detector)
+        ):
+            # a light detector that reads the vehicle context gets this frame's COCO vehicle boxes
+            # (no second vehicle pass); behind another detector (classes not COCO's) it finds its own
+            found = light.detect(image, index, vehicles=(arrays[0], arrays[1], arrays[2]))
+        elif light is not None:
+            found = light.detect(image, index)
         seconds[0] += t1 - t0
         seconds[1] += time.perf_counter() - t1
         return arrays, found

@@ -31,8 +31,11 @@ from makeway.eval.detection import box_iou_matrix
 from makeway.eval.lights import FrameResult, metrics
 from makeway.perceive.vision.light_colour import COLOURS
 from makeway.perceive.vision.light_verify import (
+    CONTEXT_FEATURE_NAMES,
     DEFAULT_VERIFIER_MODEL,
     FEATURE_NAMES,
+    Vehicles,
+    context_features,
     nms,
     proposals,
     verifier_features,
@@ -41,6 +44,7 @@ from makeway.perceive.vision.light_verify import (
 __all__ = [
     "CV_FOLDS",
     "CV_NEGATIVES",
+    "IGNORED_CONTEXT_FEATURES",
     "IGNORED_FEATURES",
     "THRESHOLDS",
     "XGB_PARAMS",
@@ -82,6 +86,23 @@ proposal count, and the 8×8 context patches. They let the trees tell the traini
 — a frame size, a camera, a time of day — which does not transfer: without them the grouped
 cross-validation (out of fold, train split) rose from min(P, R) 0.240 to 0.281 and AP50 from 0.130
 to 0.179."""
+IGNORED_CONTEXT_FEATURES: tuple[str, ...] = (
+    "veh_aspect",
+    "veh_score",
+    "veh_car",
+    "veh_motorcycle",
+    "veh_bus",
+    "veh_truck",
+    "share_log_n",
+    *(f"share_{c}" for c in COLOURS),
+)
+"""Vehicle-context columns the trees may not use either (with ``vehicle_context``): the vehicle's
+class, score and shape, and the count and colour mix of the proposals sharing its box. The trees
+keep where the lamp sits in or near its vehicle (inside, distance, height and side, size ratios)
+and whether a red/blue bar partner shares the box at its height. Chosen by grouped
+cross-validation over the training sources and validation (docs/model_card_lights.md): with every
+context column the cross-validated min(P, R) fell below the model without context (0.268 against
+0.281); with these left out it rose to 0.299 (AP50 0.179 → 0.200)."""
 CV_FOLDS = 4
 """Grouped cross-validation folds over the train split that choose the operating threshold."""
 REFINE_PARAMS: dict[str, Any] = {
@@ -99,17 +120,30 @@ CV_NEGATIVES = 0.25
 """Fraction of the negative rows each cross-validation fold is fitted on (inverse-weighted)."""
 
 
+def feature_names_for(width: int) -> tuple[str, ...]:
+    """The column names of feature rows ``width`` wide: the proposal's own (:data:`FEATURE_NAMES`),
+    or those followed by the vehicle context (:data:`CONTEXT_FEATURE_NAMES`)."""
+    for names in (FEATURE_NAMES, FEATURE_NAMES + CONTEXT_FEATURE_NAMES):
+        if width == len(names):
+            return names
+    raise ValueError(f"feature rows of {width} columns match neither feature set")
+
+
 def verifier_rows(
     split: str,
     data_root: str | Path,
     *,
     label_positives: bool = False,
+    vehicles: Callable[[np.ndarray], Vehicles] | None = None,
     advance: Callable[[int], Any] | None = None,
 ) -> dict[str, Any]:
     """Feature rows of one split: ``x`` (n, F), ``y`` (n,) bool, ``frame`` (n,) frame index, and per
     frame ``frames`` (source, key, gt boxes, vehicles) and ``boxes`` of its proposals (module
     docstring; the extra label positives carry frame index -1 so they never enter an evaluation;
-    ``origin`` (n,) is the frame every row came from, extra positives included)."""
+    ``origin`` (n,) is the frame every row came from, extra positives included). With ``vehicles``
+    (a frame's BGR pixels → its vehicle boxes, e.g. the vehicle detector's ``detect_arrays``) every
+    row also gets the vehicle-context columns (:func:`context_features`; an extra label positive is
+    described among its frame's proposals)."""
     from makeway.train.light_split import load_split
 
     frames, _ = load_split(split, data_root, input_size=None)
@@ -123,7 +157,11 @@ def verifier_rows(
     for k, f in enumerate(frames):
         props = proposals(f.image, COLOURS)
         b = np.array([p["box"] for p in props], np.float64).reshape(-1, 4)
+        pc = [p["colour"] for p in props]
+        veh = vehicles(f.image) if vehicles is not None else None
         x = verifier_features(f.image, props)
+        if veh is not None:
+            x = np.concatenate([x, context_features(b, pc, veh)], axis=1)
         y = np.zeros(len(props), bool)
         if len(f.boxes) and len(props):
             y = box_iou_matrix(b, f.boxes).max(axis=1) >= 0.5
@@ -145,14 +183,19 @@ def verifier_rows(
                 }
                 for bb, c in zip(f.boxes, f.colours, strict=True)
             ]
-            xs.append(verifier_features(f.image, extra))
+            xe = verifier_features(f.image, extra)
+            if veh is not None:
+                ctx = context_features(f.boxes, list(f.colours), veh, peer_boxes=b, peer_colours=pc)
+                xe = np.concatenate([xe, ctx], axis=1)
+            xs.append(xe)
             ys.append(np.ones(len(extra), bool))
             fi.append(np.full(len(extra), -1))
             origin.append(np.full(len(extra), k))
         if advance is not None:
             advance(1)
+    width = len(FEATURE_NAMES) + (len(CONTEXT_FEATURE_NAMES) if vehicles is not None else 0)
     return {
-        "x": np.concatenate(xs) if xs else np.zeros((0, len(FEATURE_NAMES)), np.float32),
+        "x": np.concatenate(xs) if xs else np.zeros((0, width), np.float32),
         "y": np.concatenate(ys) if ys else np.zeros(0, bool),
         "frame": np.concatenate(fi) if fi else np.zeros(0, np.int64),
         "origin": np.concatenate(origin) if origin else np.zeros(0, np.int64),
@@ -163,18 +206,26 @@ def verifier_rows(
 
 
 def fit_verifier(
-    x: np.ndarray, y: np.ndarray, *, seed: int = 0, threads: int = 2, negatives: float = 1.0
+    x: np.ndarray,
+    y: np.ndarray,
+    *,
+    seed: int = 0,
+    threads: int = 2,
+    negatives: float = 1.0,
+    ignored: Sequence[str] = IGNORED_FEATURES,
 ) -> Any:
     """An :class:`xgboost.XGBClassifier` (:data:`XGB_PARAMS`) fitted to predict ``y`` from the
-    features of ``x`` not in :data:`IGNORED_FEATURES`. With
+    features of ``x`` (rows of :func:`feature_names_for` its width) not in ``ignored``. With
     ``negatives`` < 1 only that random fraction of the negative rows is used, each weighted by its
     inverse (the same expected loss, several times faster; the cross-validation folds use it)."""
     import xgboost as xgb
 
     y = np.asarray(y, bool)
     x = np.array(x, np.float32)
-    if x.ndim == 2 and x.shape[1] == len(FEATURE_NAMES):  # rows of verifier_features
-        x[:, [FEATURE_NAMES.index(n) for n in IGNORED_FEATURES]] = 0.0  # constant: never split on
+    if x.ndim == 2 and x.shape[1] in (len(FEATURE_NAMES), len(FEATURE_NAMES) + len(CONTEXT_FEATURE_NAMES)):
+        names = feature_names_for(x.shape[1])
+        cols = [names.index(n) for n in ignored if n in names]
+        x[:, cols] = 0.0  # constant: never split on
     if len(np.unique(y)) < 2:
         raise ValueError("the training proposals hold only one class")
     if not 0.0 < negatives <= 1.0:
@@ -239,6 +290,7 @@ def out_of_fold(
     *,
     seed: int = 0,
     threads: int = 1,
+    ignored: Sequence[str] = IGNORED_FEATURES,
     advance: Callable[[int], Any] | None = None,
 ) -> np.ndarray:
     """Out-of-fold probabilities of every row of ``rows`` (a split of :func:`verifier_rows`): the rows
@@ -253,7 +305,12 @@ def out_of_fold(
     for f in range(n_folds):
         test = fold == f
         clf = fit_verifier(
-            rows["x"][~test], rows["y"][~test], seed=seed, threads=threads, negatives=CV_NEGATIVES
+            rows["x"][~test],
+            rows["y"][~test],
+            seed=seed,
+            threads=threads,
+            negatives=CV_NEGATIVES,
+            ignored=ignored,
         )
         prob[test] = clf.predict_proba(rows["x"][test])[:, 1]
         if advance is not None:
@@ -358,7 +415,7 @@ def _to_onnx(model: Any) -> Any:
 
     return convert_xgboost(
         model,
-        initial_types=[("features", FloatTensorType([None, len(FEATURE_NAMES)]))],
+        initial_types=[("features", FloatTensorType([None, int(model.n_features_in_)]))],
         target_opset=ONNX_OPSET,
     )
 
@@ -377,8 +434,10 @@ def _export(clf: Any, path: Path, meta_extra: dict[str, Any], refiner: Sequence[
         onx = onnx.ModelProto()
         onx.CopyFrom(clf)
         del onx.metadata_props[:]
+        width = onx.graph.input[0].type.tensor_type.shape.dim[1].dim_value
     else:
         onx = _to_onnx(clf)
+        width = int(clf.n_features_in_)
     if refiner:
         graph = onx.graph
         parts = []
@@ -398,7 +457,7 @@ def _export(clf: Any, path: Path, meta_extra: dict[str, Any], refiner: Sequence[
     meta = {
         "makeway_model": "light_verifier",
         "format_version": "1",
-        "feature_names": json.dumps(FEATURE_NAMES),
+        "feature_names": json.dumps(feature_names_for(width)),
     }
     meta.update({k: v if isinstance(v, str) else json.dumps(v) for k, v in meta_extra.items()})
     for k, v in meta.items():
@@ -408,6 +467,10 @@ def _export(clf: Any, path: Path, meta_extra: dict[str, Any], refiner: Sequence[
         onnx.save(onx, str(tmp))
 
 
+def _finite(v: float) -> float | None:
+    return float(v) if np.isfinite(v) else None
+
+
 def fit_from_rows(
     tr: dict[str, Any],
     va: dict[str, Any],
@@ -415,6 +478,7 @@ def fit_from_rows(
     seed: int = 0,
     refine: bool = False,
     threads: int = 1,
+    ignored: Sequence[str] = IGNORED_FEATURES,
     progress: bool = False,
 ) -> dict[str, Any]:
     """Fit the verifier on train rows ``tr`` and choose its threshold (module docstring); with
@@ -427,8 +491,8 @@ def fit_from_rows(
     from makeway.progress import progress_bar
 
     with progress_bar("cross-validation folds", CV_FOLDS, enabled=progress, unit="fold") as advance:
-        oof = out_of_fold(tr, CV_FOLDS, seed=seed, threads=threads, advance=advance)
-    clf = fit_verifier(tr["x"], tr["y"], seed=seed, threads=threads)
+        oof = out_of_fold(tr, CV_FOLDS, seed=seed, threads=threads, ignored=ignored, advance=advance)
+    clf = fit_verifier(tr["x"], tr["y"], seed=seed, threads=threads, ignored=ignored)
     prob = clf.predict_proba(va["x"])[:, 1]
     refiner = None
     tr_eval, va_eval = tr, va
@@ -451,6 +515,9 @@ def fit_from_rows(
     keys = ("array_precision", "array_recall", "vehicle_precision", "vehicle_recall")
     cv_summ = summarise(detector_results(tr_eval, oof, threshold))["all"]
     va_summ = summarise(detector_results(va_eval, prob, threshold))["all"]
+    # the ranking over every proposal the lowest threshold keeps (AP50), out of fold and on validation
+    cv_ap = metrics(detector_results(tr_eval, oof, THRESHOLDS[0])).map50
+    va_ap = metrics(detector_results(va_eval, prob, THRESHOLDS[0])).map50
     summary = {
         "train_rows": len(tr["y"]),
         "train_positives": int(tr["y"].sum()),
@@ -459,11 +526,13 @@ def fit_from_rows(
         "val_positives": int(va["y"].sum()),
         "threshold": threshold,
         "threshold_from": f"train {CV_FOLDS}-fold grouped CV (out-of-fold) + validation, max min(P, R)",
-        "validation": {k: va_summ[k] for k in keys},
-        "train_cv": {k: cv_summ[k] for k in keys},
+        "validation": {**{k: va_summ[k] for k in keys}, "ap50": _finite(va_ap)},
+        "train_cv": {**{k: cv_summ[k] for k in keys}, "ap50": _finite(cv_ap)},
+        "features": len(feature_names_for(tr["x"].shape[1])),
+        "vehicle_context": tr["x"].shape[1] > len(FEATURE_NAMES),
         "refine_boxes": refine,
         "params": XGB_PARAMS,
-        "ignored_features": list(IGNORED_FEATURES),
+        "ignored_features": list(ignored),
         "refine_params": REFINE_PARAMS if refine else None,
         "seed": seed,
     }
@@ -477,18 +546,23 @@ def train_light_verifier(
     label_positives: bool = True,
     seed: int = 0,
     refine: bool = False,
+    vehicle_context: bool = True,
     progress: bool = True,
 ) -> dict[str, Any]:
     """Train the verifier on the train split, pick its threshold on the train split's grouped
     out-of-fold scores pooled with the validation split (module docstring) and write it as ONNX to
-    ``out`` (default: the shipped ``models/lights_verifier.onnx``). Returns the counts, the
+    ``out`` (default: the shipped ``models/lights_verifier.onnx``). With ``vehicle_context`` the
+    rows also describe each proposal against the frame's vehicle boxes (YOLOX-nano,
+    :func:`~makeway.perceive.vision.light_verify.context_features`). Returns the counts, the
     threshold, the validation and train cross-validation figures and the seconds taken.
 
     Raises:
-        InputError: no shared data folder, or ``out``'s folder does not exist.
+        InputError: no shared data folder, ``out``'s folder does not exist, or (with
+            ``vehicle_context``) the vehicle detector's weights are missing.
     """
     from makeway.errors import InputError
     from makeway.paths import data_dir
+    from makeway.perceive.vision.light_verify import vehicle_detector
     from makeway.progress import progress_bar
     from makeway.train.light_split import load_split
 
@@ -499,14 +573,24 @@ def train_light_verifier(
     if root is None or not Path(root).is_dir():
         raise InputError(str(data_root), "shared data folder not found (set MAKEWAY_DATA)")
     t0 = time.perf_counter()
+    vehicles = None
+    if vehicle_context:
+        vehicles = vehicle_detector(num_threads=1).detect_arrays
     rows = {}
     for split in ("train", "val"):
         n = len(load_split(split, root, keep_images=False)[0])
         with progress_bar(f"{split} proposals", n, enabled=progress, unit="frame") as advance:
             rows[split] = verifier_rows(
-                split, root, label_positives=label_positives and split == "train", advance=advance
+                split,
+                root,
+                label_positives=label_positives and split == "train",
+                vehicles=vehicles,
+                advance=advance,
             )
-    fitted = fit_from_rows(rows["train"], rows["val"], seed=seed, refine=refine, progress=progress)
+    ignored = IGNORED_FEATURES + (IGNORED_CONTEXT_FEATURES if vehicle_context else ())
+    fitted = fit_from_rows(
+        rows["train"], rows["val"], seed=seed, refine=refine, ignored=ignored, progress=progress
+    )
     result = {"model": str(target), **fitted["summary"], "label_positives": label_positives}
     _export(
         fitted["classifier"],

@@ -9,11 +9,15 @@ Stage 2 (:func:`verifier_features` and :class:`LightVerifier`): each proposal be
 — its box size, aspect and place in the frame; the frame's brightness; colour, brightness, clipping
 and colour-mask statistics of the box and of its context ring (the box grown by its longer side on
 every side); the context patch's value and saturation resized to 8×8; the proposal's colour, score,
-cues and the settings that found it — and gradient-boosted trees (ONNX, ONNX Runtime only) give the
-probability that it is a lit emergency light. A model with the output ``box_offsets`` also refines
-each kept box (:func:`refine_boxes`: boosted-tree regressors on the same features predict how far each
-side of the proposal lies from the lit part a person would box — the rules often box a lamp with
-its glow, or only part of it, which misses IoU 0.5 on a lamp of a few pixels). Kept boxes
+cues and the settings that found it — optionally followed by its **vehicle context**
+(:func:`context_features`: where it sits in or near the frame's vehicle boxes, found by YOLOX-nano or
+handed over by the video pipeline, and whether a red/blue partner shares the box) — and
+gradient-boosted trees (ONNX, ONNX Runtime only) give the probability that it is a lit emergency
+light. The model's metadata names the columns it reads; the shipped model reads the context.
+A model with the output ``box_offsets`` also refines each kept box (:func:`refine_boxes`:
+boosted-tree regressors on the same features predict how far each side of the proposal lies from
+the lit part a person would box — the rules often box a lamp with its glow, or only part of it,
+which misses IoU 0.5 on a lamp of a few pixels). Kept boxes
 (probability ≥ the model's threshold, refined) pass a greedy non-maximum suppression (IoU > 0.3, or
 one box at least 80 % inside a higher-scoring one).
 Boxes are pixels of the input frame, ``x2``/``y2`` exclusive. Trained by
@@ -35,16 +39,25 @@ from makeway.messages import Box, LightDetection
 from makeway.onnx_models import model_metadata, smoke_run
 from makeway.perceive.vision.light_colour import COLOURS, WIDE_HSV, ProposalConfig, colour_masks, propose
 
+#: Vehicle boxes of one frame as the vehicle detector's ``detect_arrays`` gives them: boxes ``(m, 4)``
+#: (x1, y1, x2, y2, pixels), scores ``(m,)`` and 0-based COCO class ids ``(m,)``.
+Vehicles = tuple[np.ndarray, np.ndarray, np.ndarray]
+
 __all__ = [
     "BOX_OUTPUT",
+    "CONTEXT_FEATURE_NAMES",
     "DEFAULT_VERIFIER_MODEL",
     "FEATURE_NAMES",
     "PROPOSAL_CONFIGS",
+    "VEHICLE_DETECTOR_SETTINGS",
     "LightVerifier",
+    "Vehicles",
     "VerifiedLightDetector",
+    "context_features",
     "nms",
     "proposals",
     "refine_boxes",
+    "vehicle_detector",
     "verifier_features",
 ]
 
@@ -77,6 +90,156 @@ def _feature_names() -> list[str]:
 
 #: Column names of :func:`verifier_features` (also stored in the model's metadata).
 FEATURE_NAMES: tuple[str, ...] = tuple(_feature_names())
+
+
+#: COCO ids of the vehicle classes (car, motorcycle, bus, truck) one-hot encoded in the context.
+_VEHICLE_CLASS_IDS = {2: "car", 3: "motorcycle", 5: "bus", 7: "truck"}
+#: Pairs of lamp colours of an emergency bar: a red or blue proposal's partner is the other one.
+_BAR_COLOURS = ("red", "blue")
+
+CONTEXT_FEATURE_NAMES: tuple[str, ...] = (
+    "veh_any",
+    "veh_inside",
+    "veh_n_inside",
+    "veh_dist",
+    "veh_y",
+    "veh_x",
+    "veh_xc",
+    "veh_log_w",
+    "veh_log_h",
+    "veh_aspect",
+    "veh_score",
+    *(f"veh_{c}" for c in _VEHICLE_CLASS_IDS.values()),
+    "share_log_n",
+    *(f"share_{c}" for c in COLOURS),
+    "share_red_blue",
+    "share_partner",
+)
+"""Columns of :func:`context_features`: how a proposal sits relative to the vehicles of its frame.
+
+``veh_any``: the frame has a vehicle box at all (else every other column holds its "no vehicle"
+value). The proposal's **host** is the smallest vehicle box holding its centre, else the nearest box.
+``veh_inside``: the centre lies in a vehicle box; ``veh_n_inside``: in how many; ``veh_dist``: the
+gap from the centre to the host box in host heights (0 inside; 10 without vehicles); ``veh_y``,
+``veh_x``: the centre's place in the host box, 0 at its top / left edge and 1 at its bottom / right
+(light bars sit high, tail and head lights low; negative above the box; clipped to −4 … 5);
+``veh_xc``: distance from the host's vertical centre line in half widths (0 centred, 1 at a side);
+``veh_log_w``, ``veh_log_h``: ln(host width / proposal width) and ln(host height / proposal height);
+``veh_aspect``: ln(host width / height); ``veh_score``: the host's detector score; ``veh_car`` …
+``veh_truck``: the host's COCO class. ``share_*`` (0 when outside every box): the proposals whose
+centre lies in the host box — ln(1 + count), the fraction of each colour, whether red and blue
+both occur (``share_red_blue``), and whether a proposal of the other bar colour (red for a blue one,
+red or blue for the others) sits at about the same height, within 0.15 host heights
+(``share_partner``: a red/blue bar pair). Nothing here says where in the frame the lamp is, or how
+big the frame or the vehicle is in pixels (only ratios to the proposal).
+"""
+_NO_VEHICLE = {"veh_dist": 10.0, "veh_y": -5.0, "veh_x": -5.0, "veh_xc": 10.0}
+
+
+def context_features(
+    boxes: np.ndarray,
+    colours: Sequence[str],
+    vehicles: Vehicles | None,
+    *,
+    peer_boxes: np.ndarray | None = None,
+    peer_colours: Sequence[str] | None = None,
+) -> np.ndarray:
+    """Vehicle-context rows ``(n, len(CONTEXT_FEATURE_NAMES))`` float32 of proposals ``boxes``
+    ``(n, 4)`` with their ``colours``, given the frame's ``vehicles`` (:data:`Vehicles`, None or
+    empty: no vehicle). ``peer_boxes`` / ``peer_colours`` are the proposals counted in the
+    ``share_*`` columns (default: ``boxes`` / ``colours`` themselves). Pixels of one frame; see
+    :data:`CONTEXT_FEATURE_NAMES` for every column."""
+    b = np.asarray(boxes, np.float64).reshape(-1, 4)
+    n = len(b)
+    idx = {name: i for i, name in enumerate(CONTEXT_FEATURE_NAMES)}
+    out = np.zeros((n, len(CONTEXT_FEATURE_NAMES)), np.float64)
+    for name, value in _NO_VEHICLE.items():
+        out[:, idx[name]] = value
+    if n == 0 or vehicles is None or len(vehicles[0]) == 0:
+        return out.astype(np.float32)
+    vb = np.asarray(vehicles[0], np.float64).reshape(-1, 4)
+    vs = np.asarray(vehicles[1], np.float64).ravel()
+    vc = np.asarray(vehicles[2], np.int64).ravel()
+    vw = np.maximum(1.0, vb[:, 2] - vb[:, 0])
+    vh = np.maximum(1.0, vb[:, 3] - vb[:, 1])
+
+    def centres_in(bb: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        cx = (bb[:, 0] + bb[:, 2]) / 2.0
+        cy = (bb[:, 1] + bb[:, 3]) / 2.0
+        inside: np.ndarray = np.asarray(
+            (cx[:, None] >= vb[None, :, 0])
+            & (cx[:, None] < vb[None, :, 2])
+            & (cy[:, None] >= vb[None, :, 1])
+            & (cy[:, None] < vb[None, :, 3]),
+            bool,
+        )
+        return cx, cy, inside
+
+    cx, cy, inside = centres_in(b)
+    dx = np.maximum(0.0, np.maximum(vb[None, :, 0] - cx[:, None], cx[:, None] - vb[None, :, 2]))
+    dy = np.maximum(0.0, np.maximum(vb[None, :, 1] - cy[:, None], cy[:, None] - vb[None, :, 3]))
+    dist = np.hypot(dx, dy) / vh[None, :]
+    area = vw * vh
+    cost = np.where(inside, area[None, :] / area.max() - 2.0, dist)  # inside: smallest box first
+    host = np.argmin(cost, axis=1)
+    rows = np.arange(n)
+    hx1, hy1, hw, hh = vb[host, 0], vb[host, 1], vw[host], vh[host]
+    bw = np.maximum(1.0, b[:, 2] - b[:, 0])
+    bh = np.maximum(1.0, b[:, 3] - b[:, 1])
+    inside_any: np.ndarray = np.asarray(inside.any(axis=1), bool)
+    rel_x = np.clip((cx - hx1) / hw, -4.0, 5.0)
+    out[:, idx["veh_any"]] = 1.0
+    out[:, idx["veh_inside"]] = inside_any
+    out[:, idx["veh_n_inside"]] = inside.sum(axis=1)
+    out[:, idx["veh_dist"]] = np.where(inside_any, 0.0, np.minimum(10.0, dist[rows, host]))
+    out[:, idx["veh_y"]] = np.clip((cy - hy1) / hh, -4.0, 5.0)
+    out[:, idx["veh_x"]] = rel_x
+    out[:, idx["veh_xc"]] = np.abs(rel_x - 0.5) * 2.0
+    out[:, idx["veh_log_w"]] = np.log(hw / bw)
+    out[:, idx["veh_log_h"]] = np.log(hh / bh)
+    out[:, idx["veh_aspect"]] = np.log(hw / hh)
+    out[:, idx["veh_score"]] = vs[host]
+    for cid, cname in _VEHICLE_CLASS_IDS.items():
+        out[:, idx[f"veh_{cname}"]] = vc[host] == cid
+
+    pb = b if peer_boxes is None else np.asarray(peer_boxes, np.float64).reshape(-1, 4)
+    pc = list(colours) if peer_colours is None else list(peer_colours)
+    if len(pc) != len(pb) or len(colours) != n:
+        raise ValueError("one colour per box is needed")
+    if len(pb) == 0:
+        return out.astype(np.float32)
+    _, pcy, p_inside = centres_in(pb)
+    onehot = np.array([[c == k for k in COLOURS] for c in pc], np.float64).reshape(-1, len(COLOURS))
+    per_vehicle = p_inside.T.astype(np.float64) @ onehot  # (m, colours): proposals in each box
+    counts = per_vehicle[host] * inside_any[:, None]
+    total = counts.sum(axis=1)
+    out[:, idx["share_log_n"]] = np.log1p(total)
+    frac = counts / np.maximum(1.0, total)[:, None]
+    for j, c in enumerate(COLOURS):
+        out[:, idx[f"share_{c}"]] = frac[:, j]
+    ir, ib = COLOURS.index("red"), COLOURS.index("blue")
+    out[:, idx["share_red_blue"]] = (counts[:, ir] > 0) & (counts[:, ib] > 0)
+    # a proposal of the other bar colour in the same host box at about the same height
+    same_box = p_inside[:, host].T & inside_any[:, None]  # (n, peers)
+    level = np.abs(pcy[None, :] - cy[:, None]) <= 0.15 * hh[:, None]
+    p_bar = np.array([c in _BAR_COLOURS for c in pc], bool)
+    own = np.array(list(colours), dtype=object)
+    other = p_bar[None, :] & (np.array(pc, dtype=object)[None, :] != own[:, None])
+    out[:, idx["share_partner"]] = (same_box & level & other).any(axis=1)
+    return out.astype(np.float32)
+
+
+#: How the verifier's vehicle boxes are found when the caller gives none (and how the training
+#: rows found them): YOLOX-nano as Framework B's video pipeline runs it.
+VEHICLE_DETECTOR_SETTINGS: dict[str, Any] = {"score_threshold": 0.3, "class_agnostic": True}
+
+
+def vehicle_detector(num_threads: int = 1) -> Any:
+    """The COCO vehicle detector whose boxes give :func:`context_features` their vehicles
+    (YOLOX-nano, :data:`VEHICLE_DETECTOR_SETTINGS`); ``InputError`` when its weights are missing."""
+    from makeway.perceive.vision.detectors import DETECTORS
+
+    return DETECTORS["yolox_nano"](num_threads=num_threads, **VEHICLE_DETECTOR_SETTINGS)
 
 
 def proposals(frame_bgr: np.ndarray, colours: Sequence[str] = COLOURS) -> list[dict[str, Any]]:
@@ -265,9 +428,18 @@ class LightVerifier:
             threshold = float(meta.get("threshold", 0.5))
         except (ValueError, TypeError) as exc:
             raise InputError(path, f"malformed light verifier metadata ({exc})") from None
-        if not isinstance(names, list) or tuple(names) != FEATURE_NAMES:
+        with_context = FEATURE_NAMES + CONTEXT_FEATURE_NAMES
+        if not isinstance(names, list) or tuple(names) not in (FEATURE_NAMES, with_context):
             n = len(names) if isinstance(names, list) else 0
-            raise InputError(path, f"its features do not match this code's ({n} vs {len(FEATURE_NAMES)})")
+            raise InputError(
+                path,
+                f"its features do not match this code's ({n} vs {len(FEATURE_NAMES)} or {len(with_context)})",
+            )
+        #: Whether the model reads the vehicle-context columns (:func:`context_features`) after the
+        #: proposal's own (:func:`verifier_features`).
+        self.uses_vehicles = tuple(names) == with_context
+        #: Column names of the feature rows the model reads.
+        self.feature_names: tuple[str, ...] = with_context if self.uses_vehicles else FEATURE_NAMES
         if not 0.0 <= threshold <= 1.0:
             raise InputError(path, f"malformed light verifier metadata (threshold {threshold} not in [0, 1])")
         self.path = path
@@ -283,7 +455,7 @@ class LightVerifier:
         self._outputs = [outputs[1], *([BOX_OUTPUT] if self.refines_boxes else [])]
         smoke_run(self.session, path)
         try:  # two rows of zeros must give two probabilities
-            probe = self.score(np.zeros((2, len(FEATURE_NAMES)), np.float32))
+            probe = self.score(np.zeros((2, len(self.feature_names)), np.float32))
             ok = probe.shape == (2,)
         except Exception:  # onnxruntime's own types, or outputs of another layout (IndexError, …)
             ok = False
@@ -291,15 +463,15 @@ class LightVerifier:
             raise InputError(path, "does not give one probability per feature row")
 
     def score(self, features: np.ndarray) -> np.ndarray:
-        """P(lit emergency light) per feature row ``(n, len(FEATURE_NAMES))``."""
+        """P(lit emergency light) per feature row ``(n, len(self.feature_names))``."""
         return self.score_and_offsets(features)[0]
 
     def score_and_offsets(self, features: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
         """P(lit emergency light) per feature row and, when the model refines boxes, the predicted
         corrections ``(n, 4)`` (see :func:`refine_boxes`), else None."""
         x = np.asarray(features, np.float32)
-        if x.ndim != 2 or x.shape[1] != len(FEATURE_NAMES):
-            raise ValueError(f"expected features (n, {len(FEATURE_NAMES)}), got {x.shape}")
+        if x.ndim != 2 or x.shape[1] != len(self.feature_names):
+            raise ValueError(f"expected features (n, {len(self.feature_names)}), got {x.shape}")
         if len(x) == 0:
             return np.zeros(0, np.float64), (np.zeros((0, 4)) if self.refines_boxes else None)
         outs = self.session.run(self._outputs, {self._input: x})
@@ -318,6 +490,10 @@ class VerifiedLightDetector:
     ``colours`` is the jurisdiction's colour set (a preset name or colour names); only proposals of
     those colours are made and returned. ``threshold`` overrides the model's operating point (a
     low value lets an evaluation see the ranking). Scores are the verifier's probabilities (0–1).
+
+    A verifier that reads the vehicle context (:attr:`uses_vehicles`) needs the frame's vehicle
+    boxes: pass those the pipeline already found as ``detect(..., vehicles=...)``, else the
+    detector runs its own YOLOX-nano (:func:`vehicle_detector`, created on first use).
     """
 
     def __init__(
@@ -333,14 +509,45 @@ class VerifiedLightDetector:
         self.colours = colour_set(colours)
         self.verifier = LightVerifier(model, num_threads=num_threads)
         self.threshold = self.verifier.threshold if threshold is None else float(threshold)
+        self.num_threads = num_threads
+        #: Whether :meth:`detect` uses vehicle boxes (given, or found by its own vehicle detector).
+        self.uses_vehicles = self.verifier.uses_vehicles
+        self._vehicle_detector: Any = None
+        if self.uses_vehicles:  # fail at construction, not on the first frame, when weights are missing
+            self._vehicle_detector = vehicle_detector(num_threads)
 
-    def detect(self, frame_bgr: np.ndarray, frame: int = 0) -> list[LightDetection]:
+    def vehicles(self, frame_bgr: np.ndarray) -> Vehicles:
+        """The frame's vehicle boxes found by this detector's own vehicle detector."""
+        if self._vehicle_detector is None:
+            self._vehicle_detector = vehicle_detector(self.num_threads)
+        boxes, scores, classes = self._vehicle_detector.detect_arrays(frame_bgr)
+        return boxes, scores, classes
+
+    def detect(
+        self, frame_bgr: np.ndarray, frame: int = 0, *, vehicles: Vehicles | None = None
+    ) -> list[LightDetection]:
+        """Lit emergency lights in one BGR frame; ``vehicles`` (boxes, scores, COCO class ids of the
+        frame, as the vehicle detector's ``detect_arrays`` returns them) spare a context-reading
+        verifier its own vehicle detection; other verifiers ignore them."""
         if frame_bgr.ndim != 3 or frame_bgr.shape[2] != 3 or frame_bgr.dtype != np.uint8:
             raise ValueError(f"expected a uint8 BGR image H×W×3, got {frame_bgr.dtype} {frame_bgr.shape}")
-        props = [p for p in proposals(frame_bgr, self.colours) if p["colour"] in self.colours]
+        # the context counts the proposals of every colour in a vehicle box (as in training)
+        pool = proposals(frame_bgr, COLOURS if self.uses_vehicles else self.colours)
+        props = [p for p in pool if p["colour"] in self.colours]
         if not props:
             return []
-        prob, offsets = self.verifier.score_and_offsets(verifier_features(frame_bgr, props))
+        x = verifier_features(frame_bgr, props)
+        if self.uses_vehicles:
+            veh = vehicles if vehicles is not None else self.vehicles(frame_bgr)
+            ctx = context_features(
+                np.array([p["box"] for p in props], np.float64),
+                [p["colour"] for p in props],
+                veh,
+                peer_boxes=np.array([p["box"] for p in pool], np.float64),
+                peer_colours=[p["colour"] for p in pool],
+            )
+            x = np.concatenate([x, ctx], axis=1)
+        prob, offsets = self.verifier.score_and_offsets(x)
         sel = np.flatnonzero(prob >= self.threshold)
         if len(sel) == 0:
             return []

@@ -12,13 +12,15 @@ bright cores with a coloured halo): no training, a baseline and the labelling to
 (:mod:`makeway.perceive.vision.light_cnn`, ONNX Runtime; trained by ``makeway lights-train``).
 ``verified`` is two-stage: the rule finder's proposals (wide hue ranges, several settings) scored by
 a learned verifier, gradient-boosted trees in ONNX (:mod:`makeway.perceive.vision.light_verify`;
-trained by ``makeway lights-train --verifier``).
+trained by ``makeway lights-train --verifier``) that also read where each proposal sits relative to
+the frame's vehicle boxes (YOLOX-nano; a caller that has the boxes passes them, see
+:class:`VehicleContextLightDetector`).
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Protocol
+from typing import Protocol, runtime_checkable
 
 import numpy as np
 
@@ -36,6 +38,7 @@ __all__ = [
     "CnnLightDetector",
     "ColourLightDetector",
     "LightDetector",
+    "VehicleContextLightDetector",
     "VerifiedLightDetector",
     "colour_set",
 ]
@@ -76,6 +79,27 @@ class LightDetector(Protocol):
 
     def detect(self, frame_bgr: np.ndarray, frame: int = 0) -> list[LightDetection]:
         """Lit emergency lights in one BGR frame, in its pixels."""
+        ...
+
+
+@runtime_checkable
+class VehicleContextLightDetector(Protocol):
+    """A light detector that may read the frame's vehicle boxes (``uses_vehicles``): a caller that
+    has already detected the vehicles passes them (boxes, scores, COCO class ids, as
+    :meth:`~makeway.perceive.vision.detectors.Detector.detect_arrays` returns them) instead of
+    letting the detector find them again."""
+
+    colours: tuple[str, ...]
+    uses_vehicles: bool
+
+    def detect(
+        self,
+        frame_bgr: np.ndarray,
+        frame: int = 0,
+        *,
+        vehicles: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
+    ) -> list[LightDetection]:
+        """Lit emergency lights in one BGR frame, in its pixels, given its vehicle boxes if known."""
         ...
 
 
