@@ -525,7 +525,9 @@ def train_approach(
     ] = None,
     out: Annotated[
         Path | None,
-        typer.Option("--out", "-o", help="ONNX classifier to write (default: the shipped one)."),
+        typer.Option(
+            "--out", "-o", help="ONNX classifier to write (default: the shipped one for these rangers)."
+        ),
     ] = None,
     model: ModelOption = None,
     localizer: LocalizerOption = None,

@@ -104,14 +104,16 @@ def train_approach_classifier(
     progress: bool = True,
 ) -> dict[str, Any]:
     """Train the approaching/receding classifier on the recordings under each folder of ``data`` and
-    write it to ``out`` as ONNX (default: the shipped model's path). Every recording runs as ``audio
-    listen`` runs it through ``siren`` (default: the shipped siren networks); the windows where a
-    siren is reported and moves by at least 1 m/s relative to the car are the rows, the sign of the
-    labelled range rate the target (module docstring).
+    write it to ``out`` as ONNX (default: the shipped classifier paired with ``siren``'s rangers,
+    :func:`~makeway.perceive.audio.motion.approach_model_for`: a classifier reads the distances of
+    the rangers it was trained on). Every recording runs as ``audio listen`` runs it through
+    ``siren`` (default: the shipped siren networks); the windows where a siren is reported and
+    moves by at least 1 m/s relative to the car are the rows, the sign of the labelled range rate
+    the target (module docstring).
 
     Returns ``model`` (the file written), ``training`` (recordings, windows, ``approaching_share``,
-    the booster's params, seed, siren model) and, with ``val``, ``validation``: the scores of the new
-    classifier and of the level/Doppler rule on those recordings
+    the booster's params, seed, siren model, ranger files) and, with ``val``, ``validation``: the
+    scores of the new classifier and of the level/Doppler rule on those recordings
     (:func:`~makeway.eval.siren_approach.approach_scores`).
 
     Raises:
@@ -119,13 +121,14 @@ def train_approach_classifier(
         ValueError: the training windows hold only one class.
     """
     from makeway.eval.siren_approach import approach_scores
-    from makeway.perceive.audio.motion import DEFAULT_APPROACH_MODEL
+    from makeway.perceive.audio.motion import approach_model_for
     from makeway.progress import progress_bar
 
-    target = Path(out) if out is not None else DEFAULT_APPROACH_MODEL
     folders = [f for d in data for f in recording_folders(d)]
     val_folders = [f for d in val for f in recording_folders(d)]
     net = siren if siren is not None else SirenModel(None, localizer=True, ranger=True)
+    rangers = [r.path for r in net.rangers]
+    target = Path(out) if out is not None else approach_model_for(rangers)
     with progress_bar("training windows", len(folders), enabled=progress, unit="rec") as advance:
         train_set = approach_dataset(folders, net, advance=advance)
     rows = train_set["scored"]
@@ -137,6 +140,7 @@ def train_approach_classifier(
         "params": XGB_PARAMS,
         "seed": seed,
         "siren_model": repr(net),
+        "rangers": [p.name for p in rangers],
     }
     export_approach_onnx(clf, target, TrendApproach(model=None).feature_names, extra={"training": training})
     result: dict[str, Any] = {"model": str(target), "training": training}

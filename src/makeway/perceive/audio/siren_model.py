@@ -69,6 +69,7 @@ import numpy as np
 from makeway.errors import InputError
 from makeway.onnx_models import open_makeway_onnx
 from makeway.perceive.audio.siren_features import SirenFeatureConfig, SirenFeatures
+from makeway.registry import Registry
 from makeway.sense.recording import REFERENCE_FULL_SCALE_DB_SPL, calibration_gain
 
 __all__ = [
@@ -78,10 +79,12 @@ __all__ = [
     "DEFAULT_SIREN_RANGERS",
     "PRIOR_SIREN_RANGERS",
     "SIGMA_SCALE_UNRATED",
+    "SIREN_RANGER_SETS",
     "WIDE_SIREN_RANGERS",
     "SirenModel",
     "SirenPrediction",
     "combine_distances",
+    "ranger_set_name",
 ]
 
 DEFAULT_SIREN_MODEL = Path(__file__).resolve().parents[2] / "models" / "siren_net.onnx"
@@ -103,6 +106,23 @@ WIDE_SIREN_RANGERS = (
 the localizer's distance (:data:`LOCALIZER_DISTANCE`)."""
 DEFAULT_SIREN_RANGERS = PRIOR_SIREN_RANGERS
 """The rangers used unless told otherwise (module docstring, **Rangers**)."""
+SIREN_RANGER_SETS: Registry[tuple[Path, ...]] = Registry(
+    "ranger set", {"prior": PRIOR_SIREN_RANGERS, "wide": WIDE_SIREN_RANGERS}
+)
+"""The shipped ranger sets by name (``prior``, ``wide``). Each has its own approaching/receding
+classifier, trained on that set's distances (:data:`~makeway.perceive.audio.motion.APPROACH_MODELS`,
+same names)."""
+
+
+def ranger_set_name(rangers: Sequence[str | Path]) -> str | None:
+    """The name in :data:`SIREN_RANGER_SETS` of the set whose files are ``rangers`` (compared by
+    file name, in any order), or ``None`` for any other combination."""
+    names = sorted(Path(r).name for r in rangers)
+    for name, members in SIREN_RANGER_SETS.items():
+        if names == sorted(p.name for p in members):
+            return name
+    return None
+
 
 SIGMA_OUTPUT = "distance_log_sigma"
 """Name of the optional ONNX output of networks trained with ``makeway audio train
