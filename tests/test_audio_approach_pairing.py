@@ -11,6 +11,7 @@ import pytest
 
 from makeway.perceive.audio.motion import (
     APPROACH_MODELS,
+    DB_PER_NEPER_RANGE,
     DEFAULT_APPROACH_MODEL,
     TrendApproach,
     approach_model_for,
@@ -79,17 +80,21 @@ def test_the_listener_reads_its_rangers_with_their_classifier() -> None:
 
 
 def test_the_two_classifiers_differ_on_the_same_rows() -> None:
-    """The paired files are two trained classifiers, not one copied: on a grid of feature rows
-    (slopes of ln distance from fast approach to fast recession) both call a closing siren
-    approaching and a receding one receding, with different probabilities."""
+    """The paired files are two trained classifiers, not one copied: on feature rows of a point
+    source (slopes of ln distance from fast approach to fast recession, the level slope that goes
+    with them: −8.69 dB per unit of d ln r / dt) both call a closing siren approaching and a
+    receding one receding, with different probabilities."""
     prior, wide = TrendApproach(APPROACH_MODELS["prior"]), TrendApproach(APPROACH_MODELS["wide"])
-    n = len(prior.feature_names)
-    rows = np.zeros((9, n), dtype=np.float32)
+    names = prior.feature_names
+    assert wide.feature_names == names
     slopes = np.linspace(-0.4, 0.4, 9)  # d ln r / dt (1/s): −0.4 is 10 m/s closing at 25 m
+    rows = np.zeros((len(slopes), len(names)), dtype=np.float32)
     for k in range(len(prior.horizons)):
         rows[:, 2 * k], rows[:, 2 * k + 1] = slopes, 1.0
-    rows[:, -1] = np.log(25.0)
+    rows[:, names.index("level_slope_db_s")] = -DB_PER_NEPER_RANGE * slopes
+    rows[:, names.index("has_level_slope")] = 1.0
+    rows[:, names.index("log_distance")] = np.log(25.0)
     p, w = prior.predict_proba(rows), wide.predict_proba(rows)
     for probs in (p, w):
-        assert probs[0] > 0.5 > probs[-1]
+        assert (probs[slopes < -0.05] > 0.5).all() and (probs[slopes > 0.05] < 0.5).all()
     assert not np.allclose(p, w, atol=1e-3)
