@@ -1,11 +1,13 @@
 """Approaching or receding (issue 4, item 3): the distance-trend classifier against the level/Doppler rule.
 
-    .venv/bin/python benchmarks/bench_audio_approach.py [--data DIR ... | --n 30 --seeds 2026,2027]
+    .venv/bin/python benchmarks/bench_audio_approach.py [--data DIR ... | --n 30 --seeds 2026,2027
+        --siren-level 110,120]
         [--approach-model FILE] [--rangers default|prior|wide[,...]] [--json FILE]
 
 1. Held-out recordings: ``--data`` (folders of recordings, repeatable), or ``--n`` recordings per
    seed simulated with ``--seeds`` from the **test** groups only (``makeway audio simulate --split
-   test``), as the other siren benchmarks make them.
+   test``), as the other siren benchmarks make them, with the sirens' emitted level drawn from
+   ``--siren-level`` (dB SPL at 1 m; 110–120 by default, real sirens span about 110–135).
 2. Every recording runs as ``makeway audio listen`` runs it (the shipped siren networks, the
    listener's decision rule), and on every window the listener reports a siren moving by at least
    1 m/s relative to the car (:func:`~makeway.eval.siren_approach.approach_windows`) two answers
@@ -134,6 +136,7 @@ def main() -> int:
     ap.add_argument("--n", type=int, default=30, help="recordings per seed to simulate without --data")
     ap.add_argument("--seeds", default="2026,2027", help="seeds of the simulated held-out sets")
     ap.add_argument("--duration", type=float, default=8.0, help="seconds per simulated recording")
+    ap.add_argument("--siren-level", default="110,120", help="simulated sirens' level range, dB SPL at 1 m")
     ap.add_argument(
         "--approach-model", type=Path, default=None, help="classifier file (default: each set's own)"
     )
@@ -148,10 +151,11 @@ def main() -> int:
     if args.approach_model is not None:
         classifiers[str(args.approach_model)] = args.approach_model
     seeds = [int(s) for s in args.seeds.split(",")]
+    lo, hi = (float(v) for v in args.siren_level.split(","))
     results: dict[str, Any] = {"cross": {}}
     cross: dict[str, dict[str, dict[str, Any]]] = results["cross"]
     with tempfile.TemporaryDirectory() as tmp:
-        folders = held_out_folders(args.data, tmp, args.n, seeds, args.duration)
+        folders = held_out_folders(args.data, tmp, args.n, seeds, args.duration, siren_level_db=(lo, hi))
         results["recordings"] = len(folders)
         for rangers in sets:
             networks = SirenModel(threads=2, ranger=RANGERS[rangers], localizer_distance=True)
