@@ -25,7 +25,9 @@ there) and the listener's per-window false-alarm rate on the same audio.
 ``--rangers`` picks the networks that place the siren: ``default`` (the shipped
 :data:`~makeway.perceive.audio.siren_model.DEFAULT_SIREN_RANGERS`), ``prior`` (the rangers trained
 on sirens of 110–120 dB at 1 m) or ``wide`` (those trained on 105–140 dB), each averaged with the
-localizer's distance; to compare them on the same scenes and seeds. ``--siren-level LO,HI`` draws the
+localizer's distance, and each with its own approaching/receding classifier
+(:func:`~makeway.perceive.audio.motion.approach_model_for`); to compare them on the same scenes and
+seeds. ``--siren-level LO,HI`` draws the
 heard siren's emitted level from that range (dB SPL at 1 m; default 110–120, the networks' training
 prior; real sirens span about 110–135).
 

@@ -215,14 +215,16 @@ def approach_estimator(name: str | None, net: SirenModel | None) -> Any:
         UnknownNameError: an unknown method (lists the known ones).
         ValueError: ``trend`` without a network.
     """
-    from makeway.perceive.audio.motion import APPROACH_METHODS
+    from makeway.perceive.audio.motion import APPROACH_METHODS, TrendApproach, approach_model_for
     from makeway.perceive.audio.stream import default_approach
 
     if name is None:
         return default_approach(net)
     cls = APPROACH_METHODS[name]
-    if name == "trend" and net is None:
-        raise ValueError("--approach trend reads the network's distances; it cannot run with --baseline")
+    if name == "trend":
+        if net is None:
+            raise ValueError("--approach trend reads the network's distances; it cannot run with --baseline")
+        return TrendApproach(approach_model_for([r.path for r in net.rangers]))
     return cls()
 
 
@@ -259,9 +261,9 @@ def _score_approach(
     distance-trend classifier and of the level/Doppler rule scored against the labelled range rate
     (:mod:`makeway.eval.siren_approach`)."""
     from makeway.eval.siren_approach import MIN_RANGE_RATE_MPS, approach_recordings, approach_scores
-    from makeway.perceive.audio.motion import TrendApproach
+    from makeway.perceive.audio.motion import TrendApproach, approach_model_for
 
-    trend = TrendApproach()
+    trend = TrendApproach(approach_model_for([r.path for r in net.rangers]))
     with progress_bar("approach", len(recs), enabled=progress, unit="rec") as advance:
         arrays = approach_recordings(recs, net, trend, full_scale_db_spl=full_scale_db_spl, advance=advance)
     return {"min_range_rate_mps": MIN_RANGE_RATE_MPS, **approach_scores(arrays, trend)}

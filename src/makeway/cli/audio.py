@@ -525,12 +525,17 @@ def train_approach(
     ] = None,
     out: Annotated[
         Path | None,
-        typer.Option("--out", "-o", help="ONNX classifier to write (default: the shipped one)."),
+        typer.Option(
+            "--out", "-o", help="ONNX classifier to write (default: the shipped one for these rangers)."
+        ),
     ] = None,
     model: ModelOption = None,
     localizer: LocalizerOption = None,
     ranger: RangerOption = None,
     seed: Annotated[int, typer.Option(help="Seed of the trees' row subsampling.")] = 0,
+    depth: Annotated[
+        int, typer.Option(min=1, help="Depth of each tree (4 for the shipped rangers, 6 for the wide ones).")
+    ] = 4,
 ) -> None:
     """Train the approaching/receding classifier.
 
@@ -538,13 +543,14 @@ def train_approach(
     Every recording runs as `audio listen` runs it (the siren networks, the listener's decision, the
     distance trend and the level/Doppler cues); the windows where a siren is reported and moves by
     at least 1 m/s relative to the car are the training rows, with the sign of the labelled range
-    rate as the target. Gradient-boosted trees, written as ONNX. With --val, prints the validation
-    scores of the new classifier and of the level/Doppler rule (JSON line last)."""
+    rate as the target. Gradient-boosted trees, written as ONNX. Each set of rangers has its own
+    classifier: without --out, the one shipped for the rangers used is written. With --val, prints
+    the validation scores of the new classifier and of the level/Doppler rule (JSON line last)."""
     from makeway.apps.audio import siren_networks
     from makeway.train.approach import train_approach_classifier
 
     result = train_approach_classifier(
-        data, out, val=val or [], siren=siren_networks(model, localizer, ranger), seed=seed
+        data, out, val=val or [], siren=siren_networks(model, localizer, ranger), seed=seed, max_depth=depth
     )
     err_console.print(
         f"approach classifier on {result['training']['windows']} windows → {result['model']}", highlight=False

@@ -52,6 +52,7 @@ from __future__ import annotations
 import json
 import math
 from collections import deque
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -60,6 +61,7 @@ import numpy as np
 from makeway.errors import InputError
 from makeway.onnx_models import open_makeway_onnx
 from makeway.perceive.audio.features import BAND_HZ, frame_params, power_spectrogram
+from makeway.perceive.audio.siren_model import DEFAULT_SIREN_RANGERS, ranger_set_name
 from makeway.registry import Registry
 
 DB_PER_NEPER_RANGE = 20.0 / math.log(10.0)
@@ -218,9 +220,30 @@ class ApproachEstimator:
         return state, -slope / DB_PER_NEPER_RANGE
 
 
-DEFAULT_APPROACH_MODEL = Path(__file__).resolve().parents[2] / "models" / "siren_approach.onnx"
-"""The shipped classifier of :class:`TrendApproach` (``makeway audio train-approach``; model card
+_MODELS = Path(__file__).resolve().parents[2] / "models"
+APPROACH_MODELS: Registry[Path] = Registry(
+    "approach classifier",
+    {"prior": _MODELS / "siren_approach.onnx", "wide": _MODELS / "siren_approach_wide.onnx"},
+)
+"""The shipped classifiers of :class:`TrendApproach`, one per ranger set of
+:data:`~makeway.perceive.audio.siren_model.SIREN_RANGER_SETS` (same names): each was trained on the
+distances of its set (with the localizer's), and reads another set's worse, because the sets err
+differently (``makeway audio train-approach --ranger ...``; model card
 ``docs/model_card_siren_net.md``, "The approach classifier")."""
+DEFAULT_APPROACH_MODEL = APPROACH_MODELS[ranger_set_name(DEFAULT_SIREN_RANGERS) or "prior"]
+"""The classifier paired with the default rangers
+(:data:`~makeway.perceive.audio.siren_model.DEFAULT_SIREN_RANGERS`)."""
+
+
+def approach_model_for(rangers: Sequence[str | Path]) -> Path:
+    """The classifier trained on the distances of the ranger networks ``rangers`` (files): the one of
+    :data:`APPROACH_MODELS` paired with that shipped set (compared by file name,
+    :func:`~makeway.perceive.audio.siren_model.ranger_set_name`), :data:`DEFAULT_APPROACH_MODEL`
+    for any other combination."""
+    name = ranger_set_name(rangers)
+    return APPROACH_MODELS[name] if name is not None else DEFAULT_APPROACH_MODEL
+
+
 TREND_HORIZONS_S = (1.0, 1.5, 2.5, 4.0)
 """Spans (s) over which :class:`TrendApproach` fits the slope of the network's log distance."""
 MIN_TREND_WINDOWS = 3
@@ -245,7 +268,8 @@ class TrendApproach:
        least-squares slope of ln distance over the siren windows within it and whether there were
        at least ``min_windows`` of them; the level slope and whether there is one; the Doppler
        trend; this window's ln distance;
-    4. the classifier (gradient-boosted trees in ONNX, :data:`DEFAULT_APPROACH_MODEL`) turns the
+    4. the classifier (gradient-boosted trees in ONNX; the one paired with the ranger set whose
+       distances feed it, :func:`approach_model_for`, default :data:`DEFAULT_APPROACH_MODEL`) turns the
        row into ``probability_`` = P(approaching); ``approaching = probability_ ≥ 0.5``, or None
        while no cue exists yet (no slope and no level slope).
 

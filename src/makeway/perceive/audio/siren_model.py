@@ -31,12 +31,13 @@ the error. The shipped rangers are :data:`DEFAULT_SIREN_RANGERS` (three networks
 emitted at 110–120 dB at 1 m). :data:`WIDE_SIREN_RANGERS` are two networks trained on sirens of
 105–140 dB, the real range with margin (issue 25): with the localizer they were chosen on validation
 recordings at 105–140 dB (the mean over the 5 dB bands of 110–135 dB of the median distance error
-at 10–50 m) and place loud sirens far better, quiet ones somewhat worse (model card). They are not
-the default: in the closed loop heard by the siren stack they gave about four times the extra
-yields of the default rangers, with sirens at 110–120 dB and at 120–135 dB alike (the approach
-classifier, trained on the default rangers' distances, reads theirs worse; model card, "In the
-closed loop"). ``ranger=WIDE_SIREN_RANGERS`` (``--ranger`` on the command line, once per file)
-selects them.
+at 10–50 m) and place loud sirens far better, quiet ones somewhat worse (model card). Each set
+has its own approaching/receding classifier, trained on its distances
+(:data:`~makeway.perceive.audio.motion.APPROACH_MODELS`; the listener picks it from the rangers it
+runs). The wide set is not the default: in the closed loop heard by the siren stack, even with its
+own classifier, it gave twice the extra yields of the default rangers (8 against 4 in 18 runs at
+110–135 dB), though more expected actions (17 against 15; model card, "In the closed loop").
+``ranger=WIDE_SIREN_RANGERS`` (``--ranger`` on the command line, once per file) selects them.
 
 **Combination.** :data:`LOCALIZER_DISTANCE` says whether the localizer's distance joins the
 shipped rangers' (``localizer_distance=`` overrides it); :func:`combine_distances` is the rule.
@@ -69,6 +70,7 @@ import numpy as np
 from makeway.errors import InputError
 from makeway.onnx_models import open_makeway_onnx
 from makeway.perceive.audio.siren_features import SirenFeatureConfig, SirenFeatures
+from makeway.registry import Registry
 from makeway.sense.recording import REFERENCE_FULL_SCALE_DB_SPL, calibration_gain
 
 __all__ = [
@@ -78,10 +80,12 @@ __all__ = [
     "DEFAULT_SIREN_RANGERS",
     "PRIOR_SIREN_RANGERS",
     "SIGMA_SCALE_UNRATED",
+    "SIREN_RANGER_SETS",
     "WIDE_SIREN_RANGERS",
     "SirenModel",
     "SirenPrediction",
     "combine_distances",
+    "ranger_set_name",
 ]
 
 DEFAULT_SIREN_MODEL = Path(__file__).resolve().parents[2] / "models" / "siren_net.onnx"
@@ -103,6 +107,23 @@ WIDE_SIREN_RANGERS = (
 the localizer's distance (:data:`LOCALIZER_DISTANCE`)."""
 DEFAULT_SIREN_RANGERS = PRIOR_SIREN_RANGERS
 """The rangers used unless told otherwise (module docstring, **Rangers**)."""
+SIREN_RANGER_SETS: Registry[tuple[Path, ...]] = Registry(
+    "ranger set", {"prior": PRIOR_SIREN_RANGERS, "wide": WIDE_SIREN_RANGERS}
+)
+"""The shipped ranger sets by name (``prior``, ``wide``). Each has its own approaching/receding
+classifier, trained on that set's distances (:data:`~makeway.perceive.audio.motion.APPROACH_MODELS`,
+same names)."""
+
+
+def ranger_set_name(rangers: Sequence[str | Path]) -> str | None:
+    """The name in :data:`SIREN_RANGER_SETS` of the set whose files are ``rangers`` (compared by
+    file name, in any order), or ``None`` for any other combination."""
+    names = sorted(Path(r).name for r in rangers)
+    for name, members in SIREN_RANGER_SETS.items():
+        if names == sorted(p.name for p in members):
+            return name
+    return None
+
 
 SIGMA_OUTPUT = "distance_log_sigma"
 """Name of the optional ONNX output of networks trained with ``makeway audio train

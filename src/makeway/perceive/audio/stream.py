@@ -48,7 +48,7 @@ from makeway.errors import InputError
 from makeway.messages import SirenObservation, SirenSource
 from makeway.perceive.audio.doa import DOA_METHODS, SirenEnergyDetector, detector_score
 from makeway.perceive.audio.features import band_level_db
-from makeway.perceive.audio.motion import DEFAULT_APPROACH_MODEL, ApproachEstimator, TrendApproach
+from makeway.perceive.audio.motion import ApproachEstimator, TrendApproach, approach_model_for
 from makeway.perceive.audio.multisource import SourceSeparator
 from makeway.perceive.audio.siren_model import SirenModel
 from makeway.perceive.audio.windows import (
@@ -265,8 +265,12 @@ def listen_windows(recording: Recording, window_s: float = WINDOW_S, hop_s: floa
 
 def default_approach(model: SirenModel | None) -> ApproachEstimator | TrendApproach:
     """The approach estimator :func:`listen` uses when none is given: :class:`TrendApproach` with
-    the shipped classifier when there is a network (it reads the network's distance) and the
-    classifier is installed, :class:`ApproachEstimator` otherwise."""
-    if model is not None and DEFAULT_APPROACH_MODEL.is_file():
-        return TrendApproach()
+    the classifier trained on the distances of ``model``'s rangers
+    (:func:`~makeway.perceive.audio.motion.approach_model_for`) when there is a network (it reads
+    the network's distance) and that classifier is installed, :class:`ApproachEstimator`
+    otherwise."""
+    if model is not None:
+        path = approach_model_for([r.path for r in model.rangers])
+        if path.is_file():
+            return TrendApproach(path)
     return ApproachEstimator()
