@@ -30,7 +30,7 @@ from makeway.fuse.siren_track import SOURCE, SirenTrackFusion
 from makeway.messages import EVBelief, SirenObservation, VehicleState
 from makeway.perceive.audio.siren_model import SirenModel
 from makeway.perceive.audio.stream import SirenListener
-from makeway.perceive.audio.windows import HOP_S
+from makeway.perceive.audio.windows import HOP_S, LISTEN_SMOOTH
 from makeway.sim.live_array import LiveArraySimulator, LiveAudioConfig
 from makeway.sim.scenarios import Scenario
 from makeway.sim.world import SimWorld
@@ -39,17 +39,20 @@ from makeway.sim.world import SimWorld
 @dataclass(frozen=True)
 class SirenPerceptionConfig:
     """Settings of :class:`SirenPerception`: the simulated scene (``audio``), the hop, the compute
-    latency added to each window's end, and the siren networks (``model``; default: the shipped
-    ones, loaded per run — pass one to share it between runs)."""
+    latency added to each window's end, how many windows the listener's decision averages
+    (``smooth``, default :data:`~makeway.perceive.audio.windows.LISTEN_SMOOTH` as ``makeway audio
+    listen``), and the siren networks (``model``; default: the shipped ones, loaded per run — pass
+    one to share it between runs)."""
 
     audio: LiveAudioConfig = field(default_factory=LiveAudioConfig)
     hop_s: float = HOP_S
     latency_s: float = 0.02
+    smooth: int = LISTEN_SMOOTH
     model: SirenModel | None = field(default=None, compare=False, repr=False)
 
     def __post_init__(self) -> None:
-        if self.hop_s <= 0 or self.latency_s < 0:
-            raise ValueError("hop_s must be > 0 and latency_s >= 0")
+        if self.hop_s <= 0 or self.latency_s < 0 or self.smooth < 1:
+            raise ValueError("hop_s must be > 0, latency_s >= 0 and smooth >= 1")
 
     @property
     def sees_lights(self) -> bool:
@@ -89,6 +92,7 @@ class SirenPerception:
             self.array.mics,
             sr,
             model=self.model,
+            smooth=cfg.smooth,
             full_scale_db_spl=self.array.full_scale_db_spl,
             source="the closed loop's simulated array",
         )
