@@ -9,8 +9,9 @@ perception (:class:`~makeway.sim.perception.SimulatedPerception`) is, so
    and the EV are and whether the siren sounds;
 2. every ``hop_s`` (0.17 s) renders the audio heard since the last hop and runs the shipped siren
    networks on the latest 0.5 s window (:class:`~makeway.perceive.audio.stream.SirenListener`, the
-   ``makeway audio listen`` rule: logit mean of 8 windows, stored threshold, distance-trend
-   approach classifier);
+   ``makeway audio listen`` rule: logit mean of ``smooth`` windows — 8 by default, 4 in the fused
+   car (:data:`~makeway.pipeline.fused_perception.FUSED_LISTEN_SMOOTH`) —, stored threshold,
+   distance-trend approach classifier);
 3. folds the observation into the EV track (:class:`~makeway.fuse.siren_track.SirenTrackFusion`)
    and publishes the belief ``latency_s`` after the window's end (the networks' compute time).
 
