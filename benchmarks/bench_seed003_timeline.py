@@ -153,7 +153,11 @@ def main() -> int:
     for seed in seeds:
         m = run_scenario(SCENARIOS["seed003"](), perception=PerceptionConfig(seed=seed)).metrics
         modelled.append(
-            {"seed": seed, "yield": m["time_active_to_yield_s"], "stopped": m["time_active_to_stopped_s"]}
+            {
+                "seed": seed,
+                "yield": _r(m["time_active_to_yield_s"]),
+                "stopped": _r(m["time_active_to_stopped_s"]),
+            }
         )
     wall = time.perf_counter() - t0
     anchor = statistics.median(r["stopped"] for r in modelled if r["stopped"] is not None)
@@ -172,6 +176,10 @@ def main() -> int:
     summary = {"modelled_stopped_s": anchor, "target_s": anchor + TARGET_MARGIN_S, "within": within}
     print(json.dumps({"fused": fused, "modelled": modelled, "summary": summary, "wall_s": round(wall, 1)}))
     return 0
+
+
+def _r(v: float | None) -> float | None:
+    return None if v is None else round(v, 2)
 
 
 def _f(v: float | None) -> str:
