@@ -124,9 +124,12 @@ it has cleared it; it never stops inside one.
 
 **A firm stop before an intersection.** For an EV on a crossing road, or one not yet placed (heard,
 its relation unknown), the plan is that of a crossing EV when the pull-over would reach an
-intersection (its start within the pull-over distance plus a lane-change length): stop before it.
-Comfort is tried first: the stop must lie ``firm_min_margin_m`` or more before the intersection and
-be reachable at ``comfort_decel_mps2`` built up at ``comfort_jerk_mps3`` after ``reaction_time_s``
+intersection (its start within the pull-over distance plus a lane-change length), or, for one not
+yet placed but heard or seen ahead of abeam, when the intersection is within
+``max_relevant_distance_m``: stop before it (such an EV can only meet us through that intersection
+or on our road ahead; a pull-over that happens to end short of the intersection would leave the
+stop to chance). Comfort is tried first: the stop must lie ``firm_min_margin_m`` or more before
+the intersection and be reachable at ``comfort_decel_mps2`` built up at ``comfort_jerk_mps3`` after ``reaction_time_s``
 (:func:`firm_stop_distance_m`, from the deceleration the car already has). When it is not, the stop
 may be **firm**: at ``max(start − intersection_margin_m, s + firm reach)`` with the firm reach at
 ``firm_decel_mps2`` (4.5 m/s²) and ``firm_jerk_mps3``, if that is still ``firm_min_margin_m``
@@ -924,9 +927,15 @@ class YieldStateMachine:
         target = next(((a, b) for a, b in boxes if b >= s), None) if crossing else None
         if firm_ok and not crossing:
             # not placed: with an intersection within a pull-over (and a lane change) ahead, it may
-            # well be heading for it: stop before that intersection as for a crossing EV
+            # well be heading for it: stop before that intersection as for a crossing EV; so too
+            # when it is heard or seen ahead of abeam with the intersection within reach of the
+            # decision (it can only meet us through that intersection or on our road ahead)
             near = next(((a, b) for a, b in boxes if a > s), None)
             reach = s + lead + max(brake, change) + change
+            b = self._belief
+            in_front = b is not None and _finite(b.bearing_rad) and abs(b.bearing_rad) < 0.5 * math.pi
+            if in_front:
+                reach = max(reach, s + cfg.max_relevant_distance_m)
             if near is not None and near[0] - cfg.intersection_margin_m <= reach:
                 crossing, target = True, near
 
