@@ -127,17 +127,17 @@ its relation unknown), the plan is that of a crossing EV when the pull-over woul
 intersection (its start within the pull-over distance plus a lane-change length), or, for one not
 yet placed but heard or seen ahead of abeam, when the intersection is within
 ``max_relevant_distance_m``: stop before it (such an EV can only meet us through that intersection
-or on our road ahead; a pull-over that happens to end short of the intersection would leave the
-stop to chance). Comfort is tried first: the stop must lie ``firm_min_margin_m`` or more before
-the intersection and be reachable at ``comfort_decel_mps2`` built up at ``comfort_jerk_mps3``
-after ``reaction_time_s`` (:func:`firm_stop_distance_m`, from the deceleration the car already has). When it is not, the stop
-may be **firm**: at ``max(start − intersection_margin_m, s + firm reach)`` with the firm reach at
-``firm_decel_mps2`` (4.5 m/s²) and ``firm_jerk_mps3``, if that is still ``firm_min_margin_m``
-before the intersection; the decision then carries ``max_decel_mps2`` / ``max_jerk_mps3`` for the
-longitudinal controller (that stop only: every other decision leaves them ``None``, comfort).
-Otherwise the car clears the intersection first, as a comfort plan does. A re-plan (the EV placed
-differently) never turns a stop before an intersection into crossing it, and keeps it unless the
-new plan must stop more than ``arrive_tolerance_m`` sooner.
+or on our road ahead; a pull-over that happens to end short of the intersection would leave the stop
+to chance). Comfort is tried first: the stop must lie ``firm_min_margin_m`` or more before the
+intersection and be reachable at ``comfort_decel_mps2`` built up at ``comfort_jerk_mps3`` after
+``reaction_time_s`` (:func:`firm_stop_distance_m`, from the deceleration the car already has). When
+it is not, the stop may be **firm**: at ``max(start − intersection_margin_m, s + firm reach)`` with
+the firm reach at ``firm_decel_mps2`` (4.5 m/s²) and ``firm_jerk_mps3``, if that is still
+``firm_min_margin_m`` before the intersection; the decision then carries ``max_decel_mps2`` /
+``max_jerk_mps3`` for the longitudinal controller (that stop only: every other decision leaves them
+``None``, comfort). Otherwise the car clears the intersection first, as a comfort plan does. A
+re-plan (the EV placed differently) never turns a stop before an intersection into crossing it, and
+keeps it unless the new plan must stop more than ``arrive_tolerance_m`` sooner.
 
 Target speed while moving over: ``min(speed limit, √(2·comfort_decel·(stop − s)), max(v, creep))`` —
 never faster than now (except creeping up to the stop point), zero at the stop point.
