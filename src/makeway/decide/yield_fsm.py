@@ -501,6 +501,7 @@ class _Plan:
     pull_over_ok: bool  # room to move over before the stop point
     before_intersection: bool  # the stop point is just before an intersection
     firm: bool = False  # a firm stop: the comfortable deceleration cannot make it
+    unknown_way: bool = False  # stop before the intersection for an EV ahead of abeam, not placed
 
 
 # ---------------------------------------------------------------------------------- state machine
@@ -896,7 +897,10 @@ class YieldStateMachine:
         if plan is None:
             self._plan = self._make_plan(ego, road, bool(crossing_now), firm_ok)
             self._plan_note = ""
-        elif crossing_now is not None and crossing_now != plan.crossing:
+        elif crossing_now is not None and crossing_now != plan.crossing and not plan.unknown_way:
+            # (a stop before the intersection for an EV ahead of abeam whose way was unknown stays
+            # when the EV is placed: its placement flips between crossing and "on our road" as its
+            # distances, compressed beyond the rangers' reach, move it)
             new = self._make_plan(ego, road, crossing_now, firm_ok)
             starts = [float(a) for a, _ in road.intersections]
             crosses = any(plan.stop_s_m < a <= new.stop_s_m for a in starts)
@@ -925,6 +929,7 @@ class YieldStateMachine:
         brake = v * v / (2.0 * cfg.comfort_decel_mps2)
         boxes = sorted((float(a), float(b)) for a, b in road.intersections)
         target = next(((a, b) for a, b in boxes if b >= s), None) if crossing else None
+        unknown_way = False
         if firm_ok and not crossing:
             # not placed: with an intersection within a pull-over (and a lane change) ahead, it may
             # well be heading for it: stop before that intersection as for a crossing EV; so too
@@ -934,10 +939,12 @@ class YieldStateMachine:
             reach = s + lead + max(brake, change) + change
             b = self._belief
             in_front = b is not None and _finite(b.bearing_rad) and abs(b.bearing_rad) < 0.5 * math.pi
-            if in_front:
-                reach = max(reach, s + cfg.max_relevant_distance_m)
             if near is not None and near[0] - cfg.intersection_margin_m <= reach:
                 crossing, target = True, near
+            elif in_front and near is not None and near[0] - s <= cfg.max_relevant_distance_m:
+                # planned for an EV whose way is unknown, not for a crossing one: a later
+                # placement on our road keeps this stop (a re-plan follows only a crossing one)
+                crossing, target, unknown_way = True, near, True
 
         def clear(desired: float) -> float:
             return clear_stop_point(
@@ -978,14 +985,16 @@ class YieldStateMachine:
                 firm = max(ahead[0] - cfg.intersection_margin_m, reach)
                 if firm <= ahead[0] - cfg.firm_min_margin_m and cfg.firm_decel_mps2 > cfg.comfort_decel_mps2:
                     room = firm - s >= lead + change
-                    return _Plan(True, firm, room and cfg.pull_over_before_intersection, True, firm=True)
+                    pull = room and cfg.pull_over_before_intersection
+                    return _Plan(True, firm, pull, True, firm=True, unknown_way=unknown_way)
                 if before and stop < comfort_reach - _EPS:
                     # neither comfort nor a firm stop makes it before: clear the intersection first
                     stop = clear(ahead[1] + cfg.intersection_exit_margin_m + change)
                     return _Plan(crossing, stop, True, False)
         room = stop - s >= lead + change
         if target is not None and stop < target[0]:
-            return _Plan(True, stop, room and cfg.pull_over_before_intersection, True)
+            pull = room and cfg.pull_over_before_intersection
+            return _Plan(True, stop, pull, True, unknown_way=unknown_way)
         return _Plan(crossing, stop, True if stop >= desired - _EPS else room, stop < desired - _EPS)
 
     def _motion(self, ego: VehicleState, road: RoadContext) -> tuple[str, bool, float, float, str]:
