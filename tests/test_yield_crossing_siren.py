@@ -8,6 +8,7 @@ noise for the fusion, so each expected outcome follows from the rule under test.
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -218,5 +219,14 @@ def test_unplaced_ev_ahead_of_abeam_stops_before_the_intersection(bearing: float
     assert d.state is YieldState.MOVING_OVER and d.action == action
     if action == "stop_before_intersection":
         assert d.stop_s_m == pytest.approx(BOX[0] - YieldConfig().intersection_margin_m)
+        # later placed "ahead, approaching" (distances compressed beyond the rangers' reach put a
+        # crossing EV near our road): the stop before the intersection stays (crossing seed 1)
+        placed = replace(
+            seen, time_s=0.1, relation=EVRelation.AHEAD, rel_x_m=33.0, rel_y_m=-7.6, distance_m=34.0
+        )
+        d = fsm.update(placed, VehicleState(0.1, s + 0.8, 0.0, 0.0, 8.0), road(s + 0.8))
+        assert d.action == action and d.stop_s_m == pytest.approx(
+            BOX[0] - YieldConfig().intersection_margin_m
+        )
     else:
         assert d.stop_s_m is not None and d.stop_s_m < BOX[0] - 20.0
