@@ -587,7 +587,8 @@ class YieldStateMachine:
         for b in beliefs:  # how long each track has shown lights without a break
             if b.detected and b.lights:
                 self._lights_since.setdefault(b.track_id, b.time_s)
-                self._lights_seen[b.track_id] = b.time_s
+                if "light" in b.sources:  # seen by the cameras (not a V2X alert's flag)
+                    self._lights_seen[b.track_id] = b.time_s
             else:
                 self._lights_since.pop(b.track_id, None)
         if len(self._lights_seen) > 64:  # forget tracks long gone
