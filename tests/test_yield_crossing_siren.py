@@ -8,6 +8,7 @@ noise for the fusion, so each expected outcome follows from the rule under test.
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -194,3 +195,38 @@ def test_on_our_road_only_within_a_bend_of_the_road() -> None:
     assert classify_relation(300.0, 100.0, 0.0) is EVRelation.AHEAD  # within 0.4·|x|
     assert classify_relation(300.0, 130.0, 0.0) is EVRelation.UNKNOWN
     assert classify_relation(39.0, -15.0, 0.1, min_curve_radius_m=50.0) is EVRelation.AHEAD
+
+
+@pytest.mark.parametrize(
+    ("bearing", "action"), [(-0.6, "stop_before_intersection"), (3.0, "pull_over_and_stop")]
+)
+def test_unplaced_ev_ahead_of_abeam_stops_before_the_intersection(bearing: float, action: str) -> None:
+    """Siren and lights of an EV not yet placed, the intersection 50 m ahead at 8 m/s, a pull-over
+    to an edge 1.3 m to the right (crossing's road) would end short of it: heard front-right, the
+    car stops before the intersection; heard behind, it pulls over at once."""
+    seen = EVBelief(
+        0.0, True, 0.99, EVRelation.UNKNOWN, bearing_rad=bearing, approaching=True, lights=True, siren=True,
+        source="fused", sources=("light", "siren"), track_id=1,
+    )  # fmt: skip
+    fsm = YieldStateMachine()
+    s = BOX[0] - 50.0
+
+    def road(s_m: float) -> RoadContext:
+        return RoadContext(s_m, right_edge_offset_m=-1.3, intersections=(BOX,))
+
+    d = fsm.update(seen, VehicleState(0.0, s, 0.0, 0.0, 8.0), road(s))
+    d = fsm.update(seen, VehicleState(0.05, s + 0.4, 0.0, 0.0, 8.0), road(s + 0.4))
+    assert d.state is YieldState.MOVING_OVER and d.action == action
+    if action == "stop_before_intersection":
+        assert d.stop_s_m == pytest.approx(BOX[0] - YieldConfig().intersection_margin_m)
+        # later placed "ahead, approaching" (distances compressed beyond the rangers' reach put a
+        # crossing EV near our road): the stop before the intersection stays (crossing seed 1)
+        placed = replace(
+            seen, time_s=0.1, relation=EVRelation.AHEAD, rel_x_m=33.0, rel_y_m=-7.6, distance_m=34.0
+        )
+        d = fsm.update(placed, VehicleState(0.1, s + 0.8, 0.0, 0.0, 8.0), road(s + 0.8))
+        assert d.action == action and d.stop_s_m == pytest.approx(
+            BOX[0] - YieldConfig().intersection_margin_m
+        )
+    else:
+        assert d.stop_s_m is not None and d.stop_s_m < BOX[0] - 20.0

@@ -25,7 +25,10 @@ siren (an EV that switches its siren off but keeps its lights on is still active
 ``signals_required=False`` drops the signal test for producers that do not report them), and with
 evidence the duty to yield does not ignore;
 *strong* = active with ``confidence >= confirm_confidence``. Confirmation (hysteresis on) needs strong
-beliefs without a break for ``confirm_time_s``, so a single-frame spike confirms nothing. Once
+beliefs without a break for ``confirm_time_s``, so a single-frame spike confirms nothing; a belief
+two independent senses support (siren and lights of one fused track) waits only
+``corroborated_confirm_time_s`` (default 0), counted from the first strong belief: the fusion's
+own confirmation of such a track already is the persistence test. Once
 confirmed, the EV is released (hysteresis off) only by the rules below: a dip under
 ``confirm_confidence`` changes nothing, a gap (not seen) shorter than ``dropout_timeout_s`` changes
 nothing.
@@ -121,17 +124,20 @@ it has cleared it; it never stops inside one.
 
 **A firm stop before an intersection.** For an EV on a crossing road, or one not yet placed (heard,
 its relation unknown), the plan is that of a crossing EV when the pull-over would reach an
-intersection (its start within the pull-over distance plus a lane-change length): stop before it.
-Comfort is tried first: the stop must lie ``firm_min_margin_m`` or more before the intersection and
-be reachable at ``comfort_decel_mps2`` built up at ``comfort_jerk_mps3`` after ``reaction_time_s``
-(:func:`firm_stop_distance_m`, from the deceleration the car already has). When it is not, the stop
-may be **firm**: at ``max(start − intersection_margin_m, s + firm reach)`` with the firm reach at
-``firm_decel_mps2`` (4.5 m/s²) and ``firm_jerk_mps3``, if that is still ``firm_min_margin_m``
-before the intersection; the decision then carries ``max_decel_mps2`` / ``max_jerk_mps3`` for the
-longitudinal controller (that stop only: every other decision leaves them ``None``, comfort).
-Otherwise the car clears the intersection first, as a comfort plan does. A re-plan (the EV placed
-differently) never turns a stop before an intersection into crossing it, and keeps it unless the
-new plan must stop more than ``arrive_tolerance_m`` sooner.
+intersection (its start within the pull-over distance plus a lane-change length), or, for one not
+yet placed but heard or seen ahead of abeam, when the intersection is within
+``max_relevant_distance_m``: stop before it (such an EV can only meet us through that intersection
+or on our road ahead; a pull-over that happens to end short of the intersection would leave the stop
+to chance). Comfort is tried first: the stop must lie ``firm_min_margin_m`` or more before the
+intersection and be reachable at ``comfort_decel_mps2`` built up at ``comfort_jerk_mps3`` after
+``reaction_time_s`` (:func:`firm_stop_distance_m`, from the deceleration the car already has). When
+it is not, the stop may be **firm**: at ``max(start − intersection_margin_m, s + firm reach)`` with
+the firm reach at ``firm_decel_mps2`` (4.5 m/s²) and ``firm_jerk_mps3``, if that is still
+``firm_min_margin_m`` before the intersection; the decision then carries ``max_decel_mps2`` /
+``max_jerk_mps3`` for the longitudinal controller (that stop only: every other decision leaves them
+``None``, comfort). Otherwise the car clears the intersection first, as a comfort plan does. A
+re-plan (the EV placed differently) never turns a stop before an intersection into crossing it, and
+keeps it unless the new plan must stop more than ``arrive_tolerance_m`` sooner.
 
 Target speed while moving over: ``min(speed limit, √(2·comfort_decel·(stop − s)), max(v, creep))`` —
 never faster than now (except creeping up to the stop point), zero at the stop point.
@@ -192,6 +198,14 @@ class YieldConfig:
         confirm_confidence: belief confidence needed, without a break for ``confirm_time_s``, to
             confirm an EV (hysteresis on).
         confirm_time_s: how long the confidence must stay at or above ``confirm_confidence``.
+        corroborated_confirm_time_s: the same for a belief that two independent senses support
+            (two of ``sources``: siren and lights of one track, or a sense and a verified alert;
+            or a siren whose track showed lights within the duty's ``lights_memory_s``).
+            Default 0: the fusion confirmed such a track only after several scans in a row with
+            both senses on one bearing, and holds each sense for a second
+            (:data:`~makeway.fuse.multi_ev.SENSE_HOLD_S`), so the belief cannot be a one-frame
+            spike and a further wait only delays the yield. Beliefs with one sense, or none
+            named (the modelled perception), keep ``confirm_time_s``.
         release_confidence: below this a belief counts as "EV not seen" (hysteresis off).
         dropout_timeout_s: gaps in perception shorter than this change nothing.
         siren_off_hold_s: with no active EV (lights and siren off, or lost far away) keep yielding this
@@ -253,6 +267,7 @@ class YieldConfig:
 
     confirm_confidence: float = 0.6
     confirm_time_s: float = 0.3
+    corroborated_confirm_time_s: float = 0.0
     release_confidence: float = 0.3
     dropout_timeout_s: float = 2.0
     siren_off_hold_s: float = 5.0
@@ -486,6 +501,7 @@ class _Plan:
     pull_over_ok: bool  # room to move over before the stop point
     before_intersection: bool  # the stop point is just before an intersection
     firm: bool = False  # a firm stop: the comfortable deceleration cannot make it
+    unknown_way: bool = False  # stop before the intersection for an EV ahead of abeam, not placed
 
 
 # ---------------------------------------------------------------------------------- state machine
@@ -527,6 +543,7 @@ class YieldStateMachine:
         self._last_active_s = -math.inf
         self._last_distance = math.nan
         self._run_since: float | None = None  # strong beliefs without a break since
+        self._corroborated = False  # the followed belief has two independent senses
         self._yield_run_since: float | None = None  # … that also need a yield
         self._ev_was_ahead = False
         # manoeuvre memory
@@ -538,6 +555,7 @@ class YieldStateMachine:
         self._duty = "ignore"  # the duty the followed EV's evidence carries
         self._others_wanting = False  # another EV than the followed one needs a yield
         self._lights_since: dict[int | None, float] = {}  # per track: lights shown without a break since
+        self._lights_seen: dict[int | None, float] = {}  # per track: when it last showed lights
         self._road_s = 0.0  # the ego's arc length and the map's intersections, this period
         self._boxes: tuple[tuple[float, float], ...] = ()
         self._ego_v = 0.0  # the ego's speed (m/s) and deceleration (m/s², >= 0), this period
@@ -569,8 +587,14 @@ class YieldStateMachine:
         for b in beliefs:  # how long each track has shown lights without a break
             if b.detected and b.lights:
                 self._lights_since.setdefault(b.track_id, b.time_s)
+                if "light" in b.sources:  # seen by the cameras (not a V2X alert's flag)
+                    self._lights_seen[b.track_id] = b.time_s
             else:
                 self._lights_since.pop(b.track_id, None)
+        if len(self._lights_seen) > 64:  # forget tracks long gone
+            memory = self.config.duty.lights_memory_s
+            latest = max(self._lights_seen.values())
+            self._lights_seen = {k: v for k, v in self._lights_seen.items() if latest - v <= memory}
         belief = self._choose(beliefs)
         self._others_wanting = any(b is not belief and self._belief_wants(b) for b in beliefs)
         stamps = [float(x) for x in (ego.time_s, belief.time_s) if _finite(x)]
@@ -594,10 +618,22 @@ class YieldStateMachine:
             return cfg.duty.siren_and_lights if b.detected else "ignore"
         since = self._lights_since.get(b.track_id)
         lights_for = b.time_s - since if since is not None else 0.0
-        duty = duty_of(b, cfg.duty, lights_for)
+        duty = duty_of(b, cfg.duty, lights_for, self._lights_ago(b))
         if duty == "prepare" and self._must_decide_before_intersection(b):
             return "yield"
         return duty
+
+    def _lights_ago(self, b: EVBelief) -> float:
+        """How long ago (s) ``b``'s track last showed lights (inf: never, or no track)."""
+        seen = self._lights_seen.get(b.track_id) if b.track_id is not None else None
+        return b.time_s - seen if seen is not None else math.inf
+
+    def _two_senses(self, b: EVBelief) -> bool:
+        """Whether two independent senses support ``b``: two of its ``sources``, or its siren with
+        lights seen on its track within the duty's ``lights_memory_s``."""
+        if len(set(b.sources)) >= 2:
+            return True
+        return b.siren and b.track_id is not None and self._lights_ago(b) <= self.config.duty.lights_memory_s
 
     def _must_decide_before_intersection(self, b: EVBelief) -> bool:
         """Whether a prepared-for siren makes the car stop before the intersection ahead now (module
@@ -669,6 +705,7 @@ class YieldStateMachine:
         self._seen_now = seen
         if not seen:
             self._run_since = self._yield_run_since = None
+            self._corroborated = False
             return
         if self._belief is not None and b.track_id != self._belief.track_id:
             # another EV: what was learnt about the last one's distance and side does not carry over
@@ -695,6 +732,7 @@ class YieldStateMachine:
         if active:
             self._last_active_s = now
         strong = active and conf >= cfg.confirm_confidence
+        self._corroborated = strong and self._two_senses(b)
         self._run_since = (self._run_since if self._run_since is not None else now) if strong else None
         wants = strong and self._duty == "yield" and self._needs(b.relation, approach)
         self._yield_run_since = (
@@ -702,7 +740,9 @@ class YieldStateMachine:
         )
 
     def _confirmed(self, since: float | None, now: float) -> bool:
-        return since is not None and now - since >= self.config.confirm_time_s - _EPS
+        cfg = self.config
+        dwell = cfg.corroborated_confirm_time_s if self._corroborated else cfg.confirm_time_s
+        return since is not None and now - since >= dwell - _EPS
 
     def _wants_yield(self) -> bool:
         b = self._belief
@@ -858,7 +898,10 @@ class YieldStateMachine:
         if plan is None:
             self._plan = self._make_plan(ego, road, bool(crossing_now), firm_ok)
             self._plan_note = ""
-        elif crossing_now is not None and crossing_now != plan.crossing:
+        elif crossing_now is not None and crossing_now != plan.crossing and not plan.unknown_way:
+            # (a stop before the intersection for an EV ahead of abeam whose way was unknown stays
+            # when the EV is placed: its placement flips between crossing and "on our road" as its
+            # distances, compressed beyond the rangers' reach, move it)
             new = self._make_plan(ego, road, crossing_now, firm_ok)
             starts = [float(a) for a, _ in road.intersections]
             crosses = any(plan.stop_s_m < a <= new.stop_s_m for a in starts)
@@ -887,13 +930,22 @@ class YieldStateMachine:
         brake = v * v / (2.0 * cfg.comfort_decel_mps2)
         boxes = sorted((float(a), float(b)) for a, b in road.intersections)
         target = next(((a, b) for a, b in boxes if b >= s), None) if crossing else None
+        unknown_way = False
         if firm_ok and not crossing:
             # not placed: with an intersection within a pull-over (and a lane change) ahead, it may
-            # well be heading for it: stop before that intersection as for a crossing EV
+            # well be heading for it: stop before that intersection as for a crossing EV; so too
+            # when it is heard or seen ahead of abeam with the intersection within reach of the
+            # decision (it can only meet us through that intersection or on our road ahead)
             near = next(((a, b) for a, b in boxes if a > s), None)
             reach = s + lead + max(brake, change) + change
+            b = self._belief
+            in_front = b is not None and _finite(b.bearing_rad) and abs(b.bearing_rad) < 0.5 * math.pi
             if near is not None and near[0] - cfg.intersection_margin_m <= reach:
                 crossing, target = True, near
+            elif in_front and near is not None and near[0] - s <= cfg.max_relevant_distance_m:
+                # planned for an EV whose way is unknown, not for a crossing one: a later
+                # placement on our road keeps this stop (a re-plan follows only a crossing one)
+                crossing, target, unknown_way = True, near, True
 
         def clear(desired: float) -> float:
             return clear_stop_point(
@@ -934,14 +986,16 @@ class YieldStateMachine:
                 firm = max(ahead[0] - cfg.intersection_margin_m, reach)
                 if firm <= ahead[0] - cfg.firm_min_margin_m and cfg.firm_decel_mps2 > cfg.comfort_decel_mps2:
                     room = firm - s >= lead + change
-                    return _Plan(True, firm, room and cfg.pull_over_before_intersection, True, firm=True)
+                    pull = room and cfg.pull_over_before_intersection
+                    return _Plan(True, firm, pull, True, firm=True, unknown_way=unknown_way)
                 if before and stop < comfort_reach - _EPS:
                     # neither comfort nor a firm stop makes it before: clear the intersection first
                     stop = clear(ahead[1] + cfg.intersection_exit_margin_m + change)
                     return _Plan(crossing, stop, True, False)
         room = stop - s >= lead + change
         if target is not None and stop < target[0]:
-            return _Plan(True, stop, room and cfg.pull_over_before_intersection, True)
+            pull = room and cfg.pull_over_before_intersection
+            return _Plan(True, stop, pull, True, unknown_way=unknown_way)
         return _Plan(crossing, stop, True if stop >= desired - _EPS else room, stop < desired - _EPS)
 
     def _motion(self, ego: VehicleState, road: RoadContext) -> tuple[str, bool, float, float, str]:

@@ -48,7 +48,12 @@ not confirm it. The default 7 of 9 keeps a listener that reports a siren at a ra
 window from confirming any track (none in 10 runs of 30 s at 6 Hz; 4 of 6 confirmed 1.7 per run);
 a real siren alone is confirmed after 7 windows (1.2 s), with lights at 10 Hz in 0.7 s. Any track
 without support for ``lost_after_s`` is dropped. Two tracks whose states are within ``merge_chi2``
-(Mahalanobis², 4 d.o.f.) become the older one.
+(Mahalanobis², 4 d.o.f.) and whose bearings from the ego agree within ``merge_bearing_sigmas``
+standard deviations (each track's bearing σ from its position covariance across the line of sight)
+become the older one. The bearing test keeps a stale track from swallowing a new EV: a false light
+ahead, unsupported for a second and a half, has a position σ of 50 m or more, and a 4-d.o.f.
+Mahalanobis test alone would merge into it the track of an EV whose lights were just seen 50 m
+behind (seed003, seed 7: the EV's track was lost that way and confirmed 0.8 s late).
 
 **Belief** per confirmed track, in the ego's vehicle frame: position, distance and bearing (position
 and distance NaN while the range is unknown: radial standard deviation above ``placed_sigma_frac`` of
@@ -204,6 +209,7 @@ class MultiEVFusion:
         confirm_senses_m: int = 4,
         lost_after_s: float = 2.0,
         merge_chi2: float = 3.0,
+        merge_bearing_sigmas: float = 3.0,
         sense_hold_s: float = SENSE_HOLD_S,
         placed_sigma_frac: float = 0.5,
         min_speed_mps: float = 3.0,
@@ -238,6 +244,7 @@ class MultiEVFusion:
         self.confirm_senses_m = confirm_senses_m
         self.lost_after_s = lost_after_s
         self.merge_chi2 = merge_chi2
+        self.merge_bearing_sigmas = merge_bearing_sigmas
         self.sense_hold_s = sense_hold_s
         self.placed_sigma_frac = placed_sigma_frac
         self.min_speed_mps = min_speed_mps
@@ -357,7 +364,7 @@ class MultiEVFusion:
                     or (t.streak >= self.confirm_senses_m and len(t.streak_senses) >= 2)
                 ):
                     t.confirmed = True
-        self._prune(time_s)
+        self._prune(time_s, ego)
         return [self._belief(i, time_s, ego) for i, t in enumerate(self.tracks) if t.confirmed]
 
     def _associate(self, time_s: float, ego: VehicleState, meas: list[_Meas]) -> set[int]:
@@ -445,7 +452,21 @@ class MultiEVFusion:
         self.state_ = np.vstack([self.state_, state[None]])
         self.cov_ = np.concatenate([self.cov_, cov[None]])
 
-    def _prune(self, time_s: float) -> None:
+    def _bearing(self, i: int, ego: VehicleState) -> tuple[float, float]:
+        """Track ``i``'s bearing from the ego (world frame, rad) and its standard deviation (rad)."""
+        dx, dy = float(self.state_[i, 0]) - ego.x_m, float(self.state_[i, 1]) - ego.y_m
+        r = max(math.hypot(dx, dy), 1.0)
+        across = np.array([-dy, dx]) / r
+        return math.atan2(dy, dx), math.sqrt(float(across @ self.cov_[i, :2, :2] @ across)) / r
+
+    def _same_bearing(self, a: int, b: int, ego: VehicleState) -> bool:
+        """Whether tracks ``a`` and ``b`` are seen on one bearing (within ``merge_bearing_sigmas``)."""
+        ta, sa = self._bearing(a, ego)
+        tb, sb = self._bearing(b, ego)
+        gap = abs(math.atan2(math.sin(ta - tb), math.cos(ta - tb)))
+        return gap <= self.merge_bearing_sigmas * math.hypot(sa, sb)
+
+    def _prune(self, time_s: float, ego: VehicleState) -> None:
         keep = [
             time_s - t.last_support_s <= self.lost_after_s and (t.confirmed or len(t.scans) < self.confirm_n)
             for t in self.tracks
@@ -457,7 +478,7 @@ class MultiEVFusion:
                     continue
                 diff = self.state_[a] - self.state_[b]
                 d2 = float(diff @ np.linalg.solve(self.cov_[a] + self.cov_[b], diff))
-                if d2 < self.merge_chi2:
+                if d2 < self.merge_chi2 and self._same_bearing(a, b, ego):
                     old, new = self.tracks[a], self.tracks[b]
                     for s, ts in new.sense_time_s.items():
                         if ts > old.sense_time_s.get(s, -math.inf):

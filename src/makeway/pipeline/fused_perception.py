@@ -9,6 +9,13 @@ collects what the chosen senses published by then and hands it to the multi-EV f
 * ``siren`` — the siren stack itself: the roof array's audio rendered as the car drives, the shipped
   networks, the listener (:class:`~makeway.pipeline.siren_perception.SirenPerception`); each
   :class:`~makeway.messages.SirenObservation` is published ``siren_latency_s`` after its window's end.
+  The listener decides on the logit mean of :data:`FUSED_LISTEN_SMOOTH` (4) windows, not the 8 of a
+  car that only hears (``makeway audio listen``): the windows before a siren starts read logits of
+  −14 to −27, so a mean over 8 calls a siren switched on 50 m away 1.05 s after it starts (seed003,
+  seed 0; the network is sure from the window ending 0.37 s after it), a mean over 4 at 0.71 s.
+  The fused car does not act on that call alone: a siren-only track needs 7 of 9 windows on one
+  bearing to be confirmed and is then only prepared for until it is close, placed and approaching
+  (:mod:`makeway.decide.duty`); a yield sooner needs the lights seen on the same bearing.
   The simulated array renders one siren: the scenario's first EV (a second EV is not heard);
 * ``light`` — the camera rig's lights detector, modelled (:class:`~makeway.sim.cameras.CameraSense`):
   :class:`~makeway.messages.LightObservation` messages per frame, published ``latency_s`` after the
@@ -59,10 +66,13 @@ from makeway.sim.world import EVTruth, SimWorld
 from makeway.v2x.message import Alert
 from makeway.v2x.security import Identity, TrustStore, Verifier, keygen, sign_alert
 
-__all__ = ["SENSE_NAMES", "FusedPerception", "FusedPerceptionConfig", "V2XLink"]
+__all__ = ["FUSED_LISTEN_SMOOTH", "SENSE_NAMES", "FusedPerception", "FusedPerceptionConfig", "V2XLink"]
 
 SENSE_NAMES = ("siren", "light", "v2x")
 ORIGIN = LocalFrame(48.137, 11.575)  # the simulated world's east-north plane (any place will do)
+FUSED_LISTEN_SMOOTH = 4
+"""Windows the fused car's siren listener averages for its call (module docstring; a car that only
+hears keeps :data:`~makeway.perceive.audio.windows.LISTEN_SMOOTH`)."""
 
 
 @dataclass(frozen=True)
@@ -93,8 +103,10 @@ class V2XLink:
 class FusedPerceptionConfig:
     """Settings of :class:`FusedPerception`: which ``senses``, the siren stack's scene (``audio``),
     the cameras' figures, the V2X link, the fusion's settings (``fusion``: keyword arguments of
-    :class:`~makeway.fuse.multi_ev.MultiEVFusion`), ``seed`` for the cameras and the link, and the
-    siren networks (``model``; default the shipped ones, loaded per run)."""
+    :class:`~makeway.fuse.multi_ev.MultiEVFusion`), the siren listener's latency and how many
+    windows its call averages (``siren_smooth``, :data:`FUSED_LISTEN_SMOOTH`), ``seed`` for the
+    cameras and the link, and the siren networks (``model``; default the shipped ones, loaded per
+    run)."""
 
     senses: tuple[str, ...] = SENSE_NAMES
     audio: LiveAudioConfig = field(default_factory=LiveAudioConfig)
@@ -102,6 +114,7 @@ class FusedPerceptionConfig:
     v2x: V2XLink = field(default_factory=V2XLink)
     fusion: tuple[tuple[str, float], ...] = ()
     siren_latency_s: float = 0.02
+    siren_smooth: int = FUSED_LISTEN_SMOOTH
     seed: int = 0
     model: SirenModel | None = field(default=None, compare=False, repr=False)
 
@@ -173,7 +186,9 @@ class FusedPerception:
         if "siren" in cfg.senses:
             self.siren = SirenPerception(
                 duration_s,
-                SirenPerceptionConfig(audio=cfg.audio, latency_s=cfg.siren_latency_s, model=cfg.model),
+                SirenPerceptionConfig(
+                    audio=cfg.audio, latency_s=cfg.siren_latency_s, smooth=cfg.siren_smooth, model=cfg.model
+                ),
                 world=self.world,
                 initial_speed_mps=initial_speed_mps,
             )

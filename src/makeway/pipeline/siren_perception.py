@@ -9,8 +9,9 @@ perception (:class:`~makeway.sim.perception.SimulatedPerception`) is, so
    and the EV are and whether the siren sounds;
 2. every ``hop_s`` (0.17 s) renders the audio heard since the last hop and runs the shipped siren
    networks on the latest 0.5 s window (:class:`~makeway.perceive.audio.stream.SirenListener`, the
-   ``makeway audio listen`` rule: logit mean of 8 windows, stored threshold, distance-trend
-   approach classifier);
+   ``makeway audio listen`` rule: logit mean of ``smooth`` windows — 8 by default, 4 in the fused
+   car (:data:`~makeway.pipeline.fused_perception.FUSED_LISTEN_SMOOTH`) —, stored threshold,
+   distance-trend approach classifier);
 3. folds the observation into the EV track (:class:`~makeway.fuse.siren_track.SirenTrackFusion`)
    and publishes the belief ``latency_s`` after the window's end (the networks' compute time).
 
@@ -30,7 +31,7 @@ from makeway.fuse.siren_track import SOURCE, SirenTrackFusion
 from makeway.messages import EVBelief, SirenObservation, VehicleState
 from makeway.perceive.audio.siren_model import SirenModel
 from makeway.perceive.audio.stream import SirenListener
-from makeway.perceive.audio.windows import HOP_S
+from makeway.perceive.audio.windows import HOP_S, LISTEN_SMOOTH
 from makeway.sim.live_array import LiveArraySimulator, LiveAudioConfig
 from makeway.sim.scenarios import Scenario
 from makeway.sim.world import SimWorld
@@ -39,17 +40,20 @@ from makeway.sim.world import SimWorld
 @dataclass(frozen=True)
 class SirenPerceptionConfig:
     """Settings of :class:`SirenPerception`: the simulated scene (``audio``), the hop, the compute
-    latency added to each window's end, and the siren networks (``model``; default: the shipped
-    ones, loaded per run — pass one to share it between runs)."""
+    latency added to each window's end, how many windows the listener's decision averages
+    (``smooth``, default :data:`~makeway.perceive.audio.windows.LISTEN_SMOOTH` as ``makeway audio
+    listen``), and the siren networks (``model``; default: the shipped ones, loaded per run — pass
+    one to share it between runs)."""
 
     audio: LiveAudioConfig = field(default_factory=LiveAudioConfig)
     hop_s: float = HOP_S
     latency_s: float = 0.02
+    smooth: int = LISTEN_SMOOTH
     model: SirenModel | None = field(default=None, compare=False, repr=False)
 
     def __post_init__(self) -> None:
-        if self.hop_s <= 0 or self.latency_s < 0:
-            raise ValueError("hop_s must be > 0 and latency_s >= 0")
+        if self.hop_s <= 0 or self.latency_s < 0 or self.smooth < 1:
+            raise ValueError("hop_s must be > 0, latency_s >= 0 and smooth >= 1")
 
     @property
     def sees_lights(self) -> bool:
@@ -89,6 +93,7 @@ class SirenPerception:
             self.array.mics,
             sr,
             model=self.model,
+            smooth=cfg.smooth,
             full_scale_db_spl=self.array.full_scale_db_spl,
             source="the closed loop's simulated array",
         )
