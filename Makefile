@@ -8,7 +8,7 @@ OUT    ?= reports/demo
 
 .PHONY: venv demo test lint typecheck bench bench-sort bench-video bench-crops bench-detection bench-pull-over \
 	bench-siren-loop bench-audio bench-rig bench-v2x bench-fusion bench-roadside bench-lights bench-active-rule \
-	bench-rsu bench-fusion-ablation bench-mcap bench-engine bench-robust bench-speed bench-crossing bench-crossing-fresh bench-no-ev-2h bench-range-loop bench-approach-pairing bench-faults bench-overload bench-overload-listener bench-range bench-clip-fusion bench-framework-ab fuzz clean
+	bench-rsu bench-fusion-ablation bench-mcap bench-engine bench-robust bench-speed bench-crossing bench-crossing-fresh bench-no-ev-2h bench-range-loop bench-approach-pairing bench-seed003-timeline bench-faults bench-overload bench-overload-listener bench-range bench-clip-fusion bench-framework-ab fuzz clean
 
 # `make demo` installs the runtime only; `make test` and the benchmarks add the dev extra (linters,
 # scikit-learn, XGBoost, torch for the training tests).
@@ -167,6 +167,10 @@ bench-range: venv
 bench-range-loop: venv
 	$(BIN)/python benchmarks/bench_closed_loop_siren.py --rangers prior --no-anchor --scenarios crossing,seed003,curve_behind --sirens real --seeds 0,1 --no-ev-runs 0 --siren-level 120,135
 	$(BIN)/python benchmarks/bench_closed_loop_siren.py --rangers wide --no-anchor --scenarios crossing,seed003,curve_behind --sirens real --seeds 0,1 --no-ev-runs 0 --siren-level 120,135
+
+# seed003 (EV 50 m behind), fused: where EV on -> stopped goes, stage by stage, beside modelled perception
+bench-seed003-timeline: venv
+	$(BIN)/python benchmarks/bench_seed003_timeline.py --seeds 8
 
 # the approaching/receding classifiers: each ranger set with each classifier, held out (standard and 110-135 dB sets)
 bench-approach-pairing: venv
