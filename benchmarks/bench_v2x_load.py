@@ -2,7 +2,7 @@
 "Load": no loss, flat memory).
 
     .venv/bin/python benchmarks/bench_v2x_load.py [--minutes 10] [--units 20] [--cars 50] [--car-procs 5]
-        [--rate-hz 10] [--json FILE]
+        [--rate-hz 10] [--relevance-m 1000] [--unit-spacing-m 800] [--json FILE]
 
 Layout (all zenoh peers on 127.0.0.1, TCP, scouting off):
 
@@ -19,9 +19,18 @@ Layout (all zenoh peers on 127.0.0.1, TCP, scouting off):
   every car's signature checks (each real car has its own CPU: 200 alerts/s at 120–160 µs is
   2.4–3.2 % of one core).
 
-Per car: alerts lost (published by the units minus distinct (unit, sequence) verified by the car —
-so an alert still queued unverified at the end counts as lost), verification failures (by reason),
-duplicates, and payloads taken off the queue; per process: resident memory (VmRSS, MiB) sampled
+Where: the units stand on a grid ``--unit-spacing-m`` apart (5 × 4 for 20 units; a district with a
+unit at every main intersection), each reporting an EV at its own position; car ``i`` stands at a
+random point of the grid's area (seeded, the same in every run). ``--relevance-m R`` has each car
+verify on demand (:class:`~makeway.v2x.belief.RelevanceArea`): every payload is read and put
+through every check that needs no signature, and only alerts whose EV is within ``R`` m of the car
+have their signature checked; the others count as received, "not relevant". Without it (the
+default) every car checks every signature.
+
+Per car: alerts lost (published by the units minus distinct (unit, sequence) verified — or, verifying
+on demand, found not relevant — by the car; an alert still queued unread at the end counts as lost),
+relevant alerts lost (from the units within ``R``: published minus verified), verification failures
+(by reason), duplicates, and payloads taken off the queue; per process: resident memory (VmRSS, MiB) sampled
 every 10 s. Memory is called flat when the mean of the last minute's samples exceeds the first
 minute's by less than ``FLAT_MIB`` in every process (a steady leak of one cached alert per car per
 verification would grow a car process by tens of MiB per minute). Also the lag from an alert's
@@ -44,14 +53,44 @@ from typing import Any
 
 import numpy as np
 
+from makeway.v2x.belief import LocalFrame, RelevanceArea
 from makeway.v2x.message import Alert, MalformedAlertError
-from makeway.v2x.security import TrustStore, Verifier, keygen, load_identity, parse_signed, sign_alert
+from makeway.v2x.security import (
+    NOT_RELEVANT,
+    TrustStore,
+    Verifier,
+    keygen,
+    load_identity,
+    parse_signed,
+    sign_alert,
+)
 from makeway.v2x.transport import AlertPublisher, AlertSubscriber, free_loopback_port, open_peer
 
 FLAT_MIB = 5.0
 FLAT_PCT = 5.0  # every RSS sample after the first minute within ± this % of the first minute's mean
 RSS_EVERY_S = 10.0
 SETTLE_S = 3.0  # after the last alert, how long cars keep listening
+LAT0, LON0 = 48.137, 11.575  # the grid's south-west corner (WGS-84 degrees)
+M_PER_DEG_LAT = 111_200.0  # metres per degree of latitude near 48° (placement only; distances use LocalFrame)
+CAR_SEED = 27
+
+
+def unit_positions(units: int, spacing_m: float) -> list[tuple[float, float]]:
+    """(lat, lon) of each unit: a grid of ``ceil(sqrt(units))`` columns, ``spacing_m`` apart."""
+    cols = int(np.ceil(np.sqrt(units)))
+    m_per_deg_lon = M_PER_DEG_LAT * np.cos(np.radians(LAT0))
+    return [
+        (LAT0 + (u // cols) * spacing_m / M_PER_DEG_LAT, LON0 + (u % cols) * spacing_m / m_per_deg_lon)
+        for u in range(units)
+    ]
+
+
+def car_positions(n_cars: int, units: int, spacing_m: float) -> list[tuple[float, float]]:
+    """(lat, lon) of each car: uniform over the units' grid (seeded; the same in every process)."""
+    grid = np.array(unit_positions(units, spacing_m))
+    rng = np.random.default_rng(CAR_SEED)
+    lo, hi = grid.min(axis=0), grid.max(axis=0)
+    return [(float(a), float(b)) for a, b in rng.uniform(lo, hi, size=(n_cars, 2))]
 
 
 def rss_mib() -> float:
@@ -86,10 +125,13 @@ def _wait_file(path: Path, timeout_s: float) -> None:
         time.sleep(0.05)
 
 
-def publisher(keys: Path, port: int, units: int, rate_hz: float, duration_s: float, work: Path) -> None:
+def publisher(
+    keys: Path, port: int, units: int, rate_hz: float, duration_s: float, work: Path, spacing_m: float
+) -> None:
     """All units in one process: listen, wait for ``go`` (its content: the start time, Unix s), then
     publish until start + ``duration_s``; write the per-unit counts and RSS samples to ``pub.json``."""
     idents = [load_identity(keys / f"rsu{u:02d}.key") for u in range(units)]
+    where = unit_positions(units, spacing_m)
     session = open_peer(listen=[f"tcp/127.0.0.1:{port}"])
     pubs = [AlertPublisher(session, f"load-{u:02d}") for u in range(units)]
     (work / "pub.ready").touch()
@@ -115,8 +157,8 @@ def publisher(keys: Path, port: int, units: int, rate_hz: float, duration_s: flo
                 station_id=idents[u].station_id,
                 generation_time_s=time.time(),
                 sequence=k,
-                lat_deg=48.137 + 0.0005 * u,
-                lon_deg=11.575,
+                lat_deg=where[u][0],
+                lon_deg=where[u][1],
                 heading_deg=30.0,
                 speed_mps=16.7,
             )
@@ -141,11 +183,18 @@ def cars(
     duration_s: float,
     work: Path,
     verify: bool = True,
+    relevance_m: float = 0.0,
+    spacing_m: float = 800.0,
+    first_car: int = 0,
+    total_cars: int = 0,
 ) -> None:
     """``n_cars`` cars in one process, each its own session, subscriber, verifier and thread; write
     per-car counts and this process's RSS samples to ``cars-P.json``. With ``verify`` off a car only
-    decodes each payload (the transport's share of the work, without the signature check)."""
+    decodes each payload (the transport's share of the work, without the signature check); with
+    ``relevance_m`` > 0 it verifies on demand (module docstring). Cars ``first_car`` … of
+    ``total_cars`` (their positions)."""
     store = TrustStore.load(keys / "trust")
+    where = car_positions(total_cars, units, spacing_m)[first_car : first_car + n_cars]
     segments = [f"load-{u:02d}" for u in range(units)]
     sessions = [open_peer(connect=[f"tcp/127.0.0.1:{port}"]) for _ in range(n_cars)]
     subs = [AlertSubscriber(s, segments, queue="fifo") for s in sessions]  # counts every alert lost
@@ -164,20 +213,24 @@ def cars(
     arrivals = [np.full(units * ticks, np.nan, dtype=np.float32) for _ in range(n_cars)]
 
     def car(i: int) -> None:
-        verifier = Verifier(store)
+        area = RelevanceArea(relevance_m, *where[i]) if relevance_m > 0 else None
+        verifier = Verifier(store, relevant=area)
         by_station: dict[int, int] = {}
         failures: Counter[str] = Counter()
         duplicates = 0
         handled = 0
+        verified = 0
         for got in subs[i].receive(max(0.0, end - time.time())):
             now = time.time()
             handled += 1
+            checked = False
             if verify:
                 v = verifier.verify(got.payload, now)
-                if not v.valid or v.alert is None:
+                if v.alert is None or not (v.valid or v.reason == NOT_RELEVANT):
                     failures[v.reason.split(":")[0]] += 1
                     continue
-                alert = v.alert
+                alert, checked = v.alert, v.valid
+                verified += checked
             else:
                 try:
                     alert = parse_signed(got.payload).alert
@@ -188,10 +241,12 @@ def cars(
             k = alert.sequence
             duplicates += bool(got_seq[i][u, k])
             got_seq[i][u, k] = True
-            lags[i][u * ticks + k] = now - alert.generation_time_s
+            if checked or not verify or area is None:
+                lags[i][u * ticks + k] = now - alert.generation_time_s
             arrivals[i][u * ticks + k] = got.time_s - alert.generation_time_s
         results[i] = {
             "received": got_seq[i].sum(axis=1).tolist(),
+            "verified": verified,
             "failures": dict(failures),
             "duplicates": duplicates,
             "handled": handled,
@@ -242,8 +297,26 @@ def _spread_pct(samples: list[tuple[float, float]]) -> tuple[float, float]:
     return 100.0 * (min(later) / first - 1.0), 100.0 * (max(later) / first - 1.0)
 
 
+def relevant_units(n_cars: int, units: int, spacing_m: float, relevance_m: float) -> list[list[bool]]:
+    """Per car, per unit: is the unit's EV within ``relevance_m`` of the car (every unit when
+    ``relevance_m`` is 0: verify everything)."""
+    ev = unit_positions(units, spacing_m)
+    out = []
+    for lat, lon in car_positions(n_cars, units, spacing_m):
+        frame = LocalFrame(lat, lon)
+        out.append([relevance_m <= 0 or float(np.hypot(*frame.to_local(*p))) <= relevance_m for p in ev])
+    return out
+
+
 def run(
-    minutes: float, units: int, n_cars: int, car_procs: int, rate_hz: float, verify: bool = True
+    minutes: float,
+    units: int,
+    n_cars: int,
+    car_procs: int,
+    rate_hz: float,
+    verify: bool = True,
+    relevance_m: float = 0.0,
+    spacing_m: float = 800.0,
 ) -> dict[str, Any]:
     duration_s = minutes * 60.0
     if duration_s * rate_hz > 65536:
@@ -258,7 +331,8 @@ def run(
             keygen(keys, f"rsu{u:02d}")
         port = free_loopback_port()
         common = ["--keys", str(keys), "--port", str(port), "--work", str(work), "--units", str(units)]
-        common += ["--minutes", str(minutes), "--rate-hz", str(rate_hz)]
+        common += ["--minutes", str(minutes), "--rate-hz", str(rate_hz), "--unit-spacing-m", str(spacing_m)]
+        common += ["--relevance-m", str(relevance_m), "--cars-total", str(n_cars)]
         procs = [subprocess.Popen([sys.executable, __file__, "--role", "publisher", *common])]
         _wait_file(work / "pub.ready", 60.0)
         per = n_cars // car_procs
@@ -274,6 +348,8 @@ def run(
                         str(p),
                         "--cars",
                         str(per),
+                        "--first-car",
+                        str(p * per),
                         "--verify" if verify else "--no-verify",
                         *common,
                     ]
@@ -293,6 +369,13 @@ def run(
         sum(p - r for p, r in zip(published, c["received"], strict=True))
         for co in car_out
         for c in co["cars"]
+    ]
+    per_car = [c for co in car_out for c in co["cars"]]
+    relevant = relevant_units(n_cars, units, spacing_m, relevance_m)
+    relevant_published = [sum(p for p, r in zip(published, rel, strict=True) if r) for rel in relevant]
+    relevant_lost = [
+        sum(p - got for p, got, r in zip(published, c["received"], rel, strict=True) if r)
+        for c, rel in zip(per_car, relevant, strict=True)
     ]
     failures: Counter[str] = Counter()
     for co in car_out:
@@ -315,6 +398,16 @@ def run(
         "lost_total": sum(lost_per_car),
         "lost_max_per_car": max(lost_per_car),
         "cars_with_loss": sum(x > 0 for x in lost_per_car),
+        "relevance_m": relevance_m,
+        "unit_spacing_m": spacing_m,
+        "relevant_published_total": sum(relevant_published),
+        "relevant_lost_total": sum(relevant_lost),
+        "relevant_units_per_car_min_median_max": [
+            int(min(map(sum, relevant))),
+            float(np.median([sum(r) for r in relevant])),
+            int(max(map(sum, relevant))),
+        ],
+        "verified_total": sum(c.get("verified", 0) for c in per_car),
         "verification_failures": dict(failures),
         "duplicates": sum(c["duplicates"] for co in car_out for c in co["cars"]),
         "handled_total": sum(c["handled"] for co in car_out for c in co["cars"]),
@@ -345,16 +438,26 @@ def main() -> None:
         default=True,
         help="each car checks every signature (default); --no-verify: decode only (the transport)",
     )
+    ap.add_argument(
+        "--relevance-m",
+        type=float,
+        default=0.0,
+        help="verify on demand: each car checks the signatures of alerts whose EV is within this many m "
+        "(0, the default: every signature)",
+    )
+    ap.add_argument("--unit-spacing-m", type=float, default=800.0, help="the units' grid spacing (m)")
     ap.add_argument("--json", type=Path)
     ap.add_argument("--role", default="main", help=argparse.SUPPRESS)
     ap.add_argument("--keys", type=Path, help=argparse.SUPPRESS)
     ap.add_argument("--port", type=int, help=argparse.SUPPRESS)
     ap.add_argument("--work", type=Path, help=argparse.SUPPRESS)
     ap.add_argument("--proc", type=int, help=argparse.SUPPRESS)
+    ap.add_argument("--first-car", type=int, default=0, help=argparse.SUPPRESS)
+    ap.add_argument("--cars-total", type=int, default=0, help=argparse.SUPPRESS)
     args = ap.parse_args()
     duration_s = args.minutes * 60.0
     if args.role == "publisher":
-        publisher(args.keys, args.port, args.units, args.rate_hz, duration_s, args.work)
+        publisher(args.keys, args.port, args.units, args.rate_hz, duration_s, args.work, args.unit_spacing_m)
         return
     if args.role == "cars":
         cars(
@@ -367,14 +470,43 @@ def main() -> None:
             duration_s,
             args.work,
             verify=args.verify,
+            relevance_m=args.relevance_m,
+            spacing_m=args.unit_spacing_m,
+            first_car=args.first_car,
+            total_cars=args.cars_total,
         )
         return
-    r = run(args.minutes, args.units, args.cars, args.car_procs, args.rate_hz, verify=args.verify)
+    r = run(
+        args.minutes,
+        args.units,
+        args.cars,
+        args.car_procs,
+        args.rate_hz,
+        verify=args.verify,
+        relevance_m=args.relevance_m,
+        spacing_m=args.unit_spacing_m,
+    )
+    if not r["verify"]:
+        how = "decodes each (--no-verify: no signature check)"
+    elif r["relevance_m"] > 0:
+        lo, med, hi = r["relevant_units_per_car_min_median_max"]
+        how = (
+            f"reads each and verifies on demand: the signatures of alerts whose EV is within "
+            f"{r['relevance_m']:g} m (units {r['unit_spacing_m']:g} m apart; {lo}/{med:g}/{hi} units "
+            f"in range per car, min/median/max)"
+        )
+    else:
+        how = "checks every signature"
     print(
         f"load: {r['units']} units × {r['rate_hz']:g} Hz → {r['cars']} cars ({r['car_processes']} car "
         f"processes), {r['minutes']:g} min: {r['published']:,} alerts published, each car expects all "
-        f"and {'checks every signature' if r['verify'] else 'decodes each (--no-verify: no signature check)'}"
+        f"and {how}"
     )
+    if r["verify"] and r["relevance_m"] > 0:
+        print(
+            f"  relevant alerts: {r['relevant_published_total']:,} (summed over cars), lost "
+            f"{r['relevant_lost_total']}; signatures checked {r['verified_total']:,}"
+        )
     print(
         f"  lost: {r['lost_total']} in total, at most {r['lost_max_per_car']} per car, "
         f"{r['cars_with_loss']} cars with any loss; verification failures {r['verification_failures'] or 0}; "

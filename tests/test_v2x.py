@@ -26,9 +26,10 @@ from conftest import start_car_listener
 from makeway.cli.main import app
 from makeway.fuse.source import BeliefSource
 from makeway.messages import EVRelation, VehicleState
-from makeway.v2x.belief import LocalFrame, V2XBeliefSource
+from makeway.v2x.belief import LocalFrame, RelevanceArea, V2XBeliefSource
 from makeway.v2x.message import ALERT_SIZE, Alert
 from makeway.v2x.security import (
+    NOT_RELEVANT,
     SIGNED_SIZE,
     Identity,
     TrustStore,
@@ -171,6 +172,47 @@ def test_relevance_checks_come_before_the_signature(keys: dict) -> None:
     fresh = sign_alert(_alert(good, 10, now), good)
     assert v.verify(broken(fresh), now).reason == "bad signature"
     assert v.verify(fresh, now).valid  # the forged copy did not take sequence 10
+
+
+def test_verify_on_demand_checks_signatures_of_nearby_evs_only(keys: dict) -> None:
+    """With a relevance area of 1 km around the car, an alert placing the EV 0.02° of latitude
+    (2.2 km) north is returned unverified as not relevant — even with a broken signature, so no
+    ECDSA work was spent on it — and leaves no trace in the replay cache; one 0.005° (556 m) north
+    is verified. Stale and replayed messages are still refused first, whatever their distance."""
+    store, good, now = TrustStore.load(keys["trust"]), keys["good"], time.time()
+    area = RelevanceArea(1000.0, 48.137, 11.575)
+    v = Verifier(store, relevant=area)
+
+    def broken(m: bytes) -> bytes:
+        return m[:-1] + bytes([m[-1] ^ 0x01])
+
+    far = sign_alert(_alert(good, 20, now, lat_deg=48.157), good)
+    assert area.distance_m(parse_signed(far).alert) == pytest.approx(2224.0, abs=5.0)
+    assert v.verify(broken(far), now).reason == NOT_RELEVANT
+    verdict = v.verify(far, now)
+    assert verdict.reason == NOT_RELEVANT and not verdict.valid and verdict.alert is not None
+    assert len(v.replay) == 0
+    near = sign_alert(_alert(good, 21, now, lat_deg=48.142), good)
+    assert v.verify(broken(near), now).reason == "bad signature"
+    assert v.verify(near, now).valid
+    assert v.verify(
+        broken(sign_alert(_alert(good, 22, now - 60.0, lat_deg=48.157), good)), now
+    ).reason.startswith("stale")
+    assert v.verify(broken(near), now).reason.startswith("replay")
+    # the car moves north: the far EV is now 1.1 km away, then 0.6 km → verified
+    area.move_to(48.147, 11.575)
+    assert v.verify(far, now).reason == NOT_RELEVANT
+    area.move_to(48.152, 11.575)
+    assert v.verify(far, now).valid
+    # no position known: everything is relevant (the safe side)
+    assert RelevanceArea(1000.0)(parse_signed(far).alert)
+    for bad in (0.0, -5.0, math.inf, math.nan):
+        with pytest.raises(ValueError, match="radius_m"):
+            RelevanceArea(bad)
+    with pytest.raises(ValueError, match="both"):
+        RelevanceArea(1000.0, 48.0)
+    with pytest.raises(ValueError, match="WGS-84"):
+        area.move_to(91.0, 0.0)
 
 
 # ------------------------------------------------------------------------------------------ belief
@@ -365,6 +407,7 @@ def test_alerts_over_zenoh_between_two_processes(tmp_path: Path) -> None:
         "received": n + 1,
         "valid": n,
         "rejected": 1,
+        "not_relevant": 0,
         "reasons": {"unknown signer": 1},
         "dropped_unread": 0,
     }
@@ -503,3 +546,13 @@ def test_verify_reads_no_more_than_one_alert_of_a_file(keys: dict, tmp_path: Pat
     rows = [json.loads(line) for line in res.stdout.splitlines()]
     assert rows[0]["reason"] == f"oversized: {4 << 30} bytes, a signed alert has {SIGNED_SIZE}"
     assert not rows[0]["valid"] and rows[1]["valid"]
+
+
+def test_listen_refuses_verify_on_demand_without_the_cars_position(keys: dict) -> None:
+    """`makeway vehicle listen --relevance-m` needs --ego-lat/--ego-lon: one line, exit 2, before
+    anything is opened."""
+    res = runner.invoke(
+        app, ["vehicle", "listen", "--trust", str(keys["trust"]), "--segment", "a7", "--relevance-m", "1000"]
+    )
+    assert res.exit_code == 2
+    assert "--relevance-m needs the car's position" in res.output

@@ -189,6 +189,7 @@ def listen(
     connect: Sequence[str] = (),
     ego: tuple[float, float, float, float] | None = None,
     hold_s: float = 1.0,
+    relevance_m: float | None = None,
 ) -> Iterator[dict[str, Any]]:
     """Subscribe to the segments, verify every payload, and yield one row per payload:
         ``{"key", "valid", "reason", ...decoded fields, "latency_ms", "belief"}``; the belief
@@ -198,18 +199,26 @@ def listen(
     keeps an alert after its generation time. Ends after ``duration_s`` or
         ``count`` payloads, then yields a summary row ``{"summary": {...}}`` (``dropped_unread``: alerts
         that came faster than they were verified and were dropped unread because newer ones of the
-        same sender were waiting; see :class:`~makeway.v2x.transport.AlertSubscriber`)."""
-    from makeway.v2x.belief import LocalFrame, V2XBeliefSource
-    from makeway.v2x.security import TrustStore, Verifier
+        same sender were waiting; see :class:`~makeway.v2x.transport.AlertSubscriber`).
+        ``relevance_m`` (with ``ego``): verify on demand — an alert whose EV is farther than this
+        (m) from the ego is checked for everything but its signature and reported with
+        ``"reason": "not relevant: ..."`` (counted as ``not_relevant``, not as rejected)."""
+    from makeway.v2x.belief import LocalFrame, RelevanceArea, V2XBeliefSource
+    from makeway.v2x.security import NOT_RELEVANT, TrustStore, Verifier
     from makeway.v2x.transport import AlertSubscriber, open_peer, segment_key
 
     for s in segments:
         segment_key(s)
+    if relevance_m is not None and ego is None:
+        raise ValueError("verify on demand (relevance_m) needs the car's position (ego)")
     store = TrustStore.load(trust)
-    verifier = Verifier(store)
+    relevant = (
+        RelevanceArea(relevance_m, ego[0], ego[1]) if relevance_m is not None and ego is not None else None
+    )
+    verifier = Verifier(store, relevant=relevant)
     frame = LocalFrame(ego[0], ego[1]) if ego is not None else None
     source = V2XBeliefSource(frame or LocalFrame(0.0, 0.0), hold_s=hold_s)
-    valid = rejected = dropped = 0
+    valid = rejected = dropped = not_relevant = 0
     reasons: dict[str, int] = {}
     session = open_peer(listen_on, connect)
     try:
@@ -221,6 +230,8 @@ def listen(
                 valid += 1
                 source.receive(verdict.alert)
                 row["latency_ms"] = (got.time_s - verdict.alert.generation_time_s) * 1000.0
+            elif verdict.reason == NOT_RELEVANT:
+                not_relevant += 1
             else:
                 rejected += 1
                 first = verdict.reason.split(":")[0]
@@ -231,7 +242,7 @@ def listen(
                 ego_state = VehicleState(time_s=got.time_s, x_m=0.0, y_m=0.0, yaw_rad=yaw, vx_mps=ego[3])
             row["belief"] = asdict(source.update(got.time_s, ego_state))
             yield row
-            if count is not None and valid + rejected >= count:
+            if count is not None and valid + rejected + not_relevant >= count:
                 break
         dropped = sub.dropped
         sub.close()
@@ -239,9 +250,10 @@ def listen(
         session.close()
     yield {
         "summary": {
-            "received": valid + rejected,
+            "received": valid + rejected + not_relevant,
             "valid": valid,
             "rejected": rejected,
+            "not_relevant": not_relevant,
             "reasons": reasons,
             "dropped_unread": dropped,
         }

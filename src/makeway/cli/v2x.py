@@ -170,6 +170,14 @@ def listen_cmd(
     hold_s: Annotated[
         float, typer.Option(min=0.0, help="The belief keeps an alert this long (s) after its generation.")
     ] = 1.0,
+    relevance_m: Annotated[
+        float | None,
+        typer.Option(
+            min=1.0,
+            help="Verify on demand (needs --ego-lat/--ego-lon): check the signature only of alerts whose EV "
+            "is within this many metres; the others are reported as not relevant. 1000 is a sensible radius.",
+        ),
+    ] = None,
 ) -> None:
     """Listen for alerts as a car.
 
@@ -184,6 +192,8 @@ def listen_cmd(
 
     if (ego_lat is None) != (ego_lon is None):
         raise ValueError("--ego-lat and --ego-lon go together")
+    if relevance_m is not None and ego_lat is None:
+        raise ValueError("--relevance-m needs the car's position: --ego-lat and --ego-lon")
     ego = None if ego_lat is None or ego_lon is None else (ego_lat, ego_lon, ego_heading_deg, ego_speed_mps)
     try:
         for row in run(
@@ -195,6 +205,7 @@ def listen_cmd(
             connect=connect or [],
             ego=ego,
             hold_s=hold_s,
+            relevance_m=relevance_m,
         ):
             print_json_line(row)
     except KeyboardInterrupt:

@@ -17,7 +17,7 @@ from makeway.fuse.relation import classify_relation
 from makeway.messages import EVBelief, VehicleState
 from makeway.v2x.message import Alert
 
-__all__ = ["LocalFrame", "V2XBeliefSource"]
+__all__ = ["DEFAULT_RELEVANCE_M", "LocalFrame", "RelevanceArea", "V2XBeliefSource"]
 
 _A = 6378137.0  # WGS-84 semi-major axis (m)
 _F = 1 / 298.257223563
@@ -58,6 +58,56 @@ class LocalFrame:
         """Heading (degrees clockwise from north) → yaw (rad, counter-clockwise from east)."""
         yaw = math.radians(90.0 - heading_deg)
         return math.atan2(math.sin(yaw), math.cos(yaw))
+
+
+DEFAULT_RELEVANCE_M = 1000.0
+"""Radius (m) of :class:`RelevanceArea` by default: an EV at 30 m/s needs 33 s to cover it, more
+than the lead at which a car starts to clear a corridor for it; DENM's own relevance classes stop
+at "less than 1,000 m" before jumping to 5 km."""
+
+
+class RelevanceArea:
+    """Which alerts a car could act on, for verify on demand
+    (:class:`~makeway.v2x.security.Verifier`'s ``relevant``): an alert is relevant when the EV it
+    describes is within ``radius_m`` (m, on the tangent plane at the car) of the car's position, or
+    when the car's position is not known (then everything is relevant: the safe side).
+
+    The car calls :meth:`move_to` with its WGS-84 position as it drives (re-centring the plane each
+    time; the plane's distortion is about 1 cm at 1 km). The distance is to the EV where the alert
+    places it, not where it will be: the radius is the lead.
+    """
+
+    def __init__(
+        self,
+        radius_m: float = DEFAULT_RELEVANCE_M,
+        lat_deg: float | None = None,
+        lon_deg: float | None = None,
+    ) -> None:
+        if not radius_m > 0.0 or not math.isfinite(radius_m):
+            raise ValueError(f"radius_m must be a positive number of metres, not {radius_m!r}")
+        self.radius_m = radius_m
+        self._frame: LocalFrame | None = None
+        if (lat_deg is None) != (lon_deg is None):
+            raise ValueError("give both lat_deg and lon_deg, or neither")
+        if lat_deg is not None and lon_deg is not None:
+            self.move_to(lat_deg, lon_deg)
+
+    def move_to(self, lat_deg: float, lon_deg: float) -> None:
+        """The car is now at (``lat_deg``, ``lon_deg``), WGS-84 degrees."""
+        if not (-90.0 <= lat_deg <= 90.0 and -180.0 <= lon_deg <= 180.0):
+            raise ValueError(f"not a WGS-84 position: lat {lat_deg!r}, lon {lon_deg!r}")
+        self._frame = LocalFrame(lat_deg, lon_deg)
+
+    def distance_m(self, alert: Alert) -> float:
+        """Distance (m) from the car to the EV the alert places; NaN when the car's position is unknown."""
+        if self._frame is None:
+            return math.nan
+        east, north = self._frame.to_local(alert.lat_deg, alert.lon_deg)
+        return math.hypot(east, north)
+
+    def __call__(self, alert: Alert) -> bool:
+        d = self.distance_m(alert)
+        return math.isnan(d) or d <= self.radius_m
 
 
 class V2XBeliefSource:

@@ -45,6 +45,13 @@ certificate not valid at the generation time, a station id that is not the signe
 non-canonical signature (so any changed byte), a generation time more than ``max_future_s``
 ahead of the car's clock or more than ``max_age_s`` behind it, and a replay (a signer and
 sequence already accepted within the freshness window).
+
+Verify on demand: given a ``relevant`` predicate (e.g. :class:`~makeway.v2x.belief.RelevanceArea`,
+the EV within a radius of the car), :class:`Verifier` checks the signature only of alerts the car
+could act on; the others pass every check that costs no signature and are returned unverified
+with the reason :data:`NOT_RELEVANT` (never valid, never in the replay cache). This is the
+receiver policy known as verify-on-demand (Krishnan and Weimerskirch, SAE 2011): a car verifies
+the messages that could change what it does, not every message in radio range.
 """
 
 from __future__ import annotations
@@ -54,7 +61,7 @@ import hashlib
 import json
 import os
 import tempfile
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -83,6 +90,7 @@ from makeway.v2x.message import (
 __all__ = [
     "DEFAULT_MAX_AGE_S",
     "DEFAULT_MAX_FUTURE_S",
+    "NOT_RELEVANT",
     "PSID_DEN",
     "SIGNED_SIZE",
     "SIGNER_OFFSET",
@@ -650,6 +658,11 @@ class ReplayCache:
 
 
 # ---------------------------------------------------------------------------------------- verify
+NOT_RELEVANT = "not relevant: passed the checks that need no signature, not verified (verify on demand)"
+"""The :class:`Verdict` reason of an alert the ``relevant`` predicate declined: not an attack, not
+accepted; the car simply has no use for it."""
+
+
 @dataclass(frozen=True, slots=True)
 class Verdict:
     """The result of checking one message: ``reason`` is ``"ok"`` when ``valid``."""
@@ -676,6 +689,9 @@ class Verifier:
         max_age_s: freshness window (s).
         max_future_s: clock-skew allowance (s).
         replay: pairs already accepted (shared across calls; a new empty cache by default).
+        relevant: verify on demand (module docstring): called with the decoded alert after every
+            check that needs no signature; when it returns False the signature is not checked and
+            the verdict is :data:`NOT_RELEVANT`. ``None`` (the default): every signature is checked.
     """
 
     def __init__(
@@ -685,8 +701,10 @@ class Verifier:
         max_age_s: float = DEFAULT_MAX_AGE_S,
         max_future_s: float = DEFAULT_MAX_FUTURE_S,
         replay: ReplayCache | None = None,
+        relevant: Callable[[Alert], bool] | None = None,
     ) -> None:
         self.store = store
+        self.relevant = relevant
         self.max_age_ms = round(max_age_s * 1000)
         self.max_future_ms = round(max_future_s * 1000)
         self.replay = ReplayCache() if replay is None else replay
@@ -732,6 +750,8 @@ class Verifier:
             self._pruned_ms = now_ms
         if self.replay.seen(signer, alert.sequence):
             return Verdict(False, "replay: this signer's sequence was already accepted", alert, signer)
+        if self.relevant is not None and not self.relevant(alert):
+            return Verdict(False, NOT_RELEVANT, alert, signer)
         try:
             pub.verify(
                 encode_dss_signature(r, s), _signing_input(parsed.tbs, cert_hash), ec.ECDSA(hashes.SHA256())
