@@ -193,3 +193,19 @@ def test_video_pipeline_hands_its_vehicle_boxes_to_the_light_detector(
         detector_workers=1,
     )
     assert s.frames == 4 and len(given) == 4 and all(given) and sum(found) > 0
+
+
+def test_context_detector_fails_at_construction_without_vehicle_weights(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The shipped verifier reads the vehicle context; with no YOLOX-nano weights anywhere it is
+    refused when built (one error naming the file), not on the first frame — and building it does not
+    load a vehicle detector (a pipeline hands it its own boxes)."""
+    from makeway.errors import InputError
+    from makeway.perceive.vision import detectors
+
+    det = VerifiedLightDetector("eu")
+    assert det.uses_vehicles and det._vehicle_detector is None
+    monkeypatch.setattr(detectors, "models_candidates", lambda: [tmp_path])
+    with pytest.raises(InputError, match=r"yolox_nano\.onnx"):
+        VerifiedLightDetector("eu")

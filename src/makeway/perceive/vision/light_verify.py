@@ -513,8 +513,12 @@ class VerifiedLightDetector:
         #: Whether :meth:`detect` uses vehicle boxes (given, or found by its own vehicle detector).
         self.uses_vehicles = self.verifier.uses_vehicles
         self._vehicle_detector: Any = None
-        if self.uses_vehicles:  # fail at construction, not on the first frame, when weights are missing
-            self._vehicle_detector = vehicle_detector(num_threads)
+        if self.uses_vehicles:
+            # fail at construction, not on the first frame, when the vehicle detector's weights are
+            # missing; the detector itself is made on first use (a pipeline passes its own boxes)
+            from makeway.perceive.vision.detectors import DETECTORS, resolve_model_path
+
+            resolve_model_path(DETECTORS["yolox_nano"].default_filename, None)
 
     def vehicles(self, frame_bgr: np.ndarray) -> Vehicles:
         """The frame's vehicle boxes found by this detector's own vehicle detector."""
