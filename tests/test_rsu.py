@@ -5,6 +5,7 @@ into a V2X belief, and bad inputs refused before the video is processed."""
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 
 import cv2
@@ -17,7 +18,9 @@ from makeway.apps.rsu import run_rsu
 from makeway.cli.main import app
 from makeway.errors import InputError
 from makeway.roadside.calibrate import fit_road_camera, leave_one_out_errors, read_road_points
+from makeway.roadside.node import camera_location
 from makeway.roadside.transform import read_transform_calibration
+from makeway.v2x.belief import LocalFrame
 from makeway.v2x.security import SIGNED_SIZE, keygen
 from makeway.v2x.transport import free_loopback_port, wait_listening
 
@@ -130,6 +133,7 @@ def test_node_alerts_verify_and_reach_a_car_process(segment: Path, tmp_path: Pat
         "received": wanted,
         "valid": wanted,
         "rejected": 0,
+        "not_relevant": 0,
         "reasons": {},
         "dropped_unread": 0,
     }
@@ -159,6 +163,15 @@ def test_node_alerts_verify_and_reach_a_car_process(segment: Path, tmp_path: Pat
     assert all(v["valid"] for v in verdicts)
     for v, r in zip(verdicts, log, strict=True):  # the DENM carries the 95 % position confidence
         assert v["position_semi_major_95_m"] == pytest.approx(2.4477 * r["position_sigma_m"], abs=0.0051)
+    # 1609.2's generation location is the pole camera itself, the same in every alert, not the EV
+    where = camera_location(read_transform_calibration(CALIB))
+    assert where is not None
+    for v in verdicts:
+        assert (v["generation_lat_deg"], v["generation_lon_deg"]) == (where.lat_deg, where.lon_deg)
+        assert v["generation_elevation_m"] == pytest.approx(where.elevation_m, abs=0.05)
+    frame = LocalFrame(where.lat_deg, where.lon_deg)
+    gaps = [math.hypot(*frame.to_local(v["lat_deg"], v["lon_deg"])) for v in verdicts]
+    assert min(gaps) > 5.0 and max(gaps) < 60.0
 
 
 @pytest.mark.parametrize("case", ["video", "calib", "calib_no_origin", "key"])

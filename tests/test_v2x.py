@@ -556,3 +556,49 @@ def test_listen_refuses_verify_on_demand_without_the_cars_position(keys: dict) -
     )
     assert res.exit_code == 2
     assert "--relevance-m needs the car's position" in res.output
+
+
+def test_alert_carries_where_the_unit_stands(keys: dict, tmp_path: Path) -> None:
+    """`v2x alert --unit-lat/--unit-lon/--unit-height-m` signs 1609.2's generation location (the unit),
+    `verify` reads it back; without them it is the EV's position at 0 m; half a position or a height
+    outside 1609.2's range is refused with exit 2 and no file."""
+    key = str(keys["dir"] / "ours" / "rsu.key")
+    base = ["v2x", "alert", "--key", key, "--lat", "48.137", "--lon", "11.575", "--heading-deg", "30"]
+    base += ["--speed-mps", "12"]
+    res = runner.invoke(
+        app,
+        [
+            *base,
+            "--out",
+            str(tmp_path / "u.msg"),
+            *("--unit-lat", "48.1372", "--unit-lon", "11.5741"),
+            *("--unit-height-m", "521.3"),
+        ],
+    )
+    assert res.exit_code == 0, res.output
+    made = json.loads(res.stdout)
+    assert (made["generation_lat_deg"], made["generation_lon_deg"]) == (48.1372, 11.5741)
+    res = runner.invoke(app, [*base, "--out", str(tmp_path / "e.msg")])
+    assert res.exit_code == 0, res.output
+    res = runner.invoke(
+        app,
+        ["v2x", "verify", str(tmp_path / "u.msg"), str(tmp_path / "e.msg"), "--trust", str(keys["trust"])],
+    )
+    assert res.exit_code == 0, res.output
+    unit, ev = (json.loads(line) for line in res.stdout.splitlines())
+    assert (unit["generation_lat_deg"], unit["generation_lon_deg"], unit["generation_elevation_m"]) == (
+        48.1372,
+        11.5741,
+        521.3,
+    )
+    assert (ev["generation_lat_deg"], ev["generation_lon_deg"], ev["generation_elevation_m"]) == (
+        48.137,
+        11.575,
+        0.0,
+    )
+    for extra, words in (
+        (["--unit-lat", "48.1"], "go together"),
+        (["--unit-lat", "48.1", "--unit-lon", "11.5", "--unit-height-m", "9000"], "elevation"),
+    ):
+        res = runner.invoke(app, [*base, "--out", str(tmp_path / "bad.msg"), *extra])
+        assert res.exit_code == 2 and words in res.output and not (tmp_path / "bad.msg").exists()

@@ -31,6 +31,7 @@ from makeway.v2x.security import (
     SIGNED_SIZE,
     SIGNER_OFFSET,
     STATION_ID_OFFSET,
+    GenerationLocation,
     Identity,
     TrustStore,
     Verifier,
@@ -248,7 +249,12 @@ def test_signed_alert_is_ieee1609dot2_signed_data(unit: tuple[Identity, TrustSto
     sd = v["content"][1]
     assert sd["hashId"] == "sha256" and sd["signer"] == ("digest", ident.signer)
     hi = sd["tbsData"]["headerInfo"]
-    assert hi == {"psid": 37, "generationTime": unix_ms_to_its_ms(a.generation_time_ms) * 1000}
+    assert hi == {
+        "psid": 37,
+        "generationTime": unix_ms_to_its_ms(a.generation_time_ms) * 1000,
+        # by default the sender stood where the EV is, at 0 m (1609.2: decimetres above −409.5 m)
+        "generationLocation": {"latitude": a.lat_e7, "longitude": a.lon_e7, "elevation": 4095},
+    }
     assert sd["tbsData"]["payload"]["data"]["content"] == ("unsecuredData", encode_alert(a))
     tbs_type = ITS_IEEE1609_2.Ieee1609Dot2.ToBeSignedData
     tbs_type.set_val(sd["tbsData"])
@@ -281,6 +287,42 @@ def test_signed_reader_agrees_with_pycrate(a: Alert, r: int, s: int, signer: byt
     assert data == encode_signed_reference(a, signer, r, s)
     assert parse_signed(data) == parse_signed_reference(data)
     assert parse_signed(data).alert == a
+
+
+@settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(
+    a=_alerts(),
+    where=st.builds(
+        GenerationLocation,
+        lat_e7=st.integers(-900_000_000, 900_000_001),
+        lon_e7=st.integers(-1_799_999_999, 1_800_000_001),
+        elevation_dm=st.integers(0, 65535),
+    ),
+)
+def test_generation_location_round_trips_as_pycrate_writes_it(a: Alert, where: GenerationLocation) -> None:
+    """Where the sender stood (1609.2 ThreeDLocation, over its whole range including "unavailable"):
+    the exact writer and reader agree with pycrate byte for byte and value for value."""
+    data = encode_signed(a, b"\x01" * 8, 5, 7, where)
+    assert data == encode_signed_reference(a, b"\x01" * 8, 5, 7, where)
+    assert parse_signed(data).location == where == parse_signed_reference(data).location
+
+
+def test_generation_location_from_degrees_and_its_limits() -> None:
+    """A roadside unit at 48.1371234° N, 11.5754321° E, 519.4 m: 1e-7 degrees and decimetres above
+    −409.5 m; values outside 1609.2's ranges are refused when built and when read."""
+    g = GenerationLocation.from_degrees(48.1371234, 11.5754321, 519.4)
+    assert (g.lat_e7, g.lon_e7, g.elevation_dm) == (481_371_234, 115_754_321, 9289)
+    assert g.elevation_m == pytest.approx(519.4) and g.to_json()["generation_lat_deg"] == pytest.approx(
+        48.1371234
+    )
+    assert GenerationLocation.from_coer(g.to_coer()) == g
+    for bad in ((91.0, 0.0, 0.0), (0.0, 181.0, 0.0), (0.0, 0.0, -500.0), (0.0, 0.0, 7000.0)):
+        with pytest.raises(ValueError):
+            GenerationLocation.from_degrees(*bad)
+    with pytest.raises(MalformedAlertError, match="latitude"):
+        GenerationLocation.from_coer((900_000_002).to_bytes(4, "big", signed=True) + bytes(6))
+    with pytest.raises(MalformedAlertError, match="longitude"):
+        GenerationLocation.from_coer(bytes(4) + (-1_800_000_000).to_bytes(4, "big", signed=True) + bytes(2))
 
 
 def test_signed_reader_refuses_what_pycrate_refuses(unit: tuple[Identity, TrustStore]) -> None:

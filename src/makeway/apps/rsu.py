@@ -7,7 +7,7 @@ first frame, runs the vision pipeline (:func:`makeway.pipeline.video.run_video`)
 made (a live unit's behaviour; the video time is logged beside it), signed with the unit's key, and
 
 * published on the road segment's zenoh key (:mod:`makeway.v2x.transport`) with ``publish``;
-* written with ``out``: ``OUT/alerts.bin`` (the signed alerts back to back, 145 bytes each),
+* written with ``out``: ``OUT/alerts.bin`` (the signed alerts back to back, 155 bytes each),
   ``OUT/alerts.jsonl`` (one line per alert: decoded fields, video time, track id, road-frame
   position and the 1-σ uncertainties) and ``OUT/summary.json``.
 """
@@ -22,6 +22,7 @@ from typing import Any
 
 from makeway.atomic import atomic_path, check_writable, write_text_atomic
 from makeway.errors import InputError
+from makeway.v2x.message import SEQUENCE_MODULUS
 
 __all__ = ["DEFAULT_SEGMENT", "calibrate_camera", "run_rsu"]
 
@@ -108,7 +109,7 @@ def run_rsu(
     frames come on the video's clock and, when the unit falls behind, the oldest waiting frame is
     dropped, never the newest (``dropped_frames``)."""
     from makeway.apps.v2x import DEFAULT_ENDPOINT
-    from makeway.roadside.node import RoadsideNode, sign_report
+    from makeway.roadside.node import RoadsideNode, camera_location, sign_report
     from makeway.roadside.transform import read_transform_calibration
     from makeway.sense.logs import open_frame_source
     from makeway.v2x.security import load_identity
@@ -142,6 +143,7 @@ def run_rsu(
     track_classifier = _classifier(classifier)
 
     node = RoadsideNode(camera, rate_hz=rate_hz)
+    unit_at = camera_location(camera)
     session = pub = None
     matched = False
     if publish:
@@ -162,8 +164,8 @@ def run_rsu(
         node.update(frame)
         for report in node.due_alerts(frame.time_s):
             now = time.time()
-            alert, signed = sign_report(report, identity, sequence, now, siren=siren)
-            sequence = (sequence + 1) % 2**32
+            alert, signed = sign_report(report, identity, sequence, now, siren=siren, location=unit_at)
+            sequence = (sequence + 1) % SEQUENCE_MODULUS
             made += 1
             reported.add(report.track_id)
             if pub is not None:
@@ -261,10 +263,10 @@ def _first_sequence(key: Path) -> int:
     if not path.exists():
         return 1
     try:
-        return (int(path.read_text(encoding="utf-8").strip()) + 1) % 2**32
+        return (int(path.read_text(encoding="utf-8").strip()) + 1) % SEQUENCE_MODULUS
     except ValueError:
         raise InputError(path, "is not a sequence counter (one integer)") from None
 
 
 def _save_sequence(key: Path, next_sequence: int) -> None:
-    write_text_atomic(Path(key).with_suffix(".seq"), f"{(next_sequence - 1) % 2**32}\n")
+    write_text_atomic(Path(key).with_suffix(".seq"), f"{(next_sequence - 1) % SEQUENCE_MODULUS}\n")

@@ -14,6 +14,7 @@ from typing import Any
 from makeway.atomic import atomic_path, write_text_atomic
 from makeway.errors import InputError
 from makeway.messages import VehicleState
+from makeway.v2x.message import SEQUENCE_MODULUS
 
 __all__ = ["DEFAULT_ENDPOINT", "keygen", "listen", "make_alert", "send", "verify_files"]
 
@@ -43,7 +44,7 @@ def _next_sequence(key: Path) -> int:
             last = int(path.read_text(encoding="utf-8").strip())
         except ValueError:
             raise InputError(path, "is not a sequence counter (one integer)") from None
-    seq = (last + 1) % 2**16  # DENM sequence numbers are 16 bits
+    seq = (last + 1) % SEQUENCE_MODULUS  # DENM sequence numbers are 16 bits
     write_text_atomic(path, f"{seq}\n")
     return seq
 
@@ -60,14 +61,17 @@ def make_alert(
     lights: bool = True,
     generation_time_s: float | None = None,
     sequence: int | None = None,
+    unit: tuple[float, float, float] | None = None,
 ) -> dict[str, Any]:
     """Sign one alert with the unit's key and write it to ``out``; return its decoded fields.
 
     Without ``sequence`` the unit's counter beside the key advances by one; without
-    ``generation_time_s`` the alert is stamped now.
+    ``generation_time_s`` the alert is stamped now. ``unit`` (latitude, longitude in degrees,
+    ellipsoidal height in m) is where the unit stands, 1609.2's generation location; without it the
+    EV's position at 0 m.
     """
     from makeway.v2x.message import Alert
-    from makeway.v2x.security import load_identity, sign_alert
+    from makeway.v2x.security import GenerationLocation, load_identity, sign_alert
 
     for name, value in (("--lat", lat_deg), ("--lon", lon_deg), ("--heading-deg", heading_deg)):
         if not math.isfinite(value):
@@ -76,6 +80,10 @@ def make_alert(
         raise ValueError(f"--lat/--lon {lat_deg}, {lon_deg} are not WGS-84 degrees")
     if not (math.isfinite(speed_mps) and speed_mps >= 0):
         raise ValueError(f"--speed-mps must be >= 0, not {speed_mps}")
+    try:
+        where = None if unit is None else GenerationLocation.from_degrees(*unit)
+    except ValueError as exc:
+        raise ValueError(f"--unit-lat/--unit-lon/--unit-height-m: {exc}") from None
     ident = load_identity(key)
     alert = Alert.from_physical(
         station_id=ident.station_id,
@@ -89,8 +97,13 @@ def make_alert(
         lights=lights,
     )
     with atomic_path(out) as tmp:
-        tmp.write_bytes(sign_alert(alert, ident))
-    return {"file": str(out), **alert.to_json(), "signer": ident.signer.hex()}
+        tmp.write_bytes(sign_alert(alert, ident, where))
+    return {
+        "file": str(out),
+        **alert.to_json(),
+        **(where or GenerationLocation.of_event(alert)).to_json(),
+        "signer": ident.signer.hex(),
+    }
 
 
 def verify_files(

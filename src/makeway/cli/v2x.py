@@ -67,8 +67,15 @@ def alert(
         int | None,
         typer.Option(min=0, max=65535, help="Sequence number (default: the counter in KEY.seq, +1)."),
     ] = None,
+    unit_lat: Annotated[
+        float | None, typer.Option(help="Where the unit stands: latitude (default: the EV's position).")
+    ] = None,
+    unit_lon: Annotated[float | None, typer.Option(help="Where the unit stands: longitude.")] = None,
+    unit_height_m: Annotated[
+        float, typer.Option(help="The unit's height above the WGS-84 ellipsoid (m).")
+    ] = 0.0,
 ) -> None:
-    """Sign one emergency-vehicle alert and write it (145 bytes).
+    """Sign one emergency-vehicle alert and write it (155 bytes).
 
     The alert is an ETSI DENM (cause 95, emergency vehicle approaching) signed
     as IEEE 1609.2 data with the unit's ECDSA P-256 key.
@@ -77,6 +84,9 @@ def alert(
     """
     from makeway.apps.v2x import make_alert
 
+    if (unit_lat is None) != (unit_lon is None):
+        raise ValueError("--unit-lat and --unit-lon go together")
+    unit = None if unit_lat is None or unit_lon is None else (unit_lat, unit_lon, unit_height_m)
     print_json_line(
         make_alert(
             key,
@@ -89,6 +99,7 @@ def alert(
             lights=lights,
             generation_time_s=generation_time,
             sequence=sequence,
+            unit=unit,
         )
     )
 

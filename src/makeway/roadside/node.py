@@ -33,9 +33,9 @@ from makeway.fuse.kalman import cv_predict
 from makeway.messages import PerceptionFrame
 from makeway.roadside.transform import RoadCamera, box_ground_pixel, typical_length_m
 from makeway.v2x.message import Alert
-from makeway.v2x.security import Identity, sign_alert
+from makeway.v2x.security import GenerationLocation, Identity, sign_alert
 
-__all__ = ["EVReport", "RoadFilter", "RoadsideNode", "sign_report"]
+__all__ = ["EVReport", "RoadFilter", "RoadsideNode", "camera_location", "sign_report"]
 
 #: White acceleration noise of the road-frame filter (m/s², per axis): urban driving and braking.
 ACCEL_NOISE_MPS2 = 3.0
@@ -214,11 +214,27 @@ class RoadsideNode:
         )
 
 
+def camera_location(camera: RoadCamera) -> GenerationLocation | None:
+    """Where a pole camera's alerts are generated (1609.2's generationLocation): the camera centre in
+    WGS-84, with its ellipsoidal height; ``None`` when the calibration has no WGS-84 origin."""
+    if camera.origin is None:
+        return None
+    lat, lon, h = camera.origin.to_geodetic(np.asarray(camera.position_m, np.float64))
+    return GenerationLocation.from_degrees(float(lat), float(lon), float(h))
+
+
 def sign_report(
-    report: EVReport, identity: Identity, sequence: int, generation_time_s: float, *, siren: bool = False
+    report: EVReport,
+    identity: Identity,
+    sequence: int,
+    generation_time_s: float,
+    *,
+    siren: bool = False,
+    location: GenerationLocation | None = None,
 ) -> tuple[Alert, bytes]:
     """The alert for ``report`` (lights in use: the vision pipeline flagged the EV active; siren as
-    told, a camera cannot hear it) stamped ``generation_time_s`` (Unix s), and its signed bytes.
+    told, a camera cannot hear it) stamped ``generation_time_s`` (Unix s), and its signed bytes,
+    generated at ``location`` (the unit's position, :func:`camera_location`; ``None``: the EV's).
     Needs a report with WGS-84 coordinates."""
     if report.lat_deg is None or report.lon_deg is None:
         raise ValueError("the calibration has no WGS-84 origin: alerts need latitude and longitude")
@@ -236,4 +252,4 @@ def sign_report(
         heading_sigma_deg=report.heading_sigma_deg,
         speed_sigma_mps=report.speed_sigma_mps,
     )
-    return alert, sign_alert(alert, identity)
+    return alert, sign_alert(alert, identity, location)

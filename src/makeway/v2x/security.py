@@ -2,19 +2,22 @@
 ECDSA P-256 / SHA-256, unit certificates issued by a local root, a trust store and a revocation
 list on the car.
 
-A signed alert (:data:`SIGNED_SIZE` = 145 bytes) is, in COER (IEEE Std 1609.2-2016's ASN.1 module
+A signed alert (:data:`SIGNED_SIZE` = 155 bytes) is, in COER (IEEE Std 1609.2-2016's ASN.1 module
 ``Ieee1609Dot2`` version 2.3 as pycrate compiles it, ``pycrate_asn1dir.ITS_IEEE1609_2``)::
 
     Ieee1609Dot2Data { protocolVersion 3, content signedData {
       hashId sha256,
       tbsData { payload { data Ieee1609Dot2Data { protocolVersion 3,
                                                   content unsecuredData <the DENM, 52 bytes> } },
-                headerInfo { psid 37 (DEN), generationTime Time64 } },
+                headerInfo { psid 37 (DEN), generationTime Time64,
+                             generationLocation { latitude, longitude, elevation } } },
       signer digest <HashedId8>,
       signature ecdsaNistP256Signature { rSig x-only <r>, sSig <s> } } }
 
 with the DENM of :mod:`makeway.v2x.message`. ``generationTime`` (TAI µs since 2004-01-01 UTC)
-must equal the DENM's referenceTime × 1000 exactly. As 1609.2 (5.3.1) signs: the ECDSA input is
+must equal the DENM's referenceTime × 1000 exactly. ``generationLocation`` is where the sender
+stood (:class:`GenerationLocation`: a roadside unit's own position; by default the EV's, as when the
+EV itself sends), as TS 103 097 asks of every DENM. As 1609.2 (5.3.1) signs: the ECDSA input is
 SHA-256(tbsData's COER) ‖ SHA-256(signer identifier input), hashed again with SHA-256 by ECDSA;
 ``s`` is at most n/2 so that each signature has one encoding. The signer is named by its
 HashedId8: the low-order 8 bytes (the last 8) of the SHA-256 of its certificate's encoding. A
@@ -23,9 +26,9 @@ signer's station id.
 
 What is not 1609.2 / ETSI TS 103 097: unit certificates are X.509 (DER), not 1609.2 explicit
 certificates, so the signer identifier input and the HashedId8 hash the X.509 DER; and the signer
-is always a digest with no generationLocation in the header, where TS 103 097's DENM profile asks
-for the full certificate and a location. The encoding is one fixed profile: every alert is
-:data:`SIGNED_SIZE` bytes, longer input is refused as oversized before any parsing.
+is always a digest, where TS 103 097's DENM profile asks for the full certificate. The encoding
+is one fixed profile: every alert is :data:`SIGNED_SIZE` bytes, longer input is refused as oversized
+before any parsing.
 
 Writing (:func:`encode_signed`, :func:`sign_alert`) and reading (:func:`parse_signed`) are exact
 codecs of this profile, checked byte for byte against pycrate's (:func:`encode_signed_reference`,
@@ -95,6 +98,7 @@ __all__ = [
     "SIGNED_SIZE",
     "SIGNER_OFFSET",
     "STATION_ID_OFFSET",
+    "GenerationLocation",
     "Identity",
     "ReplayCache",
     "SignedAlert",
@@ -121,11 +125,13 @@ _PREFIX = bytes([0x03, 0x81, 0x00, 0x40, 0x03, 0x80, ALERT_SIZE])
 # protocolVersion 3 · signedData · hashId sha256 · payload {data present} · protocolVersion 3 ·
 # unsecuredData · its length
 _DENM_AT = len(_PREFIX)
-_HEADER = bytes([0x40, 0x01, PSID_DEN])  # headerInfo {generationTime present} · psid: 1 byte, 37
+# headerInfo {generationTime, generationLocation present} · psid: 1 byte, 37
+_HEADER = bytes([0x50, 0x01, PSID_DEN])
 _HEADER_AT = _DENM_AT + ALERT_SIZE
 _TIME_AT = _HEADER_AT + len(_HEADER)
-_TBS = slice(3, _TIME_AT + 8)  # tbsData: payload and headerInfo
-_SIGNER_TAG_AT = _TIME_AT + 8  # 0x80: signer digest
+_LOC_AT = _TIME_AT + 8  # ThreeDLocation: latitude, longitude (4 bytes each, signed), elevation (2)
+_TBS = slice(3, _LOC_AT + 10)  # tbsData: payload and headerInfo
+_SIGNER_TAG_AT = _LOC_AT + 10  # 0x80: signer digest
 SIGNER_OFFSET = _SIGNER_TAG_AT + 1
 """Where the signer's HashedId8 starts in a signed alert."""
 STATION_ID_OFFSET = _DENM_AT + 2
@@ -134,7 +140,7 @@ _SIG_TAGS = bytes([0x80, 0x80])  # ecdsaNistP256Signature · rSig x-only
 _SIG_TAGS_AT = SIGNER_OFFSET + 8
 _R_AT = _SIG_TAGS_AT + 2
 SIGNED_SIZE = _R_AT + 64
-"""Bytes of every signed alert (145); the largest message a car reads."""
+"""Bytes of every signed alert (155); the largest message a car reads."""
 DEFAULT_MAX_AGE_S = 10.0
 """Freshness window (s): older alerts are stale. Alerts repeat at 10 Hz, so a car never needs an
 old one; the window also bounds how long the replay cache remembers a sequence number."""
@@ -146,6 +152,84 @@ DEFAULT_MAX_FUTURE_S = 1.0
 
 _N = int("FFFFFFFF00000000FFFFFFFFFFFFFFFFBCE6FAADA7179E84F3B9CAC2FC632551", 16)  # P-256 group order
 _HALF_N = _N // 2
+
+
+_LAT_RANGE = (-900_000_000, 900_000_001)  # 1609.2 NinetyDegreeInt, 1e-7 degrees; the top: unavailable
+_LON_RANGE = (-1_799_999_999, 1_800_000_001)  # OneEightyDegreeInt; the top: unavailable
+_ELEVATION_FLOOR_M = -409.5  # 1609.2 Elevation: decimetres above −409.5 m, 0 … 65535
+
+
+@dataclass(frozen=True, slots=True)
+class GenerationLocation:
+    """Where a signed alert was generated (1609.2 ``ThreeDLocation``): WGS-84 latitude and longitude
+    in 1e-7 degrees and the elevation as 1609.2 codes it (decimetres above −409.5 m)."""
+
+    lat_e7: int
+    lon_e7: int
+    elevation_dm: int = 4095  # 0 m
+
+    def __post_init__(self) -> None:
+        if not _LAT_RANGE[0] <= self.lat_e7 <= _LAT_RANGE[1]:
+            raise ValueError(f"generation latitude {self.lat_e7} outside 1609.2's range {_LAT_RANGE}")
+        if not _LON_RANGE[0] <= self.lon_e7 <= _LON_RANGE[1]:
+            raise ValueError(f"generation longitude {self.lon_e7} outside 1609.2's range {_LON_RANGE}")
+        if not 0 <= self.elevation_dm <= 0xFFFF:
+            raise ValueError(f"generation elevation code {self.elevation_dm} outside 0 … 65535")
+
+    @classmethod
+    def from_degrees(cls, lat_deg: float, lon_deg: float, elevation_m: float = 0.0) -> GenerationLocation:
+        """From WGS-84 degrees and metres (rounded to 1e-7 degrees and 0.1 m)."""
+        for name, v, top in (("latitude", lat_deg, 90.0), ("longitude", lon_deg, 180.0)):
+            if not -top <= v <= top:
+                raise ValueError(f"generation {name} {v!r} is not in −{top:g} … {top:g} degrees")
+        if not _ELEVATION_FLOOR_M <= elevation_m <= _ELEVATION_FLOOR_M + 0xFFFF / 10:
+            raise ValueError(f"generation elevation {elevation_m!r} m outside 1609.2's −409.5 … 6144.0 m")
+        return cls(round(lat_deg * 1e7), round(lon_deg * 1e7), round((elevation_m - _ELEVATION_FLOOR_M) * 10))
+
+    @classmethod
+    def of_event(cls, alert: Alert) -> GenerationLocation:
+        """The EV's own position (the DENM's event position) at 0 m: the default sender location.
+        (DENM's longitude may be −180°, which 1609.2 writes as +180°: the same meridian.)"""
+        return cls(alert.lat_e7, 1_800_000_000 if alert.lon_e7 == -1_800_000_000 else alert.lon_e7)
+
+    @property
+    def lat_deg(self) -> float:
+        return self.lat_e7 / 1e7
+
+    @property
+    def lon_deg(self) -> float:
+        return self.lon_e7 / 1e7
+
+    @property
+    def elevation_m(self) -> float:
+        return self.elevation_dm / 10 + _ELEVATION_FLOOR_M
+
+    def to_coer(self) -> bytes:
+        """The 10 bytes of COER: latitude and longitude as signed 4-byte integers, elevation 2 bytes."""
+        return (
+            self.lat_e7.to_bytes(4, "big", signed=True)
+            + self.lon_e7.to_bytes(4, "big", signed=True)
+            + self.elevation_dm.to_bytes(2, "big")
+        )
+
+    @classmethod
+    def from_coer(cls, data: bytes) -> GenerationLocation:
+        """The inverse of :meth:`to_coer`; :class:`MalformedAlertError` for values outside 1609.2's ranges."""
+        try:
+            return cls(
+                int.from_bytes(data[0:4], "big", signed=True),
+                int.from_bytes(data[4:8], "big", signed=True),
+                int.from_bytes(data[8:10], "big"),
+            )
+        except ValueError as exc:
+            raise MalformedAlertError(str(exc)) from None
+
+    def to_json(self) -> dict[str, float]:
+        return {
+            "generation_lat_deg": self.lat_deg,
+            "generation_lon_deg": self.lon_deg,
+            "generation_elevation_m": round(self.elevation_m, 1),
+        }
 
 
 def hashed_id8(cert: x509.Certificate) -> bytes:
@@ -311,10 +395,18 @@ def _signed_type() -> Any:
     return ITS_IEEE1609_2.Ieee1609Dot2
 
 
-def _tbs_value(denm: bytes, time64_us: int) -> dict[str, Any]:
+def _tbs_value(denm: bytes, time64_us: int, location: GenerationLocation) -> dict[str, Any]:
     return {
         "payload": {"data": {"protocolVersion": 3, "content": ("unsecuredData", denm)}},
-        "headerInfo": {"psid": PSID_DEN, "generationTime": time64_us},
+        "headerInfo": {
+            "psid": PSID_DEN,
+            "generationTime": time64_us,
+            "generationLocation": {
+                "latitude": location.lat_e7,
+                "longitude": location.lon_e7,
+                "elevation": location.elevation_dm,
+            },
+        },
     }
 
 
@@ -323,31 +415,36 @@ def _signing_input(tbs: bytes, cert_hash: bytes) -> bytes:
     return hashlib.sha256(tbs).digest() + cert_hash
 
 
-def sign_alert(alert: Alert, identity: Identity) -> bytes:
-    """The signed alert (:data:`SIGNED_SIZE` bytes of COER). The alert's station id must be the
-    signer's."""
+def sign_alert(alert: Alert, identity: Identity, location: GenerationLocation | None = None) -> bytes:
+    """The signed alert (:data:`SIGNED_SIZE` bytes of COER), generated at ``location`` (the sender's
+    position; ``None``: the EV's, :meth:`GenerationLocation.of_event`). The alert's station id must
+    be the signer's."""
     if alert.station_id != identity.station_id:
         raise ValueError(f"alert station id {alert.station_id} is not the signer's ({identity.station_id})")
-    unsigned = encode_signed(alert, identity.signer, 0, 0)
+    unsigned = encode_signed(alert, identity.signer, 0, 0, location)
     der = identity.key.sign(_signing_input(unsigned[_TBS], identity.cert_hash), ec.ECDSA(hashes.SHA256()))
     r, s = decode_dss_signature(der)
     return unsigned[:_R_AT] + r.to_bytes(32, "big") + min(s, _N - s).to_bytes(32, "big")
 
 
-def encode_signed(alert: Alert, signer: bytes, r: int, s: int) -> bytes:
-    """The signed alert's bytes with a given signer HashedId8 and signature ``(r, s)`` (each
-    0 … 2²⁵⁶ − 1): the profile's fixed bytes with the fields in place, the same bytes as pycrate's
-    encoder (:func:`encode_signed_reference`). :func:`sign_alert` computes a real signature; this
-    also builds the forgeries of attack suites."""
+def encode_signed(
+    alert: Alert, signer: bytes, r: int, s: int, location: GenerationLocation | None = None
+) -> bytes:
+    """The signed alert's bytes with a given signer HashedId8, signature ``(r, s)`` (each
+    0 … 2²⁵⁶ − 1) and generation location (``None``: the EV's): the profile's fixed bytes with the
+    fields in place, the same bytes as pycrate's encoder (:func:`encode_signed_reference`).
+    :func:`sign_alert` computes a real signature; this also builds the forgeries of attack suites."""
     if len(signer) != 8:
         raise ValueError(f"a HashedId8 has 8 bytes, not {len(signer)}")
     time64 = unix_ms_to_its_ms(alert.generation_time_ms) * 1000
+    where = GenerationLocation.of_event(alert) if location is None else location
     return b"".join(
         (
             _PREFIX,
             encode_alert(alert),
             _HEADER,
             time64.to_bytes(8, "big"),
+            where.to_coer(),
             b"\x80",
             signer,
             _SIG_TAGS,
@@ -357,7 +454,9 @@ def encode_signed(alert: Alert, signer: bytes, r: int, s: int) -> bytes:
     )
 
 
-def encode_signed_reference(alert: Alert, signer: bytes, r: int, s: int) -> bytes:
+def encode_signed_reference(
+    alert: Alert, signer: bytes, r: int, s: int, location: GenerationLocation | None = None
+) -> bytes:
     """:func:`encode_signed` done by pycrate (UPER for the DENM, COER for the 1609.2 structure):
     the reference the exact writer is tested against. About 0.5 ms."""
     denm = encode_alert_reference(alert)
@@ -367,7 +466,11 @@ def encode_signed_reference(alert: Alert, signer: bytes, r: int, s: int) -> byte
             "signedData",
             {
                 "hashId": "sha256",
-                "tbsData": _tbs_value(denm, unix_ms_to_its_ms(alert.generation_time_ms) * 1000),
+                "tbsData": _tbs_value(
+                    denm,
+                    unix_ms_to_its_ms(alert.generation_time_ms) * 1000,
+                    GenerationLocation.of_event(alert) if location is None else location,
+                ),
                 "signer": ("digest", signer),
                 "signature": (
                     "ecdsaNistP256Signature",
@@ -386,7 +489,7 @@ def encode_signed_reference(alert: Alert, signer: bytes, r: int, s: int) -> byte
 @dataclass(frozen=True, slots=True)
 class SignedAlert:
     """A signed alert's parts: the alert, 1609.2's generationTime (µs), the signer's HashedId8,
-    the signature ``(r, s)`` and the bytes of tbsData (what was signed)."""
+    the signature ``(r, s)``, the bytes of tbsData (what was signed) and where it was generated."""
 
     alert: Alert
     time64_us: int
@@ -394,6 +497,7 @@ class SignedAlert:
     r: int
     s: int
     tbs: bytes
+    location: GenerationLocation
 
 
 def parse_signed(data: bytes) -> SignedAlert:
@@ -412,7 +516,7 @@ def parse_signed(data: bytes) -> SignedAlert:
     ):
         raise MalformedAlertError("not a 1609.2 signed DENM of this profile")
     alert = decode_alert(data[_DENM_AT:_HEADER_AT])
-    time64 = int.from_bytes(data[_TIME_AT:_SIGNER_TAG_AT], "big")
+    time64 = int.from_bytes(data[_TIME_AT:_LOC_AT], "big")
     if time64 != unix_ms_to_its_ms(alert.generation_time_ms) * 1000:
         raise MalformedAlertError("generationTime is not the DENM's reference time")
     return SignedAlert(
@@ -422,6 +526,7 @@ def parse_signed(data: bytes) -> SignedAlert:
         int.from_bytes(data[_R_AT : _R_AT + 32], "big"),
         int.from_bytes(data[_R_AT + 32 :], "big"),
         data[_TBS],
+        GenerationLocation.from_coer(data[_LOC_AT:_SIGNER_TAG_AT]),
     )
 
 
@@ -452,7 +557,7 @@ def parse_signed_reference(data: bytes) -> SignedAlert:
             and set(tbs["payload"]) == {"data"}
             and tbs["payload"]["data"]["protocolVersion"] == 3
             and inner_kind == "unsecuredData"
-            and set(tbs["headerInfo"]) == {"psid", "generationTime"}
+            and set(tbs["headerInfo"]) == {"psid", "generationTime", "generationLocation"}
             and tbs["headerInfo"]["psid"] == PSID_DEN
             and signer_kind == "digest"
             and sig_kind == "ecdsaNistP256Signature"
@@ -466,12 +571,23 @@ def parse_signed_reference(data: bytes) -> SignedAlert:
     time64 = tbs["headerInfo"]["generationTime"]
     if time64 != unix_ms_to_its_ms(alert.generation_time_ms) * 1000:
         raise MalformedAlertError("generationTime is not the DENM's reference time")
+    loc = tbs["headerInfo"]["generationLocation"]
+    try:
+        location = GenerationLocation(loc["latitude"], loc["longitude"], loc["elevation"])
+    except ValueError as exc:
+        raise MalformedAlertError(str(exc)) from None
     with _PYCRATE_LOCK:
         types = _signed_type()
         types.ToBeSignedData.set_val(tbs)
         tbs_bytes = types.ToBeSignedData.to_oer()
     return SignedAlert(
-        alert, time64, signer, int.from_bytes(r, "big"), int.from_bytes(sig["sSig"], "big"), tbs_bytes
+        alert,
+        time64,
+        signer,
+        int.from_bytes(r, "big"),
+        int.from_bytes(sig["sSig"], "big"),
+        tbs_bytes,
+        location,
     )
 
 
@@ -671,6 +787,7 @@ class Verdict:
     reason: str
     alert: Alert | None = None
     signer: bytes | None = None
+    location: GenerationLocation | None = None
 
     def to_json(self) -> dict[str, Any]:
         out: dict[str, Any] = {"valid": self.valid, "reason": self.reason}
@@ -678,6 +795,8 @@ class Verdict:
             out["signer"] = self.signer.hex()
         if self.alert is not None:
             out.update(self.alert.to_json())
+        if self.location is not None:
+            out.update(self.location.to_json())
         return out
 
 
@@ -721,42 +840,42 @@ class Verifier:
             parsed = parse_signed(data)
         except MalformedAlertError as exc:
             return Verdict(False, f"malformed: {exc}")
-        alert, signer, r, s = parsed.alert, parsed.signer, parsed.r, parsed.s
+        alert, signer, r, s, where = parsed.alert, parsed.signer, parsed.r, parsed.s, parsed.location
         unit = self.store.units.get(signer)
         if unit is None:
-            return Verdict(False, "unknown signer", alert, signer)
+            return Verdict(False, "unknown signer", alert, signer, where)
         if signer in self.store.revoked:
-            return Verdict(False, "revoked signer", alert, signer)
+            return Verdict(False, "revoked signer", alert, signer, where)
         if not (0 < r < _N and 0 < s <= _HALF_N):
-            return Verdict(False, "bad signature (not a canonical r, s)", alert, signer)
+            return Verdict(False, "bad signature (not a canonical r, s)", alert, signer, where)
         pub, valid_from, valid_to, cert_hash = unit
         # relevance checks first (IEEE 1609.2's order): a stale, future, replayed or mislabelled
         # message costs a decode, not an ECDSA verification, so a flood of them cannot starve the
         # alerts that matter. Nothing is recorded until the signature has been checked.
         if alert.station_id != station_id_of(signer):
-            return Verdict(False, "station id is not the signer's", alert, signer)
+            return Verdict(False, "station id is not the signer's", alert, signer, where)
         gen_ms = alert.generation_time_ms
         now_ms = round(now_s * 1000)
         if gen_ms > now_ms + self.max_future_ms:
             ahead = (gen_ms - now_ms) / 1000
-            return Verdict(False, f"future: generated {ahead:.3f} s ahead of the clock", alert, signer)
+            return Verdict(False, f"future: generated {ahead:.3f} s ahead of the clock", alert, signer, where)
         if gen_ms < now_ms - self.max_age_ms:
             age = (now_ms - gen_ms) / 1000
-            return Verdict(False, f"stale: generated {age:.3f} s ago", alert, signer)
+            return Verdict(False, f"stale: generated {age:.3f} s ago", alert, signer, where)
         if not valid_from * 1000 <= gen_ms <= valid_to * 1000:
-            return Verdict(False, "signer certificate not valid at the generation time", alert, signer)
+            return Verdict(False, "signer certificate not valid at the generation time", alert, signer, where)
         if self._pruned_ms is None or now_ms - self._pruned_ms >= 1000:  # idle signers, once a second
             self.replay.prune(now_ms - self.max_age_ms)
             self._pruned_ms = now_ms
         if self.replay.seen(signer, alert.sequence):
-            return Verdict(False, "replay: this signer's sequence was already accepted", alert, signer)
+            return Verdict(False, "replay: this signer's sequence was already accepted", alert, signer, where)
         if self.relevant is not None and not self.relevant(alert):
-            return Verdict(False, NOT_RELEVANT, alert, signer)
+            return Verdict(False, NOT_RELEVANT, alert, signer, where)
         try:
             pub.verify(
                 encode_dss_signature(r, s), _signing_input(parsed.tbs, cert_hash), ec.ECDSA(hashes.SHA256())
             )
         except InvalidSignature:
-            return Verdict(False, "bad signature", alert, signer)
+            return Verdict(False, "bad signature", alert, signer, where)
         self.replay.add(signer, alert.sequence, gen_ms)
-        return Verdict(True, "ok", alert, signer)
+        return Verdict(True, "ok", alert, signer, where)
