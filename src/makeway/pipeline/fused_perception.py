@@ -64,7 +64,7 @@ from makeway.sim.radio import RADIOS, Radio
 from makeway.sim.scenarios import Scenario
 from makeway.sim.world import EVTruth, SimWorld
 from makeway.v2x.message import Alert
-from makeway.v2x.security import Identity, TrustStore, Verifier, keygen, sign_alert
+from makeway.v2x.security import GenerationLocation, Identity, TrustStore, Verifier, keygen, sign_alert
 
 __all__ = ["FUSED_LISTEN_SMOOTH", "SENSE_NAMES", "FusedPerception", "FusedPerceptionConfig", "V2XLink"]
 
@@ -233,14 +233,26 @@ class FusedPerception:
                     if math.hypot(ev.x_m - ux, ev.y_m - uy) <= link.unit_sight_m:
                         noise = self._unit_rng.normal(0.0, link.unit_position_sigma_m, 2)
                         self._send(
-                            t, ev, _identity(f"rsu{k}"), _unit_segment(k), (float(noise[0]), float(noise[1]))
+                            t,
+                            ev,
+                            _identity(f"rsu{k}"),
+                            _unit_segment(k),
+                            (float(noise[0]), float(noise[1])),
+                            (ux, uy),
                         )
 
     def _send(
-        self, t: float, ev: EVTruth, ident: Identity, segment: str, offset_m: tuple[float, float] = (0.0, 0.0)
+        self,
+        t: float,
+        ev: EVTruth,
+        ident: Identity,
+        segment: str,
+        offset_m: tuple[float, float] = (0.0, 0.0),
+        unit_m: tuple[float, float] | None = None,
     ) -> None:
         """One alert about ``ev`` generated at ``t`` by ``ident`` on ``segment`` (unless lost);
-        ``offset_m``: the sender's error in the reported position (m, world frame)."""
+        ``offset_m``: the sender's error in the reported position (m, world frame); ``unit_m``: where
+        a roadside sender stands (world frame; ``None``: the EV sends, from where it is)."""
         link = self.config.v2x
         if self._rng.random() < link.loss_prob:
             return
@@ -258,7 +270,11 @@ class FusedPerception:
             lights=ev.lights,
         )
         assert self._radio is not None
-        self._radio.send(segment, sign_alert(alert, ident), t + link.latency_s)
+        where = None
+        if unit_m is not None:
+            ulat, ulon, _ = ORIGIN.to_geodetic(list(unit_m))
+            where = GenerationLocation.from_degrees(float(ulat), float(ulon))
+        self._radio.send(segment, sign_alert(alert, ident, where), t + link.latency_s)
 
     def _receive(self, now_s: float, data: bytes) -> V2XObservation | None:
         assert self._verifier is not None
