@@ -42,6 +42,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import subprocess
 import sys
 import tempfile
@@ -117,6 +118,19 @@ class RssSampler(threading.Thread):
                 return
 
 
+class CpuMeter:
+    """This process's CPU time (every thread, user + system) over a stretch of wall time: the mean
+    number of cores it kept busy."""
+
+    def __init__(self) -> None:
+        t = os.times()
+        self.cpu0, self.wall0 = t.user + t.system, time.monotonic()
+
+    def cores(self) -> float:
+        t = os.times()
+        return (t.user + t.system - self.cpu0) / max(time.monotonic() - self.wall0, 1e-9)
+
+
 def _wait_file(path: Path, timeout_s: float) -> None:
     deadline = time.monotonic() + timeout_s
     while not path.exists():
@@ -144,6 +158,7 @@ def publisher(
     while time.time() < t0:
         time.sleep(0.01)
     sampler.start()
+    cpu = CpuMeter()
     late = 0
     for k in range(ticks):
         for u in range(units):
@@ -164,11 +179,14 @@ def publisher(
             )
             pubs[u].publish(sign_alert(alert, idents[u]))
             published[u] += 1
+    cores = cpu.cores()
     sampler.stop.set()
     sampler.join()
     time.sleep(SETTLE_S)
     (work / "pub.json").write_text(
-        json.dumps({"published": published, "late_over_one_period": late, "rss": sampler.samples})
+        json.dumps(
+            {"published": published, "late_over_one_period": late, "rss": sampler.samples, "cpu_cores": cores}
+        )
     )
     session.close()
 
@@ -256,10 +274,12 @@ def cars(
     while time.time() < t0:
         time.sleep(0.01)
     sampler.start()
+    cpu = CpuMeter()
     for t in threads:
         t.start()
     for t in threads:
         t.join()
+    cores = cpu.cores()
     sampler.stop.set()
     sampler.join()
     all_lags = np.concatenate(lags).astype(np.float64) * 1000
@@ -271,6 +291,7 @@ def cars(
             {
                 "cars": results,
                 "rss": sampler.samples,
+                "cpu_cores": cores,
                 "lag_ms": [float(np.percentile(all_lags, q)) for q in (50, 99, 100)] if all_lags.size else [],
                 "arrival_ms": [float(np.percentile(all_arrivals, q)) for q in (50, 99, 100)]
                 if all_arrivals.size
@@ -421,6 +442,8 @@ def run(
         },
         "rss_flat_pct": all(lo >= -FLAT_PCT and hi <= FLAT_PCT for lo, hi in spread.values()),
         "lag_ms_p50_p99_max_per_proc": [co["lag_ms"] for co in car_out],
+        "cpu_cores_publisher": pub["cpu_cores"],
+        "cpu_cores_per_car_proc": [co["cpu_cores"] for co in car_out],
         "arrival_ms_p50_p99_max_per_proc": [co["arrival_ms"] for co in car_out],
     }
 
@@ -528,6 +551,13 @@ def main() -> None:
         + "; ".join("/".join(f"{x:.1f}" for x in lag) for lag in r["arrival_ms_p50_p99_max_per_proc"])
     )
     print(f"  payloads taken off the cars' queues (verified or rejected): {r['handled_total']:,}")
+    car_cores = r["cpu_cores_per_car_proc"]
+    print(
+        f"  CPU (cores kept busy, mean over the run): publisher {r['cpu_cores_publisher']:.2f}, "
+        "car processes "
+        + ", ".join(f"{c:.2f}" for c in car_cores)
+        + f"; in all {r['cpu_cores_publisher'] + sum(car_cores):.2f} of {os.cpu_count()}"
+    )
     if args.json:
         args.json.write_text(json.dumps(r, indent=1) + "\n")
 
