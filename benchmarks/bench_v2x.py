@@ -82,7 +82,7 @@ def attack_counts(keys: Path) -> dict[str, Any]:
     """Rejected / total per attack (a fresh verifier for each message) and valid alerts rejected."""
     good = keygen(keys / "ours", "rsu")
     stolen = keygen(keys / "ours", "stolen")
-    revoke(keys / "ours" / "trust", keys / "ours" / "stolen.crt")
+    revoke(keys / "ours" / "trust", keys / "ours" / "stolen.cert")
     outsider = keygen(keys / "theirs", "rsu")
     store = TrustStore.load(keys / "ours" / "trust")
     now, rng = time.time(), random.Random(27)

@@ -95,7 +95,7 @@ def _cases(inp: Path, out: Path, keys: Path) -> dict[str, list[str]]:
         "audio listen": ["audio", "listen", str(inp), "--baseline", "gccphat"],
         "audio calibrate": ["audio", "calibrate", str(inp)],
         "v2x alert": ["v2x", "alert", "--key", str(inp), *ALERT_ARGS, "--out", str(out / "alert.bin")],
-        "v2x verify": ["v2x", "verify", str(keys / "rsu.crt"), "--trust", str(inp)],
+        "v2x verify": ["v2x", "verify", str(keys / "rsu.cert"), "--trust", str(inp)],
         "classify eval": ["classify", "eval", "--data", str(inp), "--model", "fastest"],
     }
 
@@ -115,7 +115,7 @@ def test_bad_input_is_one_line_exit_2_and_writes_nothing(
     if case in ("v2x verify", "classify eval") and kind == "corrupt":
         inp = tmp_path / "corrupt_dir"  # these read a folder: one holding a corrupt file
         inp.mkdir()
-        (inp / ("root.pem" if case == "v2x verify" else "labels.csv")).write_bytes(GARBAGE)
+        (inp / ("root.cert" if case == "v2x verify" else "labels.csv")).write_bytes(GARBAGE)
     out = tmp_path / "out"
     r = runner.invoke(app, _cases(inp, out, keys)[case])
     _one_error_line(r, str(inp))

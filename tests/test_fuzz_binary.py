@@ -10,6 +10,7 @@ from __future__ import annotations
 import io
 import shutil
 import struct
+import time
 from pathlib import Path
 
 import av
@@ -440,7 +441,8 @@ def test_fuzz_signed_alert(unit: Path) -> None:
 
 
 def test_fuzz_key_and_certificate(unit: Path, work: Path) -> None:
-    seeds = {"rsu.key": (unit / "rsu.key").read_bytes(), "rsu.crt": (unit / "rsu.crt").read_bytes()}
+    seeds = {"rsu.key": (unit / "rsu.key").read_bytes(), "rsu.cert": (unit / "rsu.cert").read_bytes()}
+    kinds = {"rsu.key": "text", "rsu.cert": "binary"}  # a PEM key, a 1609.2 certificate in COER
     folder = work / "identity"
 
     @budget(0.5)
@@ -448,7 +450,7 @@ def test_fuzz_key_and_certificate(unit: Path, work: Path) -> None:
     def run(member: str, data: st.DataObject) -> None:
         for name, seed in seeds.items():
             _write(folder, name, seed)
-        _write(folder, member, data.draw(file_contents(seeds[member].decode("ascii"))))
+        _write(folder, member, data.draw(file_contents(seeds[member], kinds[member])))
         check_reader(f"V2X identity ({member[4:]})", lambda: load_identity(folder / "rsu.key"), inside=folder)
 
     run()
@@ -456,7 +458,7 @@ def test_fuzz_key_and_certificate(unit: Path, work: Path) -> None:
 
 def test_fuzz_trust_store(unit: Path, work: Path) -> None:
     trust = unit / "trust"
-    members = ["root.pem", "units/rsu.pem", "revoked.txt"]
+    members = ["root.cert", "units/rsu.cert", "revoked.txt"]
     seeds = {m: (trust / m).read_bytes() if (trust / m).exists() else b"" for m in members}
     seeds["revoked.txt"] += b"0011223344556677  # a unit\n"
     folder = work / "trust"
@@ -467,63 +469,70 @@ def test_fuzz_trust_store(unit: Path, work: Path) -> None:
         shutil.rmtree(folder, ignore_errors=True)
         for name, seed in seeds.items():
             _write(folder / Path(name).parent, Path(name).name, seed)
-        _write(
-            folder / Path(member).parent,
-            Path(member).name,
-            data.draw(file_contents(seeds[member].decode("ascii"))),
-        )
+        kind = "text" if member.endswith(".txt") else "binary"
+        _write(folder / Path(member).parent, Path(member).name, data.draw(file_contents(seeds[member], kind)))
         check_reader(f"V2X trust store ({Path(member).name})", lambda: TrustStore.load(folder), inside=folder)
 
     run()
 
 
 # ----------------------------------------------------------------------- regressions found by fuzzing
-def _with_der_edit(pem: bytes, old: bytes, new: bytes) -> bytes:
-    """A PEM certificate with bytes ``old`` of its DER replaced by ``new`` (the same length)."""
-    import base64
-
-    body = b"".join(line for line in pem.splitlines() if not line.startswith(b"-----"))
-    der = base64.b64decode(body)
-    assert old in der and len(old) == len(new)
-    der = der.replace(old, new, 1)
-    b64 = base64.encodebytes(der).replace(b"\n", b"")
-    lines = [b64[i : i + 64] for i in range(0, len(b64), 64)]
-    return b"-----BEGIN CERTIFICATE-----\n" + b"\n".join(lines) + b"\n-----END CERTIFICATE-----\n"
-
-
-# the DER of the OID id-ecPublicKey (1.2.840.10045.2.1) and of the curve P-256's (1.2.840.10045.3.1.7)
+# the DER of the OID id-ecPublicKey (1.2.840.10045.2.1), inside a PKCS#8 private key
 EC_PUBLIC_KEY = bytes.fromhex("06072a8648ce3d0201")
-P256 = bytes.fromhex("06082a8648ce3d030107")
-VERSION_3 = bytes.fromhex("a003020102")  # [0] EXPLICIT INTEGER 2: an X.509 v3 certificate
+
+
+def _edit(data: bytes, at: int, new: bytes) -> bytes:
+    return data[:at] + new + data[at + len(new) :]
 
 
 @pytest.mark.parametrize(
-    ("old", "new", "what"),
-    [
-        (EC_PUBLIC_KEY, EC_PUBLIC_KEY[:-1] + b"\x09", "unknown key type"),  # UnsupportedAlgorithm
-        (P256, P256[:-1] + b"\x09", "unknown curve"),  # ValueError on the lazy key parse
-        # found by the long run: version 2 (v2) raised x509.InvalidVersion, not a ValueError
-        (VERSION_3, VERSION_3[:-1] + b"\x01", "version 2"),
-    ],
+    "what",
+    ["version 2", "not on the curve", "an X.509 PEM certificate", "trailing byte", "no DENM permission"],
 )
-def test_damaged_certificate_is_one_input_error(
-    unit: Path, work: Path, old: bytes, new: bytes, what: str
-) -> None:
-    """Found by fuzzing: cryptography parses a certificate's key lazily, so a damaged key type or
-    curve raised from ``cert.public_key()`` (UnsupportedAlgorithm, ValueError) far from the file."""
+def test_damaged_certificate_is_one_input_error(unit: Path, work: Path, what: str) -> None:
+    """A damaged or foreign certificate, as the unit's and as the root, is one InputError naming the
+    file: a version other than 3, a verification key whose x has no point on P-256, the PEM X.509
+    certificate of an older makeway, one byte too many (COER must match its re-encoding), a unit
+    certificate without PSID 37."""
+    from cryptography.hazmat.primitives import serialization
+    from cryptography.hazmat.primitives.asymmetric import ec
+
+    from makeway.v2x.certificates import issue_certificate, parse_certificate
+
     folder = work / f"damaged_{what.replace(' ', '_')}"
+    shutil.rmtree(folder, ignore_errors=True)
     shutil.copytree(unit, folder)
-    bad = _with_der_edit((folder / "rsu.crt").read_bytes(), old, new)
-    (folder / "rsu.crt").write_bytes(bad)
-    with pytest.raises(InputError, match=r"damaged X\.509 certificate") as info:
+    cert, root = (folder / "rsu.cert").read_bytes(), (folder / "trust" / "root.cert").read_bytes()
+
+    def damage(data: bytes) -> bytes:
+        if what == "version 2":
+            assert data[1] == 3
+            return _edit(data, 1, b"\x02")
+        if what == "not on the curve":  # x = 5: 5³ − 3·5 + b is not a square mod p
+            x = parse_certificate(data).public_key.public_numbers().x.to_bytes(32, "big")
+            return data.replace(x, (5).to_bytes(32, "big"))
+        if what == "an X.509 PEM certificate":
+            return b"-----BEGIN CERTIFICATE-----\nMIIB\n-----END CERTIFICATE-----\n"
+        if what == "trailing byte":
+            return data + b"\x00"
+        # "no DENM permission": the unit's own key in a self-signed root certificate, not a unit's
+        key = serialization.load_pem_private_key((folder / "rsu.key").read_bytes(), password=None)
+        assert isinstance(key, ec.EllipticCurvePrivateKey)
+        return issue_certificate(
+            "x", key.public_key(), key, issuer=None, start_s=time.time(), days=1, can_issue=True
+        ).data
+
+    (folder / "rsu.cert").write_bytes(damage(cert))
+    with pytest.raises(InputError) as info:
         load_identity(folder / "rsu.key")
-    assert info.value.path == folder / "rsu.crt"
-    (folder / "trust" / "root.pem").write_bytes(
-        _with_der_edit((unit / "trust" / "root.pem").read_bytes(), old, new)
-    )
-    with pytest.raises(InputError, match=r"damaged X\.509 certificate") as info:
+    assert info.value.path == folder / "rsu.cert"
+    if what == "no DENM permission":
+        assert "PSID 37" in str(info.value)
+        return
+    (folder / "trust" / "root.cert").write_bytes(damage(root))
+    with pytest.raises(InputError) as info:
         TrustStore.load(folder / "trust")
-    assert info.value.path == folder / "trust" / "root.pem"
+    assert info.value.path == folder / "trust" / "root.cert"
 
 
 def test_revocation_list_not_utf8(unit: Path, work: Path) -> None:

@@ -59,7 +59,7 @@ def keys(tmp_path_factory: pytest.TempPathFactory) -> dict[str, object]:
     d = tmp_path_factory.mktemp("keys")
     good = keygen(d / "ours", "rsu")
     bad = keygen(d / "ours", "stolen")
-    revoke(d / "ours" / "trust", d / "ours" / "stolen.crt")
+    revoke(d / "ours" / "trust", d / "ours" / "stolen.cert")
     outsider = keygen(d / "theirs", "rsu")
     return {"dir": d, "good": good, "revoked": bad, "outsider": outsider, "trust": d / "ours" / "trust"}
 
@@ -279,7 +279,7 @@ def test_cli_contract(tmp_path: Path) -> None:
     res = runner.invoke(app, ["v2x", "keygen", "--out", str(tmp_path / "k")])
     assert res.exit_code == 0, res.output
     trust = tmp_path / "k" / "trust"
-    assert (trust / "root.pem").is_file() and (tmp_path / "k" / "rsu.key").is_file()
+    assert (trust / "root.cert").is_file() and (tmp_path / "k" / "rsu.key").is_file()
     assert oct((tmp_path / "k" / "rsu.key").stat().st_mode & 0o777) == "0o600"
     assert not any(b"PRIVATE KEY" in p.read_bytes() for p in trust.rglob("*") if p.is_file())
 
@@ -339,7 +339,7 @@ def test_cli_contract(tmp_path: Path) -> None:
     assert first.exit_code == 0 and again.exit_code == 1
     assert json.loads(again.stdout)["reason"].startswith("replay")
 
-    revoke(trust, tmp_path / "k" / "rsu.crt")
+    revoke(trust, tmp_path / "k" / "rsu.cert")
     res = runner.invoke(app, ["v2x", "verify", str(a), "--trust", str(trust)])
     assert res.exit_code == 1 and json.loads(res.stdout)["reason"] == "revoked signer"
 

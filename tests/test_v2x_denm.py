@@ -233,7 +233,7 @@ def test_signed_alert_is_ieee1609dot2_signed_data(unit: tuple[Identity, TrustSto
     DENM's reference time in µs, signer digest = the unit's HashedId8, an ECDSA P-256 signature
     over SHA-256(tbsData) ‖ SHA-256(certificate) that verifies; the offsets the transport reads
     hold the signer and the station id."""
-    from cryptography.hazmat.primitives import hashes, serialization
+    from cryptography.hazmat.primitives import hashes
     from cryptography.hazmat.primitives.asymmetric import ec
     from cryptography.hazmat.primitives.asymmetric.utils import encode_dss_signature
     from pycrate_asn1dir import ITS_IEEE1609_2
@@ -261,7 +261,7 @@ def test_signed_alert_is_ieee1609dot2_signed_data(unit: tuple[Identity, TrustSto
     tbs = tbs_type.to_oer()
     import hashlib
 
-    der = ident.cert.public_bytes(serialization.Encoding.DER)
+    der = ident.cert.data  # the 1609.2 certificate's COER
     assert ident.signer == hashlib.sha256(der).digest()[-8:]  # HashedId8: the low-order 8 bytes
     r = int.from_bytes(sd["signature"][1]["rSig"][1], "big")
     s = int.from_bytes(sd["signature"][1]["sSig"], "big")

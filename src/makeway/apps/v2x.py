@@ -22,13 +22,13 @@ DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
 
 
 def keygen(out: Path, name: str = "rsu") -> dict[str, Any]:
-    """A unit identity ``out/NAME.key`` (+ ``.crt``) under the local root, and the trust store."""
+    """A unit identity ``out/NAME.key`` (+ ``.cert``) under the local root, and the trust store."""
     from makeway.v2x.security import keygen as make
 
     ident = make(out, name)
     return {
         "key": str(out / f"{name}.key"),
-        "cert": str(out / f"{name}.crt"),
+        "cert": str(out / f"{name}.cert"),
         "trust": str(out / "trust"),
         "signer": ident.signer.hex(),
         "station_id": ident.station_id,

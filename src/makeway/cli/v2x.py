@@ -34,12 +34,13 @@ _ENDPOINT_HELP = "zenoh endpoint (loopback only), e.g. tcp/127.0.0.1:7447; repea
 @friendly_errors
 def keygen(
     out: Annotated[Path, typer.Option("--out", "-o", help="Key folder (reuses its root if present).")],
-    name: Annotated[str, typer.Option(help="Unit name: writes OUT/NAME.key and OUT/NAME.crt.")] = "rsu",
+    name: Annotated[str, typer.Option(help="Unit name: writes OUT/NAME.key and OUT/NAME.cert.")] = "rsu",
 ) -> None:
     """Make a signing identity and the trust store that accepts it.
 
-    Writes OUT/root.key and OUT/trust/root.pem (once), OUT/NAME.key, OUT/NAME.crt,
-    OUT/trust/units/NAME.pem and OUT/trust/revoked.txt. Keys are private: never commit them.
+    Writes OUT/root.key and OUT/trust/root.cert (once), OUT/NAME.key, OUT/NAME.cert,
+    OUT/trust/units/NAME.cert and OUT/trust/revoked.txt (certificates: IEEE 1609.2, COER).
+    Keys are private: never commit them.
     Prints one JSON line (files, signer HashedId8, station id).
     """
     from makeway.apps.v2x import keygen as run
@@ -50,7 +51,7 @@ def keygen(
 @v2x_app.command()
 @friendly_errors
 def alert(
-    key: Annotated[Path, typer.Option("--key", help="Unit key (NAME.key, with NAME.crt beside it).")],
+    key: Annotated[Path, typer.Option("--key", help="Unit key (NAME.key, with NAME.cert beside it).")],
     lat: Annotated[float, typer.Option("--lat", help="EV latitude, WGS-84 degrees.")],
     lon: Annotated[float, typer.Option("--lon", help="EV longitude, WGS-84 degrees.")],
     heading_deg: Annotated[

@@ -24,9 +24,10 @@ HashedId8: the low-order 8 bytes (the last 8) of the SHA-256 of its certificate'
 unit's station id is the first 4 bytes of its HashedId8 read big-endian; an alert must carry its
 signer's station id.
 
-What is not 1609.2 / ETSI TS 103 097: unit certificates are X.509 (DER), not 1609.2 explicit
-certificates, so the signer identifier input and the HashedId8 hash the X.509 DER; and the signer
-is always a digest, where TS 103 097's DENM profile asks for the full certificate. The encoding
+Certificates are 1609.2 explicit certificates (:mod:`makeway.v2x.certificates`): a self-signed
+root per trust store and unit certificates it issues for PSID 37; the signer identifier input and
+the HashedId8 hash a certificate's COER. What is not ETSI TS 103 097: the signer is always a
+digest, where TS 103 097's DENM profile asks for the full certificate. The encoding
 is one fixed profile: every alert is :data:`SIGNED_SIZE` bytes, longer input is refused as oversized
 before any parsing.
 
@@ -37,8 +38,8 @@ codecs of this profile, checked byte for byte against pycrate's (:func:`encode_s
 On disk (``makeway v2x keygen --out DIR``):
 
 * ``DIR/root.key``, ``DIR/NAME.key`` — private keys (PKCS#8 PEM, mode 0600; never commit them);
-* ``DIR/NAME.crt`` — the unit's X.509 certificate, issued by the root;
-* ``DIR/trust/root.pem`` — the root certificate; ``DIR/trust/units/NAME.pem`` — the unit
+* ``DIR/NAME.cert`` — the unit's 1609.2 certificate (COER), issued by the root;
+* ``DIR/trust/root.cert`` — the root certificate; ``DIR/trust/units/NAME.cert`` — the unit
   certificates the car accepts (each checked against the root when the store is loaded);
   ``DIR/trust/revoked.txt`` — the revocation list: one HashedId8 in hex per line, ``#`` comments.
 
@@ -59,24 +60,29 @@ the messages that could change what it does, not every message in radio range.
 
 from __future__ import annotations
 
-import datetime as dt
 import hashlib
 import json
 import os
 import tempfile
+import time
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from cryptography import x509
 from cryptography.exceptions import InvalidSignature, UnsupportedAlgorithm
 from cryptography.hazmat.primitives import hashes, serialization
 from cryptography.hazmat.primitives.asymmetric import ec
 from cryptography.hazmat.primitives.asymmetric.utils import decode_dss_signature, encode_dss_signature
-from cryptography.x509.oid import NameOID
 
 from makeway.errors import InputError
+from makeway.v2x.certificates import (
+    PSID_DEN,
+    Certificate,
+    MalformedCertificateError,
+    issue_certificate,
+    parse_certificate,
+)
 from makeway.v2x.message import (
     _PYCRATE_LOCK,
     ALERT_SIZE,
@@ -116,9 +122,6 @@ __all__ = [
     "sign_alert",
     "station_id_of",
 ]
-
-PSID_DEN = 37
-"""The 1609.2 PSID (ITS-AID) of ETSI's Decentralized Environmental Notification service."""
 
 # the profile's COER bytes around the DENM (see the module's notes)
 _PREFIX = bytes([0x03, 0x81, 0x00, 0x40, 0x03, 0x80, ALERT_SIZE])
@@ -232,9 +235,9 @@ class GenerationLocation:
         }
 
 
-def hashed_id8(cert: x509.Certificate) -> bytes:
-    """1609.2's HashedId8 of a certificate: the low-order (last) 8 bytes of SHA-256 over its DER."""
-    return hashlib.sha256(cert.public_bytes(serialization.Encoding.DER)).digest()[-8:]
+def hashed_id8(cert: Certificate) -> bytes:
+    """1609.2's HashedId8 of a certificate: the low-order (last) 8 bytes of SHA-256 over its COER."""
+    return cert.hashed_id8
 
 
 def station_id_of(signer: bytes) -> int:
@@ -248,14 +251,14 @@ class Identity:
     """A unit's signing key, its certificate, HashedId8 and station id."""
 
     key: ec.EllipticCurvePrivateKey
-    cert: x509.Certificate
+    cert: Certificate
     signer: bytes
     station_id: int
 
     @property
     def cert_hash(self) -> bytes:
-        """SHA-256 of the certificate's DER: 1609.2's hash of the signer identifier input."""
-        return hashlib.sha256(self.cert.public_bytes(serialization.Encoding.DER)).digest()
+        """SHA-256 of the certificate's COER: 1609.2's hash of the signer identifier input."""
+        return self.cert.digest
 
 
 def _write_private(path: Path, key: ec.EllipticCurvePrivateKey) -> None:
@@ -280,35 +283,13 @@ def _write_public(path: Path, data: bytes) -> None:
         tmp.write_bytes(data)
 
 
-def _cert(
-    subject: str,
-    key: ec.EllipticCurvePrivateKey,
-    issuer: x509.Name | None,
-    issuer_key: ec.EllipticCurvePrivateKey,
-    days: int,
-    ca: bool,
-) -> x509.Certificate:
-    name = x509.Name([x509.NameAttribute(NameOID.COMMON_NAME, subject)])
-    now = dt.datetime.now(dt.UTC)
-    return (
-        x509.CertificateBuilder()
-        .subject_name(name)
-        .issuer_name(issuer or name)
-        .public_key(key.public_key())
-        .serial_number(x509.random_serial_number())
-        .not_valid_before(now - dt.timedelta(minutes=5))
-        .not_valid_after(now + dt.timedelta(days=days))
-        .add_extension(x509.BasicConstraints(ca=ca, path_length=0 if ca else None), critical=True)
-        .sign(issuer_key, hashes.SHA256())
-    )
-
-
 def keygen(out: str | Path, name: str = "rsu", *, days: int = 365) -> Identity:
     """Create (or reuse) the local root in ``out`` and issue a new unit identity ``name``.
 
-    Writes ``out/NAME.key``, ``out/NAME.crt`` and ``out/trust/units/NAME.pem``; the first call also
-    writes ``out/root.key``, ``out/trust/root.pem`` and an empty ``out/trust/revoked.txt``. An
-    existing ``NAME.key`` is an error (a key is never overwritten).
+    Writes ``out/NAME.key``, ``out/NAME.cert`` and ``out/trust/units/NAME.cert``; the first call
+    also writes ``out/root.key``, ``out/trust/root.cert`` and an empty ``out/trust/revoked.txt``.
+    An existing ``NAME.key`` is an error (a key is never overwritten). Certificates are valid from
+    five minutes ago: the unit's for ``days``, the root's for ten years.
     """
     if not name or not all(c.isalnum() or c in "-_" for c in name):
         raise ValueError(f"--name takes letters, digits, '-' and '_', not {name!r}")
@@ -317,26 +298,38 @@ def keygen(out: str | Path, name: str = "rsu", *, days: int = 365) -> Identity:
         raise InputError(out / f"{name}.key", "already exists; pick another --name or folder")
     trust = out / "trust"
     (trust / "units").mkdir(parents=True, exist_ok=True)
-    root_key_path, root_pem = out / "root.key", trust / "root.pem"
-    if root_key_path.exists() != root_pem.exists():
-        raise InputError(out, "has only one of root.key and trust/root.pem; use a fresh folder")
+    if (trust / _OLD_ROOT).exists():
+        raise InputError(trust / _OLD_ROOT, _OLD_FORMAT)
+    root_key_path, root_cert = out / "root.key", trust / "root.cert"
+    if root_key_path.exists() != root_cert.exists():
+        raise InputError(out, "has only one of root.key and trust/root.cert; use a fresh folder")
+    start = time.time() - 300.0
     if root_key_path.exists():
         root_key = _load_private(root_key_path)
-        root = _load_cert(root_pem)
+        root = _load_cert(root_cert)
     else:
         root_key = ec.generate_private_key(ec.SECP256R1())
-        root = _cert("makeway local root", root_key, None, root_key, days=3650, ca=True)
-        _write_public(root_pem, root.public_bytes(serialization.Encoding.PEM))
+        root = issue_certificate(
+            "makeway local root",
+            root_key.public_key(),
+            root_key,
+            issuer=None,
+            start_s=start,
+            days=3650,
+            can_issue=True,
+        )
+        _write_public(root_cert, root.data)
         _write_private(root_key_path, root_key)
     revoked = trust / "revoked.txt"
     if not revoked.exists():
         _write_public(revoked, b"# revoked signers: one HashedId8 (16 hex digits) per line\n")
     key = ec.generate_private_key(ec.SECP256R1())
-    cert = _cert(f"makeway unit {name}", key, root.subject, root_key, days=days, ca=False)
-    pem = cert.public_bytes(serialization.Encoding.PEM)
+    cert = issue_certificate(
+        f"makeway unit {name}", key.public_key(), root_key, issuer=root, start_s=start, days=days
+    )
     # each file atomic; the key last, so that a run stopped part-way can simply be repeated
-    _write_public(out / f"{name}.crt", pem)
-    _write_public(trust / "units" / f"{name}.pem", pem)
+    _write_public(out / f"{name}.cert", cert.data)
+    _write_public(trust / "units" / f"{name}.cert", cert.data)
     _write_private(out / f"{name}.key", key)
     signer = hashed_id8(cert)
     return Identity(key, cert, signer, station_id_of(signer))
@@ -354,37 +347,40 @@ def _load_private(path: Path) -> ec.EllipticCurvePrivateKey:
     return key
 
 
-def _load_cert(path: Path) -> x509.Certificate:
-    """The certificate in ``path``, with every part makeway uses parsed once here: cryptography parses
-    some lazily, so a damaged key or name would otherwise fail later, far from the file."""
+_OLD_ROOT = "root.pem"
+_OLD_FORMAT = (
+    "is an X.509 certificate of a makeway before 1609.2 certificates; make new keys and a new trust "
+    "store with makeway v2x keygen"
+)
+
+
+def _load_cert(path: Path) -> Certificate:
+    """The 1609.2 certificate in ``path`` (COER), parsed; one :class:`InputError` naming the file
+    for anything else."""
     try:
-        cert = x509.load_pem_x509_certificate(path.read_bytes())
+        data = path.read_bytes()
     except OSError as exc:
         raise InputError(path, f"cannot be read ({exc.strerror})") from None
-    except x509.InvalidVersion as exc:  # not a ValueError
-        raise InputError(path, f"is a damaged X.509 certificate ({exc})") from None
-    except ValueError:
-        raise InputError(path, "is not a PEM X.509 certificate") from None
+    if data.startswith(b"-----BEGIN"):
+        raise InputError(path, _OLD_FORMAT)
     try:
-        cert.public_key()
-        _ = (cert.issuer, cert.subject, cert.signature, cert.tbs_certificate_bytes)
-        _ = (cert.not_valid_before_utc, cert.not_valid_after_utc)
-    except (ValueError, UnsupportedAlgorithm) as exc:
-        raise InputError(path, f"is a damaged X.509 certificate ({exc})") from None
-    return cert
+        return parse_certificate(data)
+    except MalformedCertificateError as exc:
+        raise InputError(path, f"is not a 1609.2 certificate of makeway's profile: {exc}") from None
 
 
 def load_identity(key_path: str | Path) -> Identity:
-    """A unit's key file and the certificate beside it (``NAME.key`` → ``NAME.crt``)."""
+    """A unit's key file and the certificate beside it (``NAME.key`` → ``NAME.cert``)."""
     key_path = Path(key_path)
     key = _load_private(key_path)
-    cert_path = key_path.with_suffix(".crt")
+    cert_path = key_path.with_suffix(".cert")
+    if not cert_path.exists() and key_path.with_suffix(".crt").exists():
+        raise InputError(key_path.with_suffix(".crt"), _OLD_FORMAT)
     cert = _load_cert(cert_path)
-    pub = cert.public_key()
-    if not isinstance(pub, ec.EllipticCurvePublicKey) or pub.public_numbers() != (
-        key.public_key().public_numbers()
-    ):
+    if cert.public_key.public_numbers() != key.public_key().public_numbers():
         raise InputError(cert_path, f"does not certify the key in {key_path.name}")
+    if PSID_DEN not in cert.psids:
+        raise InputError(cert_path, f"does not allow signing DENMs (PSID {PSID_DEN})")
     signer = hashed_id8(cert)
     return Identity(key, cert, signer, station_id_of(signer))
 
@@ -596,50 +592,43 @@ def parse_signed_reference(data: bytes) -> SignedAlert:
 class TrustStore:
     """What a car trusts: unit certificates issued by the root, minus the revoked ones.
 
-    ``units`` maps HashedId8 → (public key, not-valid-before, not-valid-after as Unix s, SHA-256
-    of the certificate's DER);
-    ``refused`` lists unit certificate files that did not chain to the root, with the reason.
+    ``units`` maps HashedId8 → (public key, start and end of validity as Unix s, SHA-256 of the
+    certificate's COER);
+    ``refused`` lists unit certificate files that did not chain to the root or may not sign
+    DENMs, with the reason.
     """
 
-    root: x509.Certificate
+    root: Certificate
     units: dict[bytes, tuple[ec.EllipticCurvePublicKey, float, float, bytes]]
     revoked: set[bytes]
     refused: list[tuple[str, str]] = field(default_factory=list)
 
     @staticmethod
     def load(trust_dir: str | Path) -> TrustStore:
-        """Read ``root.pem``, ``units/*.pem`` and ``revoked.txt`` from ``trust_dir``."""
+        """Read ``root.cert``, ``units/*.cert`` and ``revoked.txt`` from ``trust_dir``."""
         trust_dir = Path(trust_dir)
-        if not (trust_dir / "root.pem").is_file():
+        if not (trust_dir / "root.cert").is_file():
+            if (trust_dir / _OLD_ROOT).is_file():
+                raise InputError(trust_dir / _OLD_ROOT, _OLD_FORMAT)
             raise InputError(
-                trust_dir, "is not a trust store (no root.pem; make one with makeway v2x keygen)"
+                trust_dir, "is not a trust store (no root.cert; make one with makeway v2x keygen)"
             )
-        root = _load_cert(trust_dir / "root.pem")
-        root_pub = root.public_key()
-        if not isinstance(root_pub, ec.EllipticCurvePublicKey):
-            raise InputError(trust_dir / "root.pem", "holds no EC public key")
+        root = _load_cert(trust_dir / "root.cert")
+        if not (root.issuer is None and root.can_issue and root.issued_by(root)):
+            raise InputError(
+                trust_dir / "root.cert", "is not a self-signed root allowed to issue certificates"
+            )
         units: dict[bytes, tuple[ec.EllipticCurvePublicKey, float, float, bytes]] = {}
         refused: list[tuple[str, str]] = []
-        for path in sorted((trust_dir / "units").glob("*.pem")):
+        for path in sorted((trust_dir / "units").glob("*.cert")):
             cert = _load_cert(path)
-            pub = cert.public_key()
-            try:
-                if cert.issuer != root.subject:
-                    raise InvalidSignature
-                root_pub.verify(cert.signature, cert.tbs_certificate_bytes, ec.ECDSA(hashes.SHA256()))
-            except InvalidSignature:
+            if cert.issuer is None or not cert.issued_by(root):
                 refused.append((str(path), "not issued by this root"))
                 continue
-            if not isinstance(pub, ec.EllipticCurvePublicKey) or pub.curve.name != "secp256r1":
-                refused.append((str(path), "not a P-256 key"))
+            if PSID_DEN not in cert.psids:
+                refused.append((str(path), f"not allowed to sign DENMs (PSID {PSID_DEN})"))
                 continue
-            der = cert.public_bytes(serialization.Encoding.DER)
-            units[hashed_id8(cert)] = (
-                pub,
-                cert.not_valid_before_utc.timestamp(),
-                cert.not_valid_after_utc.timestamp(),
-                hashlib.sha256(der).digest(),
-            )
+            units[cert.hashed_id8] = (cert.public_key, cert.start_s, cert.end_s, cert.digest)
         return TrustStore(root, units, _read_revoked(trust_dir / "revoked.txt"), refused)
 
 
@@ -667,7 +656,7 @@ def _read_revoked(path: Path) -> set[bytes]:
 
 def revoke(trust_dir: str | Path, cert_path: str | Path) -> str:
     """Add a unit certificate's HashedId8 to ``trust_dir/revoked.txt``; return it in hex."""
-    signer = hashed_id8(_load_cert(Path(cert_path))).hex()
+    signer = _load_cert(Path(cert_path)).hashed_id8.hex()
     path = Path(trust_dir) / "revoked.txt"
     known = {s.hex() for s in _read_revoked(path)}
     if signer not in known:
