@@ -20,8 +20,11 @@ Caveat printed with the table: the ``fast`` CNN was distilled (on the default he
 not on the boxes' labels) from crops of every ``ambulance_yolo/valid`` image, held-out ones
 included; the ``default`` head never saw ``ambulance_yolo``.
 
+``--labels original`` scores against the export's class-0 boxes as they are; the default
+``corrected`` applies the audited corrections (``makeway.sense.label_corrections``).
+
     .venv/bin/python benchmarks/bench_evaluate_detector.py [--classifier default --classifier fast]
-        [--threads 2] [--json]
+        [--threads 2] [--json] [--labels corrected|original]
 """
 
 from __future__ import annotations
@@ -46,13 +49,22 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--json", action="store_true", help="also print every row as a JSON line")
     parser.add_argument("--no-framework-a", action="store_true", help="skip the one-stage EV detector")
     parser.add_argument("--model-a", default=None, help="Framework A's model file (default: the shipped one)")
+    parser.add_argument(
+        "--labels",
+        default="corrected",
+        choices=["corrected", "original"],
+        help="ground truth: the audited corrections applied (default) or the export's boxes as they are",
+    )
     args = parser.parse_args(argv)
     base = data_dir()
     if base is None:
         print("shared data folder not found; set MAKEWAY_DATA", file=sys.stderr)
         return 2
     data = base / "vision" / "ambulance_yolo" / "valid"
-    print(f"load average (1 min): {os.getloadavg()[0]:.2f} on {os.cpu_count()} cores; threads {args.threads}")
+    print(
+        f"load average (1 min): {os.getloadavg()[0]:.2f} on {os.cpu_count()} cores; threads {args.threads}; "
+        f"{args.labels} labels"
+    )
     header = (
         f"{'classifier':<10} {'part':<10} {'score':<10} {'images':>6} {'boxes':>5} {'mAP50':>6} "
         f"{'mAP50:95':>8} {'P':>6} {'R':>6} {'ms/image':>8}"
@@ -67,7 +79,7 @@ def main(argv: list[str] | None = None) -> int:
         for split in ("validation", "held_out"):
             judged: list[BoxJudgements] = []
             run = evaluate_detector(
-                data, classifier=clf, split=split, threads=args.threads, judgements=judged
+                data, classifier=clf, split=split, threads=args.threads, judgements=judged, labels=args.labels
             )
             if not any(r["split"] == split and r["score"] == "detector" for r in rows):
                 boxes, det, gt = ([getattr(j, k) for j in judged] for k in ("boxes", "det_scores", "gt"))
@@ -89,7 +101,12 @@ def main(argv: list[str] | None = None) -> int:
                 )
     if not args.no_framework_a:
         row = evaluate_detector(
-            data, framework="a", split="held_out", threads=args.threads, model=args.model_a
+            data,
+            framework="a",
+            split="held_out",
+            threads=args.threads,
+            model=args.model_a,
+            labels=args.labels,
         )
         rows.append(row)
         print(

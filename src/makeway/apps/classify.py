@@ -202,6 +202,8 @@ def build_ambulance_crops(
     size: int = 224,
     threads: int = 1,
     progress: bool = True,
+    labels: str = "corrected",
+    corrections: str | Path | None = None,
 ) -> dict[str, int]:
     """A crop folder (``images/`` + ``labels.csv`` with a ``group`` column: the source photo) at
     ``out`` from the YOLO ambulance set ``data`` (default ``<shared data>/vision/ambulance_yolo/valid``).
@@ -210,20 +212,38 @@ def build_ambulance_crops(
     one is a negative. Crops are ``size`` × ``size`` px squares around the box with ``margin`` (of the
     box's longer side) of context per side; boxes under 18 px wide are skipped.
 
-    Returns the counts: ``images``, ``boxes`` (labelled ambulances), ``positive``, ``negative`` and
-    ``crops`` (written).
+    ``labels="corrected"`` then applies the rows of ``corrections`` (default the committed
+    :data:`~makeway.sense.label_corrections.CORRECTIONS_FILE`) to each image's crops
+    (:func:`~makeway.sense.label_corrections.correct_crop_items`: relabelled, left out, or added as
+    ``<stem>_c<k>`` crops); ``"original"`` keeps the export's labels.
+
+    Returns the counts: ``images``, ``boxes`` (labelled ambulances), ``positive``, ``negative``,
+    ``crops`` (written) and ``corrected`` (crops a correction row relabelled, left out or added).
 
     Raises:
-        InputError: the data folder is not found or an image cannot be decoded (nothing is written).
+        InputError: the data folder is not found, an image cannot be decoded, or the corrections file
+            is malformed (nothing is written).
         UnknownNameError: an unknown detector (lists the known ones).
+        ValueError: an unknown label set.
     """
+    from functools import partial
+
     import cv2
 
+    from makeway.messages import Box
     from makeway.paths import data_dir
-    from makeway.perceive.vision.crops import detection_crop_items
+    from makeway.perceive.vision.crops import detection_crop_items, square_crop
     from makeway.perceive.vision.detectors import DETECTORS
     from makeway.progress import progress_bar
     from makeway.sense.crops import read_yolo_set, roboflow_source, write_crop_folder
+    from makeway.sense.label_corrections import (
+        CORRECTIONS_FILE,
+        LabelCorrection,
+        check_label_set,
+        correct_crop_items,
+        corrections_by_image,
+        read_corrections,
+    )
 
     if data is None:
         base = data_dir()
@@ -232,11 +252,14 @@ def build_ambulance_crops(
                 "../shared/data", "shared data folder not found; pass --data or set MAKEWAY_DATA"
             )
         data = base / "vision" / "ambulance_yolo" / "valid"
+    fixes: dict[str, list[LabelCorrection]] = {}
+    if check_label_set(labels) == "corrected":
+        fixes = corrections_by_image(read_corrections(corrections or CORRECTIONS_FILE))
     images = read_yolo_set(data)
     det = DETECTORS[detector](
         model, score_threshold=score_threshold, class_agnostic=True, num_threads=threads
     )
-    counts = {"images": len(images), "positive": 0, "negative": 0, "boxes": 0}
+    counts = {"images": len(images), "positive": 0, "negative": 0, "boxes": 0, "corrected": 0}
 
     def items(advance: Callable[[int], Any]) -> Iterator[tuple[str, np.ndarray, int, str | None]]:
         for item in images:
@@ -247,9 +270,26 @@ def build_ambulance_crops(
             counts["boxes"] += len(positives)
             boxes, _, _ = det.detect_arrays(image)
             group = roboflow_source(item.path.stem)
-            for tag, crop, label in detection_crop_items(
-                image, positives, boxes, max_iou=max_iou, max_inside=max_inside, margin=margin, size=size
-            ):
+            found = list(
+                detection_crop_items(
+                    image, positives, boxes, max_iou=max_iou, max_inside=max_inside, margin=margin, size=size
+                )
+            )
+            rows = fixes.get(item.path.stem, [])
+            if rows:
+                source = {f"p{k}": b for k, b in enumerate(positives)}
+                source.update({f"n{k}": Box(*(float(v) for v in b[:4])) for k, b in enumerate(boxes)})
+                before = {tag: label for tag, _, label in found}
+                found = list(
+                    correct_crop_items(
+                        found, source, rows, partial(square_crop, image, margin=margin, size=size)
+                    )
+                )
+                after = {tag: label for tag, _, label in found}
+                counts["corrected"] += sum(
+                    1 for t in before.keys() | after.keys() if before.get(t) != after.get(t)
+                )
+            for tag, crop, label in found:
                 counts["positive" if label else "negative"] += 1
                 yield f"{item.path.stem}_{tag}.jpg", crop, label, group
             advance(1)
@@ -356,11 +396,12 @@ CROSS_SOURCE_TRAINERS = ("head", "effnet_ft")
 class CrossSourceRun:
     """What :func:`cross_source_evaluation` scored: every (model, held-out source) score in order,
     the worst source of each model (by accuracy), and each source's folder and crop counts
-    (``sources[name] = {"folder", "n", "positive"}``)."""
+    (``sources[name] = {"folder", "n", "positive"}``) and the label set of ``ambulance_yolo``."""
 
     scores: list[Any]
     worst: dict[str, Any]
     sources: dict[str, dict[str, Any]]
+    labels: str = "corrected"
 
 
 def _cache_key(**parts: Any) -> str:
@@ -391,6 +432,7 @@ def cross_source_evaluation(
     progress: bool = True,
     on_score: Callable[[Any], None] | None = None,
     log: Callable[[str], None] | None = None,
+    labels: str = "corrected",
 ) -> CrossSourceRun:
     """The cross-source protocol (:mod:`makeway.eval.cross_source`) over the labelled crop sources.
 
@@ -405,20 +447,23 @@ def cross_source_evaluation(
     :data:`CROSS_SOURCES` and those (default: all). ``ambulance_yolo`` and ``road_clips`` are built
     on first use into ``cache`` (default ``~/.cache/makeway/cross_source``; ``every`` = the frame
     step between a track's crops), as are the backbone features of the heads. ``data`` is the
-    shared data folder (default: found as :func:`makeway.paths.data_dir` does). ``on_score`` gets
-    each score when known; ``log`` a line per step.
+    shared data folder (default: found as :func:`makeway.paths.data_dir` does). ``labels`` is the
+    label set of ``ambulance_yolo`` (``corrected``: the committed audit's corrections applied,
+    :mod:`makeway.sense.label_corrections`; ``original``: the export as it is); each set is built
+    and cached apart. ``on_score`` gets each score when known; ``log`` a line per step.
 
     Raises:
         InputError: the data folder, a model file or a crop folder is missing or unreadable, or a
             source has no crops (all checked before any long work).
         UnknownNameError: an unknown source, trainer or shipped model name (lists the known ones).
-        ValueError: nothing to evaluate, or a source named twice.
+        ValueError: nothing to evaluate, a source named twice, or an unknown label set.
     """
     from makeway.eval.cross_source import leave_one_source_out, score_sources, worst_source
     from makeway.paths import data_dir
     from makeway.perceive.vision.ev_classifier import EVCropClassifier, load_crop_classifier
     from makeway.registry import Registry, UnknownNameError
     from makeway.sense.crops import CropSet, committed_split, near_duplicate_groups, read_crop_folder
+    from makeway.sense.label_corrections import CORRECTIONS_FILE, check_label_set, read_corrections
     from makeway.train.ev_head import FeatureCache, cached_head, head_trainer
 
     def say(line: str) -> None:
@@ -427,6 +472,9 @@ def cross_source_evaluation(
 
     if not models and not train:
         raise ValueError("nothing to evaluate: give --model and/or --train")
+    labels = check_label_set(labels)
+    if labels == "corrected":
+        read_corrections(CORRECTIONS_FILE)  # a malformed file fails before any long work
     extra_names = [n for n, _ in extra]
     all_names = [*CROSS_SOURCES, *extra_names]
     if len(set(all_names)) != len(all_names):
@@ -465,10 +513,14 @@ def cross_source_evaluation(
             yolo = base / "vision" / "ambulance_yolo" / "valid"
             if not yolo.is_dir():
                 raise InputError(yolo, "ambulance_yolo set not found")
-            folder = root / "sources" / f"ambulance_yolo-{_cache_key(data=yolo.resolve(), v=1)}"
+            if labels == "original":  # the key of the original set is kept: its cache stays valid
+                key = _cache_key(data=yolo.resolve(), v=1)
+            else:
+                key = _cache_key(data=yolo.resolve(), v=1, corrections=_file_digest(CORRECTIONS_FILE))
+            folder = root / "sources" / f"ambulance_yolo-{key}"
             if not (folder / "labels.csv").is_file():
-                say(f"building the ambulance_yolo crops → {folder}")
-                build_ambulance_crops(folder, yolo, threads=threads, progress=progress)
+                say(f"building the ambulance_yolo crops ({labels} labels) → {folder}")
+                build_ambulance_crops(folder, yolo, threads=threads, progress=progress, labels=labels)
             crop_sets[name] = read_crop_folder(folder)
         else:  # road_clips
             from makeway.eval.actor_sweep import TRACK_LABELS, read_track_labels
@@ -536,4 +588,4 @@ def cross_source_evaluation(
         worst[label] = worst_source(
             leave_one_source_out(crop_sets, trainer, model=label, held_out=folds, on_score=emit, log=log)
         )
-    return CrossSourceRun(scores=scores, worst=worst, sources=info)
+    return CrossSourceRun(scores=scores, worst=worst, sources=info, labels=labels)

@@ -19,7 +19,11 @@ operating point is ``ev_score`` at or above the threshold stored in the model fi
 training's validation images, never on the held-out ones).
 
 Ground truth: the boxes of class 0 (ambulance in ``ambulance_yolo``); a detection is correct at
-IoU ≥ 0.5 (:mod:`makeway.eval.detection`).
+IoU ≥ 0.5 (:mod:`makeway.eval.detection`). With the ``corrected`` label set (the default) the
+committed corrections (:mod:`makeway.sense.label_corrections`) are applied per image: unlabelled
+EVs (ambulance, police, fire) of the audit get a box, boxes the audit found not to be EVs lose
+theirs; ``original`` scores the export's boxes as they are. Rows of images not in the set change
+nothing.
 
 **Split.** ``ambulance_yolo`` is a Roboflow export: augmented copies of one photo share the stem
 before ``.rf.<hash>`` (:func:`~makeway.sense.crops.roboflow_source`). An image is held out when the
@@ -201,14 +205,17 @@ def evaluate_detector(
     threads: int | None = None,
     max_images: int | None = None,
     judgements: list[BoxJudgements] | None = None,
+    labels: str = "corrected",
 ) -> dict[str, Any]:
     """Score an EV detector on the YOLO set ``data`` against its class-0 boxes (module docstring).
 
     Returns the JSON fields of the command: ``map50``, ``map50_95``, ``precision``, ``recall``,
     ``n_images``, ``n_boxes``, ``n_detections``, ``framework``, ``classifier``, ``split``, ``score``,
-    ``threshold`` (the classifier's) and ``ms_per_image`` (detector + crops + classifier, mean wall
-    time). ``max_images`` keeps the first images of the split (by name); ``judgements``, when a list,
-    receives the per-image :class:`BoxJudgements` (to rescore without rerunning).
+    ``threshold`` (the classifier's), ``ms_per_image`` (detector + crops + classifier, mean wall
+    time), ``labels`` (the label set, module docstring) and ``boxes_corrected`` (ground-truth boxes
+    added or removed by the corrections in the scored images). ``max_images`` keeps the first
+    images of the split (by name); ``judgements``, when a list, receives the per-image
+    :class:`BoxJudgements` (to rescore without rerunning).
 
     With ``framework="a"`` the one-stage EV detector
     (:class:`~makeway.perceive.vision.ev_detector.EVDetector`, ``model`` its file, default the
@@ -217,8 +224,9 @@ def evaluate_detector(
     ``classifier`` then reports the model file and ``score`` is ``ev_score``.
 
     Raises:
-        InputError: the folder is not a YOLO set, an image does not decode
-            or a label line is malformed (names the file); the split does not fit the folder.
+        InputError: the folder is not a YOLO set, an image does not decode, a label line or the
+            corrections file is malformed (names the file); the split does not fit the folder.
+        ValueError: an unknown framework, score, split or label set.
         UnknownNameError: an unknown detector or classifier name.
     """
     import cv2
@@ -226,7 +234,19 @@ def evaluate_detector(
     from makeway.perceive.vision.detectors import DETECTORS
     from makeway.perceive.vision.ev_classifier import load_crop_classifier
     from makeway.sense.crops import read_yolo_set
+    from makeway.sense.label_corrections import (
+        CORRECTIONS_FILE,
+        LabelCorrection,
+        check_label_set,
+        corrected_boxes,
+        corrections_by_image,
+        read_corrections,
+    )
 
+    labels = check_label_set(labels)
+    fixes: dict[str, list[LabelCorrection]] = {}
+    if labels == "corrected":
+        fixes = corrections_by_image(read_corrections(CORRECTIONS_FILE))
     if framework not in FRAMEWORKS:
         raise ValueError(f"unknown framework {framework!r}; one of {', '.join(FRAMEWORKS)}")
     if score not in SCORES:
@@ -247,11 +267,18 @@ def evaluate_detector(
     if max_images is not None:
         images = images[:max_images]
     judged: list[BoxJudgements] = []
+    n_corrected = 0
     for item in images:
         image = cv2.imread(str(item.path), cv2.IMREAD_COLOR)
         if image is None:
             raise InputError(item.path, "OpenCV could not decode this image")
-        gt = np.asarray([[b.x1, b.y1, b.x2, b.y2] for b in item.boxes_of(0)], dtype=np.float64)
+        truth = item.boxes_of(0)
+        rows = fixes.get(item.path.stem)
+        if rows:
+            fixed = corrected_boxes(truth, rows)
+            n_corrected += len(set(fixed) ^ set(truth))
+            truth = fixed
+        gt = np.asarray([[b.x1, b.y1, b.x2, b.y2] for b in truth], dtype=np.float64)
         start = time.perf_counter()
         if framework == "a":
             found = ev_det.detect(image)
@@ -273,5 +300,7 @@ def evaluate_detector(
         classifier=str(classifier),
         split=split,
         ms_per_image=1000.0 * sum(j.seconds for j in judged) / max(len(judged), 1),
+        labels=labels,
+        boxes_corrected=n_corrected,
     )
     return out

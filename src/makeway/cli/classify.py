@@ -156,6 +156,14 @@ def build_ambulance_crops(
     ] = 0.1,
     size: Annotated[int, typer.Option(min=8, help="Crop side in pixels.")] = 224,
     threads: Annotated[int, typer.Option(min=1, help="Detector threads.")] = 1,
+    labels: Annotated[
+        str,
+        typer.Option(
+            "--labels",
+            help="Label set of ambulance_yolo: corrected (the committed audit's corrections applied, "
+            "src/makeway/data/ambulance_yolo_corrections.csv) or original (the export as it is).",
+        ),
+    ] = "corrected",
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")] = False,
 ) -> None:
     """Build a crop folder from a YOLO ambulance set.
@@ -164,8 +172,11 @@ def build_ambulance_crops(
     whose IoU with all ambulance boxes is below MAX_IOU, and that lies less than MAX_INSIDE of its
     area inside one, is a negative. Crops are squares around the box with MARGIN context per side,
     SIZE px; boxes under 18 px wide are skipped. labels.csv gets a group column with the source photo,
-    so splits keep copies of a photo on one side. Some ambulances in that set are unlabelled and come
-    out as negatives when the detector finds them; the label means "ambulance", not "lights on".
+    so splits keep copies of a photo on one side. The export labels ambulances only, not all of them;
+    with --labels corrected (the default) the committed audit's rows relabel the crops of unlabelled
+    EVs (ambulance, police, fire; lights on or off) as positives, leave out crops of vehicle parts or
+    vehicles mostly outside the image, and add crops of EVs the detector missed (see
+    docs/data_card_ambulance_yolo.md). The label means "emergency vehicle", not "lights on".
     """
     from makeway.apps.classify import build_ambulance_crops as build
 
@@ -182,11 +193,12 @@ def build_ambulance_crops(
         size=size,
         threads=threads,
         progress=not quiet,
+        labels=labels,
     )
     err_console.print(
-        f"{counts['images']} images: {counts['positive']} ambulance crops (of {counts['boxes']} boxes; "
+        f"{counts['images']} images: {counts['positive']} EV crops (of {counts['boxes']} labelled boxes; "
         f"narrower than 18 px skipped), {counts['negative']} other-vehicle crops → {counts['crops']} crops "
-        f"in {out}",
+        f"in {out} ({labels.strip().lower()} labels: {counts['corrected']} crops corrected)",
         highlight=False,
     )
 
@@ -506,13 +518,22 @@ def cross_source(
     ] = None,
     every: Annotated[int, typer.Option(min=1, help="road_clips: one crop every N frames of a track.")] = 5,
     threads: Annotated[int, typer.Option(min=1, help="ONNX Runtime threads.")] = 1,
+    labels: Annotated[
+        str,
+        typer.Option(
+            "--labels",
+            help="Label set of ambulance_yolo: corrected (the committed audit's corrections applied, "
+            "src/makeway/data/ambulance_yolo_corrections.csv) or original (the export as it is).",
+        ),
+    ] = "corrected",
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bars.")] = False,
 ) -> None:
     """Score EV crop classifiers on each unseen source.
 
     Sources: ev_crops (web photos), ambulance_yolo (crops of the Roboflow road photos: ambulances,
-    and YOLOX-found other vehicles) and road_clips (crops of the shared road clips' labelled tracks,
-    grouped by track), plus any --source-dir. A fixed --model is scored on each source (on ev_crops
+    and YOLOX-found other vehicles; --labels picks the corrected or the original labels) and
+    road_clips (crops of the shared road clips' labelled tracks, grouped by track), plus any
+    --source-dir. A fixed --model is scored on each source (on ev_crops
     only the committed held-out part); a --train recipe is fitted on all sources but one and scored
     on that one, for each. Prints one JSON line per (model, held-out source) — accuracy, precision,
     recall, f1, specificity, n, positive_share at the model's threshold; a one-class source says so
@@ -539,6 +560,7 @@ def cross_source(
         progress=not quiet,
         on_score=lambda score: print_json_line(score.as_dict()),
         log=_log,
+        labels=labels,
     )
     print_json_line(
         {
@@ -547,6 +569,7 @@ def cross_source(
                 m: {"held_out": w.source, "accuracy": round(w.accuracy, 4)} for m, w in run.worst.items()
             },
             "sources": run.sources,
+            "labels": run.labels,
         }
     )
 

@@ -410,6 +410,15 @@ def evaluate_detector(
         ),
     ] = None,
     max_images: Annotated[int | None, typer.Option(min=1, help="Score the first N images only.")] = None,
+    labels: Annotated[
+        str,
+        typer.Option(
+            "--labels",
+            help="Ground truth: corrected (class-0 boxes with the committed ambulance_yolo audit applied: "
+            "unlabelled police cars, fire engines and ambulances get a box; "
+            "src/makeway/data/ambulance_yolo_corrections.csv) or original (class-0 boxes as they are).",
+        ),
+    ] = "corrected",
 ) -> None:
     """Score an EV detector on YOLO images (boxes of class 0).
 
@@ -418,7 +427,8 @@ def evaluate_detector(
     threshold. With --framework a: one detector trained for two classes (emergency vehicle, other
     vehicle); boxes ranked by their EV score, the operating point stored in the model. A detection
     is correct at IoU >= 0.5. Prints one JSON line: map50, map50_95, precision, recall (at the
-    operating point), n_images, n_boxes, framework, classifier, ms_per_image.
+    operating point), n_images, n_boxes, framework, classifier, ms_per_image, labels,
+    boxes_corrected.
     """
     from makeway.apps.evaluate_detector import evaluate_detector as run
 
@@ -432,6 +442,7 @@ def evaluate_detector(
             detector=detector,
             model=model,
             max_images=max_images,
+            labels=labels,
         )
     )
 
