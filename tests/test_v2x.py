@@ -29,6 +29,7 @@ from makeway.messages import EVRelation, VehicleState
 from makeway.v2x.belief import LocalFrame, RelevanceArea, V2XBeliefSource
 from makeway.v2x.message import ALERT_SIZE, Alert
 from makeway.v2x.security import (
+    MAX_SIGNED_SIZE,
     NOT_RELEVANT,
     SIGNED_SIZE,
     Identity,
@@ -74,18 +75,24 @@ def _alert(ident: Identity, seq: int, t: float, **kw: object) -> Alert:
 
 
 # ---------------------------------------------------------------------------------- attack suite
-def _attacks(keys: dict, now: float) -> dict[str, list[bytes]]:
+def _attacks(keys: dict, now: float, form: str = "certificate") -> dict[str, list[bytes]]:
+    """Messages no car may act on, with the signer named as ``form`` says."""
     good: Identity = keys["good"]  # type: ignore[assignment]
-    fresh = sign_alert(_alert(good, 100, now), good)
+
+    def signed(ident: Identity, seq: int, t: float) -> bytes:
+        return sign_alert(_alert(ident, seq, t), ident, signer=form)
+
+    fresh = signed(good, 100, now)
     rng = random.Random(5)
     forger = ec.generate_private_key(ec.SECP256R1())  # signs as the real unit would, wrong key
     r, s = decode_dss_signature(
         forger.sign(parse_signed(fresh).tbs + good.cert_hash, ec.ECDSA(hashes.SHA256()))
     )
-    forged = encode_signed(_alert(good, 100, now), good.signer, r, min(s, N_P256 - s))
+    named = good.cert if form == "certificate" else good.signer
+    forged = encode_signed(_alert(good, 100, now), named, r, min(s, N_P256 - s))
     r0, s0 = int.from_bytes(fresh[-64:-32], "big"), int.from_bytes(fresh[-32:], "big")
     tampered = []
-    for i in range(SIGNED_SIZE):
+    for i in range(len(fresh)):
         for mask in (0x01, 0x80, 0xFF):
             b = bytearray(fresh)
             b[i] ^= mask
@@ -95,13 +102,16 @@ def _attacks(keys: dict, now: float) -> dict[str, list[bytes]]:
         "malleated (r, n-s)": [fresh[:-32] + (N_P256 - s0).to_bytes(32, "big")],
         "zero signature": [fresh[:-64] + bytes(64), fresh[:-64] + r0.to_bytes(32, "big") + bytes(32)],
         "every byte tampered": tampered,
-        "wrong signer": [sign_alert(_alert(keys["outsider"], 1, now), keys["outsider"])],
-        "revoked": [sign_alert(_alert(keys["revoked"], 1, now), keys["revoked"])],
-        "stale": [sign_alert(_alert(good, 102, now - 60.0), good)],
-        "future": [sign_alert(_alert(good, 103, now + 30.0), good)],
-        "truncated": [fresh[:n] for n in range(SIGNED_SIZE)],
-        "oversized": [fresh + b"\x00", fresh + bytes(1000), fresh + fresh],
-        "random bytes": [rng.randbytes(rng.choice([SIGNED_SIZE, rng.randrange(400)])) for _ in range(3000)],
+        "wrong signer": [signed(keys["outsider"], 1, now)],
+        "revoked": [signed(keys["revoked"], 1, now)],
+        "stale": [signed(good, 102, now - 60.0)],
+        "future": [signed(good, 103, now + 30.0)],
+        "truncated": [fresh[:n] for n in range(len(fresh))],
+        "appended": [fresh + b"\x00", fresh + fresh[-66:]],
+        "oversized": [fresh + bytes(MAX_SIGNED_SIZE + 1 - len(fresh)), fresh + bytes(1000)],
+        "random bytes": [
+            rng.randbytes(rng.choice([SIGNED_SIZE, len(fresh), rng.randrange(600)])) for _ in range(3000)
+        ],
         # a real alert, signer and time with a random signature: reaches the signature check
         "random signature": [fresh[:-64] + rng.randbytes(64) for _ in range(300)],
         # the signed structure around random DENM bytes
@@ -109,13 +119,15 @@ def _attacks(keys: dict, now: float) -> dict[str, list[bytes]]:
     }
 
 
-def test_attack_suite_rejects_every_attack_and_no_valid_alert(keys: dict) -> None:
+@pytest.mark.parametrize("form", ["certificate", "digest"])
+def test_attack_suite_rejects_every_attack_and_no_valid_alert(keys: dict, form: str) -> None:
     """Every attack is rejected with a reason (a fresh verifier for each, so none is rejected merely as
-    a replay), no valid alert is rejected, nothing raises."""
+    a replay), no valid alert is rejected, nothing raises; the signer named by its certificate and by
+    its digest."""
     store = TrustStore.load(keys["trust"])
     now = time.time()
     good: Identity = keys["good"]
-    valid = [sign_alert(_alert(good, seq, now - seq * 0.1), good) for seq in range(1, 51)]
+    valid = [sign_alert(_alert(good, seq, now - seq * 0.1), good, signer=form) for seq in range(1, 51)]
     verifier = Verifier(store)
     assert [verifier.verify(m, now).reason for m in valid] == ["ok"] * 50
 
@@ -126,16 +138,17 @@ def test_attack_suite_rejects_every_attack_and_no_valid_alert(keys: dict) -> Non
         "revoked": "revoked signer",
         "stale": "stale",
         "future": "future",
-        "truncated": "truncated",
         "oversized": "oversized",
     }
-    for name, messages in _attacks(keys, now).items():
+    for name, messages in _attacks(keys, now, form).items():
         for m in messages:
             verdict = Verifier(store).verify(m, now)
             assert not verdict.valid, name
             assert verdict.reason and not verdict.reason.startswith("replay"), (name, verdict.reason)
             if name in expected_reason:
                 assert verdict.reason.startswith(expected_reason[name]), (name, verdict.reason)
+            if len(m) < SIGNED_SIZE:  # cut inside the certificate form, it may still look like one
+                assert verdict.reason.startswith("truncated"), (name, verdict.reason)
 
     replayed = Verifier(store)
     assert replayed.verify(valid[0], now).valid
@@ -310,14 +323,37 @@ def test_cli_contract(tmp_path: Path) -> None:
 
     a, b = alert("a.msg"), alert("b.msg", "--no-siren")
     stale = alert("stale.msg", "--generation-time", str(time.time() - 3600))
-    assert a.stat().st_size == SIGNED_SIZE
+    digest = alert("digest.msg", "--signer", "digest")
+    assert digest.stat().st_size == SIGNED_SIZE < a.stat().st_size <= MAX_SIGNED_SIZE
+    bad_form = runner.invoke(
+        app,
+        [
+            "v2x",
+            "alert",
+            "--key",
+            str(tmp_path / "k" / "rsu.key"),
+            "--lat",
+            "1",
+            "--lon",
+            "1",
+            "--heading-deg",
+            "0",
+            "--speed-mps",
+            "1",
+            "--out",
+            str(tmp_path / "never.msg"),
+            "--signer",
+            "name",
+        ],
+    )
+    assert bad_form.exit_code == 2 and "--signer" in bad_form.stderr and not (tmp_path / "never.msg").exists()
     garbage = tmp_path / "garbage.msg"
     garbage.write_bytes(b"not an alert at all")
 
-    res = runner.invoke(app, ["v2x", "verify", str(a), str(b), "--trust", str(trust)])
+    res = runner.invoke(app, ["v2x", "verify", str(a), str(b), str(digest), "--trust", str(trust)])
     rows = [json.loads(line) for line in res.stdout.splitlines()]
-    assert res.exit_code == 0 and [r["valid"] for r in rows] == [True, True]
-    assert [r["sequence"] for r in rows] == [1, 2] and rows[1]["siren"] is False
+    assert res.exit_code == 0 and [r["valid"] for r in rows] == [True, True, True]
+    assert [r["sequence"] for r in rows] == [1, 2, 4] and rows[1]["siren"] is False
     assert rows[0]["lat_deg"] == 48.1 and rows[0]["speed_mps"] == 12.0
 
     res = runner.invoke(app, ["v2x", "verify", str(a), str(stale), str(garbage), "--trust", str(trust)])
@@ -544,7 +580,7 @@ def test_verify_reads_no_more_than_one_alert_of_a_file(keys: dict, tmp_path: Pat
     res = runner.invoke(app, ["v2x", "verify", str(big), str(ok), "--trust", str(keys["trust"])])
     assert res.exit_code == 1, res.output
     rows = [json.loads(line) for line in res.stdout.splitlines()]
-    assert rows[0]["reason"] == f"oversized: {4 << 30} bytes, a signed alert has {SIGNED_SIZE}"
+    assert rows[0]["reason"] == f"oversized: {4 << 30} bytes, a signed alert has at most {MAX_SIGNED_SIZE}"
     assert not rows[0]["valid"] and rows[1]["valid"]
 
 
@@ -602,3 +638,69 @@ def test_alert_carries_where_the_unit_stands(keys: dict, tmp_path: Path) -> None
     ):
         res = runner.invoke(app, [*base, "--out", str(tmp_path / "bad.msg"), *extra])
         assert res.exit_code == 2 and words in res.output and not (tmp_path / "bad.msg").exists()
+
+
+def test_a_car_holding_only_the_root_learns_units_from_their_certificates(keys: dict, tmp_path: Path) -> None:
+    """A trust store with the root and no unit certificates (a unit installed after the car's store
+    was made): the unit's digest-form alert is unknown, its certificate-form alert verifies and
+    teaches the car the certificate, after which the digest form verifies too. A stale or replayed
+    certificate-form alert is refused before its certificate is read; a certificate of another
+    root, or one the root issued without the right to sign DENMs, teaches nothing."""
+    import shutil
+
+    from makeway.v2x.certificates import issue_certificate
+    from makeway.v2x.security import GenerationLocation, encode_signed
+
+    bare = tmp_path / "trust"
+    shutil.copytree(keys["trust"], bare)
+    shutil.rmtree(bare / "units")
+    store = TrustStore.load(bare)
+    assert store.units == {}
+    good, now = keys["good"], time.time()
+    v = Verifier(store)
+    assert v.verify(sign_alert(_alert(good, 1, now), good, signer="digest"), now).reason == "unknown signer"
+    stale = sign_alert(_alert(good, 2, now - 60.0), good)
+    assert v.verify(stale, now).reason.startswith("stale") and v.learnt == {}  # not read
+    verdict = v.verify(sign_alert(_alert(good, 3, now), good), now)
+    assert verdict.valid and verdict.signer == good.signer and set(v.learnt) == {good.signer}
+    assert v.verify(sign_alert(_alert(good, 4, now), good, signer="digest"), now).valid
+    assert v.verify(sign_alert(_alert(good, 4, now), good), now).reason.startswith("replay")
+
+    outsider = keys["outsider"]
+    refused = v.verify(sign_alert(_alert(outsider, 1, now), outsider), now)
+    assert refused.reason == "unknown signer: its certificate was not issued by this store's root"
+    # a certificate from the right root without PSID 37 (an issuing certificate)
+    import hashlib
+
+    from cryptography.hazmat.primitives import serialization
+
+    root_private = serialization.load_pem_private_key((keys["dir"] / "ours" / "root.key").read_bytes(), None)
+    sub_key = ec.generate_private_key(ec.SECP256R1())
+    sub = issue_certificate(
+        "makeway sub-ca",
+        sub_key.public_key(),
+        root_private,
+        issuer=store.root,
+        start_s=now - 10,
+        days=1,
+        can_issue=True,
+    )
+    station = int.from_bytes(sub.hashed_id8[:4], "big")
+    alert = Alert.from_physical(
+        station_id=station,
+        generation_time_s=now,
+        sequence=1,
+        lat_deg=48.1,
+        lon_deg=11.5,
+        heading_deg=0.0,
+        speed_mps=5.0,
+    )
+    unsigned = encode_signed(alert, sub, 1, 1, GenerationLocation.of_event(alert))
+    r, s = decode_dss_signature(
+        sub_key.sign(
+            hashlib.sha256(parse_signed(unsigned).tbs).digest() + sub.digest, ec.ECDSA(hashes.SHA256())
+        )
+    )
+    msg = encode_signed(alert, sub, r, min(s, N_P256 - s))
+    assert v.verify(msg, now).reason == "signer certificate may not sign DENMs (PSID 37)"
+    assert set(v.learnt) == {good.signer}

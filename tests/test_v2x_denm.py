@@ -228,11 +228,12 @@ def unit(tmp_path_factory: pytest.TempPathFactory) -> tuple[Identity, TrustStore
     return ident, TrustStore.load(d / "trust")
 
 
-def test_signed_alert_is_ieee1609dot2_signed_data(unit: tuple[Identity, TrustStore]) -> None:
+@pytest.mark.parametrize("form", ["certificate", "digest"])
+def test_signed_alert_is_ieee1609dot2_signed_data(unit: tuple[Identity, TrustStore], form: str) -> None:
     """pycrate reads the message as Ieee1609Dot2Data: signedData, sha256, psid 37, Time64 = the
-    DENM's reference time in µs, signer digest = the unit's HashedId8, an ECDSA P-256 signature
-    over SHA-256(tbsData) ‖ SHA-256(certificate) that verifies; the offsets the transport reads
-    hold the signer and the station id."""
+    DENM's reference time in µs, the signer the unit's certificate (by default) or its HashedId8,
+    an ECDSA P-256 signature over SHA-256(tbsData) ‖ SHA-256(certificate) that verifies; the
+    offsets the transport reads hold the signer and the station id."""
     from cryptography.hazmat.primitives import hashes
     from cryptography.hazmat.primitives.asymmetric import ec
     from cryptography.hazmat.primitives.asymmetric.utils import encode_dss_signature
@@ -240,14 +241,21 @@ def test_signed_alert_is_ieee1609dot2_signed_data(unit: tuple[Identity, TrustSto
 
     ident, _ = unit
     a = _physical(ident.station_id, time.time(), 42)
-    data = sign_alert(a, ident)
-    assert len(data) == SIGNED_SIZE
+    data = sign_alert(a, ident, signer=form)
+    assert len(data) == (SIGNED_SIZE if form == "digest" else SIGNED_SIZE - 8 + 2 + len(ident.cert.data))
     t = ITS_IEEE1609_2.Ieee1609Dot2.Ieee1609Dot2Data
     t.from_oer(data)
     v = t.get_val()
     assert v["protocolVersion"] == 3 and v["content"][0] == "signedData"
     sd = v["content"][1]
-    assert sd["hashId"] == "sha256" and sd["signer"] == ("digest", ident.signer)
+    assert sd["hashId"] == "sha256"
+    if form == "digest":
+        assert sd["signer"] == ("digest", ident.signer)
+    else:
+        kind, certs = sd["signer"]
+        assert kind == "certificate" and len(certs) == 1
+        ITS_IEEE1609_2.Ieee1609Dot2.Certificate.set_val(certs[0])
+        assert ITS_IEEE1609_2.Ieee1609Dot2.Certificate.to_oer() == ident.cert.data
     hi = sd["tbsData"]["headerInfo"]
     assert hi == {
         "psid": 37,
@@ -270,7 +278,12 @@ def test_signed_alert_is_ieee1609dot2_signed_data(unit: tuple[Identity, TrustSto
         hashlib.sha256(tbs).digest() + hashlib.sha256(der).digest(),
         ec.ECDSA(hashes.SHA256()),
     )
-    assert data[SIGNER_OFFSET : SIGNER_OFFSET + 8] == ident.signer
+    if form == "digest":
+        assert data[SIGNER_OFFSET : SIGNER_OFFSET + 8] == ident.signer
+    else:
+        assert data[SIGNER_OFFSET : SIGNER_OFFSET + 2] == b"\x01\x01"  # a sequence of one certificate
+        assert data[SIGNER_OFFSET + 2 : -66] == ident.cert.data
+    assert parse_signed(data).signer == ident.signer
     assert int.from_bytes(data[STATION_ID_OFFSET : STATION_ID_OFFSET + 4], "big") == ident.station_id
     assert parse_signed(data) == parse_signed_reference(data)
 
@@ -385,3 +398,45 @@ def _try(fn: object, data: bytes) -> object:
         return fn(data)  # type: ignore[operator]
     except MalformedAlertError:
         return None
+
+
+@settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(a=_alerts(), r=st.integers(0, 2**256 - 1), s=st.integers(0, 2**256 - 1))
+def test_certificate_signer_agrees_with_pycrate(
+    unit: tuple[Identity, TrustStore], a: Alert, r: int, s: int
+) -> None:
+    """The certificate form (signer: a sequence of one certificate, TS 103 097's DENM profile): the
+    exact writer and reader agree with pycrate byte for byte and part for part."""
+    ident, _ = unit
+    data = encode_signed(a, ident.cert, r, s)
+    assert data == encode_signed_reference(a, ident.cert, r, s)
+    mine = parse_signed(data)
+    assert mine == parse_signed_reference(data)
+    assert mine.certificate == ident.cert.data and mine.signer == ident.signer and mine.alert == a
+
+
+def test_certificate_signer_reader_refuses_what_pycrate_refuses(unit: tuple[Identity, TrustStore]) -> None:
+    """Every third bit of a certificate-form alert flipped, the certificate cut or padded: the exact
+    reader (which also reads the carried certificate) and pycrate accept the same messages."""
+    ident, _ = unit
+    base = sign_alert(_physical(ident.station_id, 1_764_000_000.0, 6), ident)
+    cases = []
+    for bit in range(0, 8 * len(base), 3):
+        if bit // 8 == 5:  # the inner content's CHOICE tag (see the digest-form test)
+            continue
+        b = bytearray(base)
+        b[bit // 8] ^= 0x80 >> (bit % 8)
+        cases.append(bytes(b))
+    cert_at = SIGNER_OFFSET + 2
+    cases += [
+        base[:cert_at] + base[cert_at + 1 :],
+        base[:-66] + b"\x00" + base[-66:],
+        base[:-1],
+        base + b"\x00",
+    ]
+    accepted = 0
+    for data in cases:
+        mine, ref = _try(parse_signed, data), _try(parse_signed_reference, data)
+        assert mine == ref, data.hex()
+        accepted += mine is not None
+    assert accepted > 50

@@ -7,9 +7,10 @@ first frame, runs the vision pipeline (:func:`makeway.pipeline.video.run_video`)
 made (a live unit's behaviour; the video time is logged beside it), signed with the unit's key, and
 
 * published on the road segment's zenoh key (:mod:`makeway.v2x.transport`) with ``publish``;
-* written with ``out``: ``OUT/alerts.bin`` (the signed alerts back to back, 155 bytes each),
-  ``OUT/alerts.jsonl`` (one line per alert: decoded fields, video time, track id, road-frame
-  position and the 1-σ uncertainties) and ``OUT/summary.json``.
+* written with ``out``: ``OUT/alerts.bin`` (the signed alerts back to back, each carrying the
+  unit's certificate), ``OUT/alerts.jsonl`` (one line per alert, in the same order: decoded fields,
+  its length in ``alerts.bin`` (``bytes``), video time, track id, road-frame position and the 1-σ
+  uncertainties) and ``OUT/summary.json``.
 """
 
 from __future__ import annotations
@@ -172,7 +173,7 @@ def run_rsu(
                 pub.publish(signed)
             if out is not None or recorder is not None:
                 fields = {k: v for k, v in report.to_json().items() if k != "time_s"}
-                head = {**alert.to_json(), "signer": identity.signer.hex()}
+                head = {**alert.to_json(), "signer": identity.signer.hex(), "bytes": len(signed)}
                 row = head | {"video_time_s": round(report.time_s, 6)} | fields
             if out is not None:
                 blobs.append(signed)

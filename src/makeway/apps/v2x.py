@@ -62,8 +62,13 @@ def make_alert(
     generation_time_s: float | None = None,
     sequence: int | None = None,
     unit: tuple[float, float, float] | None = None,
+    signer: str = "certificate",
 ) -> dict[str, Any]:
     """Sign one alert with the unit's key and write it to ``out``; return its decoded fields.
+
+    ``signer`` names the signer by its whole certificate (``"certificate"``, the default: any car
+    holding the root can check it) or by its HashedId8 (``"digest"``: 155 bytes; the car must
+    know the unit already).
 
     Without ``sequence`` the unit's counter beside the key advances by one; without
     ``generation_time_s`` the alert is stamped now. ``unit`` (latitude, longitude in degrees,
@@ -97,12 +102,15 @@ def make_alert(
         lights=lights,
     )
     with atomic_path(out) as tmp:
-        tmp.write_bytes(sign_alert(alert, ident, where))
+        data = sign_alert(alert, ident, where, signer=signer)
+        tmp.write_bytes(data)
     return {
         "file": str(out),
         **alert.to_json(),
         **(where or GenerationLocation.of_event(alert)).to_json(),
         "signer": ident.signer.hex(),
+        "signer_form": signer,
+        "bytes": len(data),
     }
 
 
@@ -121,7 +129,7 @@ def verify_files(
     from makeway.v2x.security import (
         DEFAULT_MAX_AGE_S,
         DEFAULT_MAX_FUTURE_S,
-        SIGNED_SIZE,
+        MAX_SIGNED_SIZE,
         ReplayCache,
         TrustStore,
         Verdict,
@@ -131,14 +139,16 @@ def verify_files(
     data: list[bytes | Verdict] = []
     for f in files:
         try:
-            with Path(f).open("rb") as fh:  # every alert is SIGNED_SIZE bytes: read no more than that
-                head = fh.read(SIGNED_SIZE + 1)
+            with Path(f).open("rb") as fh:  # no alert is longer than MAX_SIGNED_SIZE: read no more
+                head = fh.read(MAX_SIGNED_SIZE + 1)
                 size = os.fstat(fh.fileno()).st_size
         except OSError as exc:
             raise InputError(f, f"cannot be read ({exc.strerror})") from None
-        too_big = len(head) > SIGNED_SIZE
+        too_big = len(head) > MAX_SIGNED_SIZE
         data.append(
-            Verdict(False, f"oversized: {size} bytes, a signed alert has {SIGNED_SIZE}") if too_big else head
+            Verdict(False, f"oversized: {size} bytes, a signed alert has at most {MAX_SIGNED_SIZE}")
+            if too_big
+            else head
         )
     verifier = Verifier(
         TrustStore.load(trust),

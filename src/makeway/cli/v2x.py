@@ -75,11 +75,19 @@ def alert(
     unit_height_m: Annotated[
         float, typer.Option(help="The unit's height above the WGS-84 ellipsoid (m).")
     ] = 0.0,
+    signer: Annotated[
+        str,
+        typer.Option(
+            help="certificate: carry the unit's certificate (cars need only the root); "
+            "digest: its 8-byte id (155 bytes; cars must know the unit)."
+        ),
+    ] = "certificate",
 ) -> None:
-    """Sign one emergency-vehicle alert and write it (155 bytes).
+    """Sign one emergency-vehicle alert and write it (about 300 bytes; 155 with --signer digest).
 
     The alert is an ETSI DENM (cause 95, emergency vehicle approaching) signed
-    as IEEE 1609.2 data with the unit's ECDSA P-256 key.
+    as IEEE 1609.2 data with the unit's ECDSA P-256 key, the signer named by its
+    certificate as ETSI TS 103 097 asks of DENMs.
 
     Prints its decoded fields as one JSON line.
     """
@@ -87,6 +95,8 @@ def alert(
 
     if (unit_lat is None) != (unit_lon is None):
         raise ValueError("--unit-lat and --unit-lon go together")
+    if signer not in ("certificate", "digest"):
+        raise ValueError(f"--signer must be certificate or digest, not {signer!r}")
     unit = None if unit_lat is None or unit_lon is None else (unit_lat, unit_lon, unit_height_m)
     print_json_line(
         make_alert(
@@ -101,6 +111,7 @@ def alert(
             generation_time_s=generation_time,
             sequence=sequence,
             unit=unit,
+            signer=signer,
         )
     )
 

@@ -2,7 +2,8 @@
 ECDSA P-256 / SHA-256, unit certificates issued by a local root, a trust store and a revocation
 list on the car.
 
-A signed alert (:data:`SIGNED_SIZE` = 155 bytes) is, in COER (IEEE Std 1609.2-2016's ASN.1 module
+A signed alert (298 bytes with a unit named ``rsu``; :data:`SIGNED_SIZE` = 155 with the signer
+as a digest) is, in COER (IEEE Std 1609.2-2016's ASN.1 module
 ``Ieee1609Dot2`` version 2.3 as pycrate compiles it, ``pycrate_asn1dir.ITS_IEEE1609_2``)::
 
     Ieee1609Dot2Data { protocolVersion 3, content signedData {
@@ -11,7 +12,7 @@ A signed alert (:data:`SIGNED_SIZE` = 155 bytes) is, in COER (IEEE Std 1609.2-20
                                                   content unsecuredData <the DENM, 52 bytes> } },
                 headerInfo { psid 37 (DEN), generationTime Time64,
                              generationLocation { latitude, longitude, elevation } } },
-      signer digest <HashedId8>,
+      signer certificate { <the unit's certificate> } | digest <HashedId8>,
       signature ecdsaNistP256Signature { rSig x-only <r>, sSig <s> } } }
 
 with the DENM of :mod:`makeway.v2x.message`. ``generationTime`` (TAI µs since 2004-01-01 UTC)
@@ -26,9 +27,12 @@ signer's station id.
 
 Certificates are 1609.2 explicit certificates (:mod:`makeway.v2x.certificates`): a self-signed
 root per trust store and unit certificates it issues for PSID 37; the signer identifier input and
-the HashedId8 hash a certificate's COER. What is not ETSI TS 103 097: the signer is always a
-digest, where TS 103 097's DENM profile asks for the full certificate. The encoding
-is one fixed profile: every alert is :data:`SIGNED_SIZE` bytes, longer input is refused as oversized
+the HashedId8 hash a certificate's COER. By default the signer is the unit's whole certificate, as
+ETSI TS 103 097's DENM profile asks: a car holding only the root can check an alert of a unit it
+has never heard of (:class:`Verifier` learns such certificates). The digest form (a HashedId8, 8
+bytes instead of the certificate's ~150) is kept for units the cars already know. The encoding is
+one profile per form: the digest form is :data:`SIGNED_SIZE` bytes, the certificate form that plus
+the certificate's length less 6; shorter input, or longer than :data:`MAX_SIGNED_SIZE`, is refused
 before any parsing.
 
 Writing (:func:`encode_signed`, :func:`sign_alert`) and reading (:func:`parse_signed`) are exact
@@ -99,9 +103,14 @@ from makeway.v2x.message import (
 __all__ = [
     "DEFAULT_MAX_AGE_S",
     "DEFAULT_MAX_FUTURE_S",
+    "DEFAULT_SIGNER_FORM",
+    "LEARNT_CERTIFICATES",
+    "MAX_CERTIFICATE_SIZE",
+    "MAX_SIGNED_SIZE",
     "NOT_RELEVANT",
     "PSID_DEN",
     "SIGNED_SIZE",
+    "SIGNER_FORMS",
     "SIGNER_OFFSET",
     "STATION_ID_OFFSET",
     "GenerationLocation",
@@ -134,16 +143,31 @@ _HEADER_AT = _DENM_AT + ALERT_SIZE
 _TIME_AT = _HEADER_AT + len(_HEADER)
 _LOC_AT = _TIME_AT + 8  # ThreeDLocation: latitude, longitude (4 bytes each, signed), elevation (2)
 _TBS = slice(3, _LOC_AT + 10)  # tbsData: payload and headerInfo
-_SIGNER_TAG_AT = _LOC_AT + 10  # 0x80: signer digest
+_SIGNER_TAG_AT = _LOC_AT + 10  # 0x80: signer digest · 0x81: signer certificate
 SIGNER_OFFSET = _SIGNER_TAG_AT + 1
-"""Where the signer's HashedId8 starts in a signed alert."""
+"""Where the signer starts in a signed alert: its HashedId8 (digest form), or the one-element
+SequenceOfCertificate, ``01 01`` then the certificate's COER (certificate form)."""
+_ONE_CERTIFICATE = b"\x01\x01"  # COER quantity of a SEQUENCE OF: a 1-byte count, 1
 STATION_ID_OFFSET = _DENM_AT + 2
 """Where the DENM header's station id (4 bytes, big-endian) starts in a signed alert."""
 _SIG_TAGS = bytes([0x80, 0x80])  # ecdsaNistP256Signature · rSig x-only
 _SIG_TAGS_AT = SIGNER_OFFSET + 8
 _R_AT = _SIG_TAGS_AT + 2
 SIGNED_SIZE = _R_AT + 64
-"""Bytes of every signed alert (155); the largest message a car reads."""
+"""Bytes of a signed alert whose signer is a digest (155): the shortest signed alert."""
+MAX_CERTIFICATE_SIZE = 400
+"""The longest signer certificate a car reads (bytes); makeway's certificates are 133 bytes plus
+their name (at most 255 bytes)."""
+MAX_SIGNED_SIZE = SIGNED_SIZE - 8 + len(_ONE_CERTIFICATE) + MAX_CERTIFICATE_SIZE
+"""The longest signed alert a car reads (549 bytes): the certificate form with the longest
+certificate."""
+SIGNER_FORMS = ("certificate", "digest")
+"""How a signed alert names its signer: the whole certificate (TS 103 097's DENM profile; a car
+needs only the root to check it) or its HashedId8 (155 bytes; the car must hold the unit's
+certificate already, in its trust store or learnt from an earlier alert)."""
+DEFAULT_SIGNER_FORM = "certificate"
+LEARNT_CERTIFICATES = 4096
+"""Unit certificates a :class:`Verifier` remembers after they chained to its root."""
 DEFAULT_MAX_AGE_S = 10.0
 """Freshness window (s): older alerts are stale. Alerts repeat at 10 Hz, so a car never needs an
 old one; the window also bounds how long the replay cache remembers a sequence number."""
@@ -411,27 +435,47 @@ def _signing_input(tbs: bytes, cert_hash: bytes) -> bytes:
     return hashlib.sha256(tbs).digest() + cert_hash
 
 
-def sign_alert(alert: Alert, identity: Identity, location: GenerationLocation | None = None) -> bytes:
-    """The signed alert (:data:`SIGNED_SIZE` bytes of COER), generated at ``location`` (the sender's
-    position; ``None``: the EV's, :meth:`GenerationLocation.of_event`). The alert's station id must
-    be the signer's."""
+def sign_alert(
+    alert: Alert,
+    identity: Identity,
+    location: GenerationLocation | None = None,
+    *,
+    signer: str = DEFAULT_SIGNER_FORM,
+) -> bytes:
+    """The signed alert (COER), generated at ``location`` (the sender's position; ``None``: the EV's,
+    :meth:`GenerationLocation.of_event`), its signer named as ``signer`` says (:data:`SIGNER_FORMS`:
+    ``"certificate"``, the default, carries the unit's whole certificate; ``"digest"`` its
+    HashedId8, :data:`SIGNED_SIZE` bytes in all). The alert's station id must be the signer's."""
     if alert.station_id != identity.station_id:
         raise ValueError(f"alert station id {alert.station_id} is not the signer's ({identity.station_id})")
-    unsigned = encode_signed(alert, identity.signer, 0, 0, location)
+    if signer not in SIGNER_FORMS:
+        raise ValueError(f"signer must be one of {SIGNER_FORMS}, not {signer!r}")
+    named: bytes | Certificate = identity.cert if signer == "certificate" else identity.signer
+    unsigned = encode_signed(alert, named, 0, 0, location)
     der = identity.key.sign(_signing_input(unsigned[_TBS], identity.cert_hash), ec.ECDSA(hashes.SHA256()))
     r, s = decode_dss_signature(der)
-    return unsigned[:_R_AT] + r.to_bytes(32, "big") + min(s, _N - s).to_bytes(32, "big")
+    return unsigned[:-64] + r.to_bytes(32, "big") + min(s, _N - s).to_bytes(32, "big")
+
+
+def _signer_field(signer: bytes | Certificate) -> bytes:
+    if isinstance(signer, Certificate):
+        if len(signer.data) > MAX_CERTIFICATE_SIZE:
+            raise ValueError(f"a signer certificate has at most {MAX_CERTIFICATE_SIZE} bytes")
+        return b"\x81" + _ONE_CERTIFICATE + signer.data
+    if len(signer) != 8:
+        raise ValueError(f"a HashedId8 has 8 bytes, not {len(signer)}")
+    return b"\x80" + signer
 
 
 def encode_signed(
-    alert: Alert, signer: bytes, r: int, s: int, location: GenerationLocation | None = None
+    alert: Alert, signer: bytes | Certificate, r: int, s: int, location: GenerationLocation | None = None
 ) -> bytes:
-    """The signed alert's bytes with a given signer HashedId8, signature ``(r, s)`` (each
-    0 … 2²⁵⁶ − 1) and generation location (``None``: the EV's): the profile's fixed bytes with the
-    fields in place, the same bytes as pycrate's encoder (:func:`encode_signed_reference`).
+    """The signed alert's bytes with a given signer — a HashedId8 (8 bytes: the digest form) or a
+    :class:`~makeway.v2x.certificates.Certificate` (the certificate form) —, signature ``(r, s)``
+    (each 0 … 2²⁵⁶ − 1) and generation location (``None``: the EV's): the profile's fixed bytes with
+    the fields in place, the same bytes as pycrate's encoder (:func:`encode_signed_reference`).
     :func:`sign_alert` computes a real signature; this also builds the forgeries of attack suites."""
-    if len(signer) != 8:
-        raise ValueError(f"a HashedId8 has 8 bytes, not {len(signer)}")
+    named = _signer_field(signer)
     time64 = unix_ms_to_its_ms(alert.generation_time_ms) * 1000
     where = GenerationLocation.of_event(alert) if location is None else location
     return b"".join(
@@ -441,8 +485,7 @@ def encode_signed(
             _HEADER,
             time64.to_bytes(8, "big"),
             where.to_coer(),
-            b"\x80",
-            signer,
+            named,
             _SIG_TAGS,
             r.to_bytes(32, "big"),
             s.to_bytes(32, "big"),
@@ -451,11 +494,18 @@ def encode_signed(
 
 
 def encode_signed_reference(
-    alert: Alert, signer: bytes, r: int, s: int, location: GenerationLocation | None = None
+    alert: Alert, signer: bytes | Certificate, r: int, s: int, location: GenerationLocation | None = None
 ) -> bytes:
     """:func:`encode_signed` done by pycrate (UPER for the DENM, COER for the 1609.2 structure):
     the reference the exact writer is tested against. About 0.5 ms."""
     denm = encode_alert_reference(alert)
+    with _PYCRATE_LOCK:
+        types = _signed_type()
+        if isinstance(signer, Certificate):
+            types.Certificate.from_oer(signer.data)
+            named: tuple[str, Any] = ("certificate", [types.Certificate.get_val()])
+        else:
+            named = ("digest", signer)
     value = {
         "protocolVersion": 3,
         "content": (
@@ -467,7 +517,7 @@ def encode_signed_reference(
                     unix_ms_to_its_ms(alert.generation_time_ms) * 1000,
                     GenerationLocation.of_event(alert) if location is None else location,
                 ),
-                "signer": ("digest", signer),
+                "signer": named,
                 "signature": (
                     "ecdsaNistP256Signature",
                     {"rSig": ("x-only", r.to_bytes(32, "big")), "sSig": s.to_bytes(32, "big")},
@@ -485,7 +535,8 @@ def encode_signed_reference(
 @dataclass(frozen=True, slots=True)
 class SignedAlert:
     """A signed alert's parts: the alert, 1609.2's generationTime (µs), the signer's HashedId8,
-    the signature ``(r, s)``, the bytes of tbsData (what was signed) and where it was generated."""
+    the signature ``(r, s)``, the bytes of tbsData (what was signed), where it was generated, and
+    the signer's certificate (COER) when the alert carries it (``None``: the digest form)."""
 
     alert: Alert
     time64_us: int
@@ -494,22 +545,37 @@ class SignedAlert:
     s: int
     tbs: bytes
     location: GenerationLocation
+    certificate: bytes | None = None
 
 
-def parse_signed(data: bytes) -> SignedAlert:
+def parse_signed(data: bytes, *, check_certificate: bool = True) -> SignedAlert:
     """Read one signed alert of this profile; :class:`MalformedAlertError` for anything else
     (another length, another structure, option or tag, a non-canonical encoding, a DENM outside
-    :mod:`makeway.v2x.message`'s profile, a generationTime that is not the DENM's referenceTime).
-    The signature is not checked here."""
-    if len(data) != SIGNED_SIZE:
-        raise MalformedAlertError(f"{len(data)} bytes, a signed alert has {SIGNED_SIZE}")
+    :mod:`makeway.v2x.message`'s profile, a generationTime that is not the DENM's referenceTime, a
+    signer sequence of other than one certificate). The signature is not checked here, nor whether
+    the certificate chains to anything. ``check_certificate=False`` leaves a carried certificate's
+    own encoding unread (the bytes between the signer's header and the signature are taken as it):
+    :class:`Verifier` reads it only for an alert that passed every cheaper check."""
+    n = len(data)
+    if not SIGNED_SIZE <= n <= MAX_SIGNED_SIZE:
+        raise MalformedAlertError(f"{n} bytes, a signed alert has {SIGNED_SIZE} … {MAX_SIGNED_SIZE}")
     data = bytes(data)
-    if (
-        data[:_DENM_AT] != _PREFIX
-        or data[_HEADER_AT:_TIME_AT] != _HEADER
-        or data[_SIGNER_TAG_AT] != 0x80
-        or data[_SIG_TAGS_AT:_R_AT] != _SIG_TAGS
-    ):
+    if data[:_DENM_AT] != _PREFIX or data[_HEADER_AT:_TIME_AT] != _HEADER or data[-66:-64] != _SIG_TAGS:
+        raise MalformedAlertError("not a 1609.2 signed DENM of this profile")
+    certificate: bytes | None = None
+    if data[_SIGNER_TAG_AT] == 0x80 and n == SIGNED_SIZE:
+        signer = data[SIGNER_OFFSET:_SIG_TAGS_AT]
+    elif data[_SIGNER_TAG_AT] == 0x81 and data[SIGNER_OFFSET : SIGNER_OFFSET + 2] == _ONE_CERTIFICATE:
+        certificate = data[SIGNER_OFFSET + 2 : -66]
+        if check_certificate:
+            try:
+                cert = parse_certificate(certificate)
+            except MalformedCertificateError as exc:
+                raise MalformedAlertError(f"signer certificate: {exc}") from None
+            if cert.data != certificate:  # a certificate followed by more bytes
+                raise MalformedAlertError("not a 1609.2 signed DENM of this profile")
+        signer = hashlib.sha256(certificate).digest()[-8:]
+    else:
         raise MalformedAlertError("not a 1609.2 signed DENM of this profile")
     alert = decode_alert(data[_DENM_AT:_HEADER_AT])
     time64 = int.from_bytes(data[_TIME_AT:_LOC_AT], "big")
@@ -518,11 +584,12 @@ def parse_signed(data: bytes) -> SignedAlert:
     return SignedAlert(
         alert,
         time64,
-        data[SIGNER_OFFSET:_SIG_TAGS_AT],
-        int.from_bytes(data[_R_AT : _R_AT + 32], "big"),
-        int.from_bytes(data[_R_AT + 32 :], "big"),
+        signer,
+        int.from_bytes(data[-64:-32], "big"),
+        int.from_bytes(data[-32:], "big"),
         data[_TBS],
         GenerationLocation.from_coer(data[_LOC_AT:_SIGNER_TAG_AT]),
+        certificate,
     )
 
 
@@ -537,6 +604,8 @@ def parse_signed_reference(data: bytes) -> SignedAlert:
             again = types.Ieee1609Dot2Data.to_oer()
     except Exception as exc:  # pycrate raises several unrelated types on bad input
         raise MalformedAlertError(f"not an Ieee1609Dot2Data ({type(exc).__name__})") from None
+    if not SIGNED_SIZE <= len(data) <= MAX_SIGNED_SIZE:
+        raise MalformedAlertError(f"{len(data)} bytes, a signed alert has {SIGNED_SIZE} … {MAX_SIGNED_SIZE}")
     if again != bytes(data):
         raise MalformedAlertError("not canonical: the bytes differ from their re-encoding")
     try:
@@ -555,7 +624,7 @@ def parse_signed_reference(data: bytes) -> SignedAlert:
             and inner_kind == "unsecuredData"
             and set(tbs["headerInfo"]) == {"psid", "generationTime", "generationLocation"}
             and tbs["headerInfo"]["psid"] == PSID_DEN
-            and signer_kind == "digest"
+            and (signer_kind == "digest" or (signer_kind == "certificate" and len(signer) == 1))
             and sig_kind == "ecdsaNistP256Signature"
             and r_kind == "x-only"
         )
@@ -576,6 +645,16 @@ def parse_signed_reference(data: bytes) -> SignedAlert:
         types = _signed_type()
         types.ToBeSignedData.set_val(tbs)
         tbs_bytes = types.ToBeSignedData.to_oer()
+        certificate: bytes | None = None
+        if signer_kind == "certificate":
+            types.Certificate.set_val(signer[0])
+            certificate = types.Certificate.to_oer()
+    if certificate is not None:
+        try:
+            parse_certificate(certificate)  # this profile's certificate, not any 1609.2 one
+        except MalformedCertificateError as exc:
+            raise MalformedAlertError(f"signer certificate: {exc}") from None
+        signer = hashlib.sha256(certificate).digest()[-8:]
     return SignedAlert(
         alert,
         time64,
@@ -584,6 +663,7 @@ def parse_signed_reference(data: bytes) -> SignedAlert:
         int.from_bytes(sig["sSig"], "big"),
         tbs_bytes,
         location,
+        certificate,
     )
 
 
@@ -800,6 +880,13 @@ class Verifier:
         relevant: verify on demand (module docstring): called with the decoded alert after every
             check that needs no signature; when it returns False the signature is not checked and
             the verdict is :data:`NOT_RELEVANT`. ``None`` (the default): every signature is checked.
+
+    A signer is known when its certificate is in the trust store or was learnt: an alert that
+    carries its signer's certificate (the certificate form) is checked against the store's root
+    once every cheaper check has passed — issued by the root, allowed to sign DENMs, valid at the
+    generation time, not revoked — and a certificate that chains is remembered (up to
+    :data:`LEARNT_CERTIFICATES`), so later alerts of that unit cost one signature check, in either
+    form. A car therefore needs only the root to trust a unit installed after its store was made.
     """
 
     def __init__(
@@ -817,27 +904,51 @@ class Verifier:
         self.max_future_ms = round(max_future_s * 1000)
         self.replay = ReplayCache() if replay is None else replay
         self._pruned_ms: int | None = None
+        self.learnt: dict[bytes, tuple[ec.EllipticCurvePublicKey, float, float, bytes]] = {}
+
+    def _learn(self, certificate: bytes) -> tuple[ec.EllipticCurvePublicKey, float, float, bytes] | str:
+        """The unit entry of a carried certificate that chains to the store's root, or the reason
+        it does not."""
+        try:
+            cert = parse_certificate(certificate)
+        except MalformedCertificateError as exc:
+            return f"malformed signer certificate: {exc}"
+        if cert.data != certificate:
+            return "malformed signer certificate: bytes after the certificate"
+        if cert.issuer is None or not cert.issued_by(self.store.root):
+            return "unknown signer: its certificate was not issued by this store's root"
+        if PSID_DEN not in cert.psids:
+            return f"signer certificate may not sign DENMs (PSID {PSID_DEN})"
+        unit = (cert.public_key, cert.start_s, cert.end_s, cert.digest)
+        if len(self.learnt) >= LEARNT_CERTIFICATES:
+            del self.learnt[next(iter(self.learnt))]  # the oldest learnt
+        self.learnt[cert.hashed_id8] = unit
+        return unit
 
     def verify(self, data: bytes, now_s: float) -> Verdict:
         """Check one message received at ``now_s`` (Unix s, the car's clock); an accepted alert's
         signer and sequence enter the replay cache."""
-        if len(data) < SIGNED_SIZE:
-            return Verdict(False, f"truncated: {len(data)} bytes, a signed alert has {SIGNED_SIZE}")
-        if len(data) > SIGNED_SIZE:
-            return Verdict(False, f"oversized: {len(data)} bytes, a signed alert has {SIGNED_SIZE}")
+        n = len(data)
+        if n < SIGNED_SIZE:
+            return Verdict(False, f"truncated: {n} bytes, a signed alert has at least {SIGNED_SIZE}")
+        if n > MAX_SIGNED_SIZE:
+            return Verdict(False, f"oversized: {n} bytes, a signed alert has at most {MAX_SIGNED_SIZE}")
         try:
-            parsed = parse_signed(data)
+            parsed = parse_signed(data, check_certificate=False)
         except MalformedAlertError as exc:
             return Verdict(False, f"malformed: {exc}")
         alert, signer, r, s, where = parsed.alert, parsed.signer, parsed.r, parsed.s, parsed.location
-        unit = self.store.units.get(signer)
-        if unit is None:
+        unit = self.store.units.get(signer) or self.learnt.get(signer)
+        if unit is None and parsed.certificate is None:
             return Verdict(False, "unknown signer", alert, signer, where)
+        carried = parsed.certificate
+        if unit is not None and carried is not None and hashlib.sha256(carried).digest() != unit[3]:
+            # the HashedId8 of a known unit, but another certificate
+            return Verdict(False, "unknown signer: another certificate, a known id", alert, signer, where)
         if signer in self.store.revoked:
             return Verdict(False, "revoked signer", alert, signer, where)
         if not (0 < r < _N and 0 < s <= _HALF_N):
             return Verdict(False, "bad signature (not a canonical r, s)", alert, signer, where)
-        pub, valid_from, valid_to, cert_hash = unit
         # relevance checks first (IEEE 1609.2's order): a stale, future, replayed or mislabelled
         # message costs a decode, not an ECDSA verification, so a flood of them cannot starve the
         # alerts that matter. Nothing is recorded until the signature has been checked.
@@ -851,8 +962,6 @@ class Verifier:
         if gen_ms < now_ms - self.max_age_ms:
             age = (now_ms - gen_ms) / 1000
             return Verdict(False, f"stale: generated {age:.3f} s ago", alert, signer, where)
-        if not valid_from * 1000 <= gen_ms <= valid_to * 1000:
-            return Verdict(False, "signer certificate not valid at the generation time", alert, signer, where)
         if self._pruned_ms is None or now_ms - self._pruned_ms >= 1000:  # idle signers, once a second
             self.replay.prune(now_ms - self.max_age_ms)
             self._pruned_ms = now_ms
@@ -860,6 +969,15 @@ class Verifier:
             return Verdict(False, "replay: this signer's sequence was already accepted", alert, signer, where)
         if self.relevant is not None and not self.relevant(alert):
             return Verdict(False, NOT_RELEVANT, alert, signer, where)
+        if unit is None:
+            assert parsed.certificate is not None
+            learnt = self._learn(parsed.certificate)
+            if isinstance(learnt, str):
+                return Verdict(False, learnt, alert, signer, where)
+            unit = learnt
+        pub, valid_from, valid_to, cert_hash = unit
+        if not valid_from * 1000 <= gen_ms <= valid_to * 1000:
+            return Verdict(False, "signer certificate not valid at the generation time", alert, signer, where)
         try:
             pub.verify(
                 encode_dss_signature(r, s), _signing_input(parsed.tbs, cert_hash), ec.ECDSA(hashes.SHA256())

@@ -11,6 +11,7 @@ connect to it. Only loopback endpoints are accepted here.
 
 from __future__ import annotations
 
+import hashlib
 import json
 import re
 import socket
@@ -22,7 +23,7 @@ from typing import Literal
 import zenoh
 
 from makeway.queues import KeyedLatestQueue, LatestQueue
-from makeway.v2x.security import SIGNED_SIZE, SIGNER_OFFSET, STATION_ID_OFFSET
+from makeway.v2x.security import MAX_SIGNED_SIZE, SIGNED_SIZE, SIGNER_OFFSET, STATION_ID_OFFSET
 
 __all__ = [
     "KEY_PREFIX",
@@ -128,9 +129,13 @@ def sender_key(key: str, payload: bytes, known_signers: Collection[bytes] | None
     is not the claimed signer's) share the key ``(key, "malformed")``; when ``known_signers`` is
     given, a claimed signer outside it (unknown or revoked: the verifier will reject it) shares
     ``(key, "unknown")``, so made-up signer ids cannot create keys without end."""
-    if len(payload) != SIGNED_SIZE or payload[0] != 3:  # 1609.2 protocol version 3
+    n = len(payload)
+    if not SIGNED_SIZE <= n <= MAX_SIGNED_SIZE or payload[0] != 3:  # 1609.2 protocol version 3
         return (key, "malformed")
-    signer = bytes(payload[SIGNER_OFFSET : SIGNER_OFFSET + 8])
+    if n == SIGNED_SIZE:  # the digest form
+        signer = bytes(payload[SIGNER_OFFSET : SIGNER_OFFSET + 8])
+    else:  # the certificate form: the certificate's HashedId8
+        signer = hashlib.sha256(payload[SIGNER_OFFSET + 2 : n - 66]).digest()[-8:]
     if payload[STATION_ID_OFFSET : STATION_ID_OFFSET + 4] != signer[:4]:  # the station must be the signer's
         return (key, "malformed")
     if known_signers is not None and signer not in known_signers:
