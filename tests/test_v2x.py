@@ -381,10 +381,16 @@ def test_cli_contract(tmp_path: Path) -> None:
 
 
 # ---------------------------------------------------------------------------------------- pub/sub
-def test_alerts_over_zenoh_between_two_processes(tmp_path: Path) -> None:
+@pytest.mark.parametrize("store", ["units", "root only"])
+def test_alerts_over_zenoh_between_two_processes(tmp_path: Path, store: str) -> None:
     """A car process listens on loopback, a unit process sends a forged alert and then N signed ones:
-    all arrive in order and verify, the forged one is rejected and never reaches the belief."""
+    all arrive in order and verify, the forged one is rejected and never reaches the belief. With a
+    trust store holding only the root, the car learns the unit from the certificate its alerts carry."""
     ident = keygen(tmp_path / "k", "rsu")
+    if store == "root only":
+        import shutil
+
+        shutil.rmtree(tmp_path / "k" / "trust" / "units")
     outsider = keygen(tmp_path / "other", "rsu")
     now, n = time.time(), 30
     files = [tmp_path / "forged.msg"]

@@ -251,6 +251,8 @@ def listen(
             row: dict[str, Any] = {"key": got.key, **verdict.to_json()}
             if verdict.valid and verdict.alert is not None:
                 valid += 1
+                if verdict.signer is not None and verdict.signer in verifier.learnt:
+                    sub.add_known_signer(verdict.signer)  # a unit met through its certificate
                 source.receive(verdict.alert)
                 row["latency_ms"] = (got.time_s - verdict.alert.generation_time_s) * 1000.0
             elif verdict.reason == NOT_RELEVANT:

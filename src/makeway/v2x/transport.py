@@ -192,7 +192,7 @@ class AlertSubscriber:
         if queue not in ("per_sender", "fifo"):
             raise ValueError(f"queue is 'per_sender' or 'fifo', not {queue!r}")
         self.queue_policy = queue
-        self._known = None if known_signers is None else frozenset(bytes(s) for s in known_signers)
+        self._known = None if known_signers is None else {bytes(s) for s in known_signers}
         self._fifo: LatestQueue[Received] | None = None
         self._keyed: KeyedLatestQueue[Hashable, Received] | None = None
         if queue == "fifo":
@@ -200,6 +200,13 @@ class AlertSubscriber:
         else:
             self._keyed = KeyedLatestQueue(max(1, max_pending // per_sender), per_sender)
         self._subs = [session.declare_subscriber(segment_key(s), self._on_sample) for s in segments]
+
+    def add_known_signer(self, signer: bytes) -> None:
+        """Give ``signer`` (a HashedId8) a queue key of its own from now on: for a unit the car
+        learnt from a verified alert that carried its certificate (it was queued under the shared
+        ``"unknown"`` key until then). No effect without ``known_signers``."""
+        if self._known is not None:
+            self._known.add(bytes(signer))
 
     def _on_sample(self, sample: zenoh.Sample) -> None:
         got = Received(str(sample.key_expr), sample.payload.to_bytes(), time.time())
