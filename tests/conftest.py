@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import importlib
 import os
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -79,6 +80,17 @@ def start_car_listener(
         text=True,
         env=env,
     )
+
+
+def yolo_subset(yolo_dir: Path, out: Path, stems: list[str]) -> Path:
+    """Copy the named images (``STEM.jpg``) and their YOLO label files of ``yolo_dir`` into a new
+    YOLO folder ``out`` (``images/``, ``labels/``); return ``out``."""
+    for sub in ("images", "labels"):
+        (out / sub).mkdir(parents=True)
+    for stem in stems:
+        shutil.copy(yolo_dir / "images" / f"{stem}.jpg", out / "images")
+        shutil.copy(yolo_dir / "labels" / f"{stem}.txt", out / "labels")
+    return out
 
 
 @pytest.hookimpl(trylast=True)

@@ -4,13 +4,13 @@
 from __future__ import annotations
 
 import json
-import shutil
 from pathlib import Path
 
 import numpy as np
 import pytest
 from typer.testing import CliRunner
 
+from conftest import yolo_subset
 from makeway.apps.evaluate_detector import HELD_OUT_FILE, BoxJudgements, held_out_by_hash, score_judgements
 from makeway.cli.main import app
 from makeway.eval.detection import (
@@ -148,15 +148,6 @@ def test_committed_held_out_file_follows_the_hash_rule(ambulance_dir: Path) -> N
 # ----------------------------------------------------------------------------------------------- CLI
 
 
-def _subset(ambulance_dir: Path, out: Path, stems: list[str]) -> Path:
-    for sub in ("images", "labels"):
-        (out / sub).mkdir(parents=True)
-    for stem in stems:
-        shutil.copy(ambulance_dir / "images" / f"{stem}.jpg", out / "images")
-        shutil.copy(ambulance_dir / "labels" / f"{stem}.txt", out / "labels")
-    return out
-
-
 # three photos with one large, clearly visible labelled ambulance each (checked by eye; the third
 # also shows parked cars)
 STEMS = [
@@ -167,7 +158,7 @@ STEMS = [
 
 
 def test_evaluate_detector_on_real_images(ambulance_dir: Path, tmp_path: Path) -> None:
-    folder = _subset(ambulance_dir, tmp_path / "set", STEMS)
+    folder = yolo_subset(ambulance_dir, tmp_path / "set", STEMS)
     n_boxes = sum(len(im.boxes_of(0)) for im in read_yolo_set(folder))
     r = runner.invoke(app, ["evaluate-detector", "--data", str(folder), "--classifier", "fast"])
     assert r.exit_code == 0, r.output
@@ -188,7 +179,7 @@ def test_bad_input_is_one_line_naming_the_file(ambulance_dir: Path, tmp_path: Pa
     r = runner.invoke(app, ["evaluate-detector", "--data", str(missing)])
     assert r.exit_code == 2 and str(missing) in r.stderr and len(r.stderr.strip().splitlines()) == 1
 
-    folder = _subset(ambulance_dir, tmp_path / "bad", STEMS[:1])
+    folder = yolo_subset(ambulance_dir, tmp_path / "bad", STEMS[:1])
     label = folder / "labels" / f"{STEMS[0]}.txt"
     label.write_text(label.read_text().rstrip("\n") + "\n0 0.5 0.5 0.2\n")  # 4 fields on line 2
     r = runner.invoke(app, ["evaluate-detector", "--data", str(folder), "--classifier", "fast"])
@@ -196,7 +187,7 @@ def test_bad_input_is_one_line_naming_the_file(ambulance_dir: Path, tmp_path: Pa
     assert label.name in r.stderr and "line 2" in r.stderr and len(r.stderr.strip().splitlines()) == 1
 
     # the held-out split belongs to ambulance_yolo/valid, not to a folder of two of its images
-    folder = _subset(ambulance_dir, tmp_path / "two", STEMS)
+    folder = yolo_subset(ambulance_dir, tmp_path / "two", STEMS)
     r = runner.invoke(
         app, ["evaluate-detector", "--data", str(folder), "--split", "held_out", "--classifier", "fast"]
     )

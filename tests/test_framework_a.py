@@ -4,7 +4,6 @@ the shipped two-class detector, and ``--framework a`` through the CLI."""
 from __future__ import annotations
 
 import json
-import shutil
 from pathlib import Path
 
 import cv2
@@ -12,7 +11,7 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from conftest import require_module
+from conftest import require_module, yolo_subset
 
 require_module("torch")
 
@@ -229,17 +228,8 @@ def test_track_one_stage_keeps_the_id_through_class_flips() -> None:
 # ---------------------------------------------------------------------------------------------- CLI
 
 
-def _subset(ambulance_dir: Path, out: Path, stems: list[str]) -> Path:
-    for sub in ("images", "labels"):
-        (out / sub).mkdir(parents=True)
-    for stem in stems:
-        shutil.copy(ambulance_dir / "images" / f"{stem}.jpg", out / "images")
-        shutil.copy(ambulance_dir / "labels" / f"{stem}.txt", out / "labels")
-    return out
-
-
 def test_evaluate_detector_framework_a(ambulance_dir: Path, tmp_path: Path) -> None:
-    folder = _subset(ambulance_dir, tmp_path / "set", TRAIN_SIDE)
+    folder = yolo_subset(ambulance_dir, tmp_path / "set", TRAIN_SIDE)
     r = runner.invoke(app, ["evaluate-detector", "--data", str(folder), "--framework", "a"])
     assert r.exit_code == 0, r.output
     out = json.loads(r.stdout.strip().splitlines()[-1])

@@ -6,12 +6,12 @@ from __future__ import annotations
 
 import csv
 import json
-import shutil
 from pathlib import Path
 
 import pytest
 from typer.testing import CliRunner
 
+from conftest import yolo_subset
 from makeway.apps.classify import build_ambulance_crops
 from makeway.cli.main import app
 from makeway.errors import InputError
@@ -30,15 +30,6 @@ from makeway.sense.label_corrections import (
 runner = CliRunner()
 HEADER = "image,x1,y1,x2,y2,was,label,kind,note"
 GOOD = "0005_jpg.rf.44faa3143231e53a063975b070d866f0,373.1,391.9,543.0,559.6,unlabelled,ev,ambulance,van"
-
-
-def _subset(ambulance_dir: Path, out: Path, stems: list[str]) -> Path:
-    for sub in ("images", "labels"):
-        (out / sub).mkdir(parents=True)
-    for stem in stems:
-        shutil.copy(ambulance_dir / "images" / f"{stem}.jpg", out / "images")
-        shutil.copy(ambulance_dir / "labels" / f"{stem}.txt", out / "labels")
-    return out
 
 
 def _labels(folder: Path) -> dict[str, int]:
@@ -100,7 +91,7 @@ def test_applying_changes_exactly_the_listed_crops(ambulance_dir: Path, tmp_path
     rows = read_corrections()
     by_image = corrections_by_image(rows)
     plain = ["0009_jpg.rf.57b34231535de22443800ce18496f706", "0022_jpg.rf.cb893467345630b42489d08eb5623329"]
-    folder = _subset(ambulance_dir, tmp_path / "set", sorted(by_image) + plain)
+    folder = yolo_subset(ambulance_dir, tmp_path / "set", sorted(by_image) + plain)
     before = build_ambulance_crops(tmp_path / "orig", folder, progress=False, labels="original")
     after = build_ambulance_crops(tmp_path / "corr", folder, progress=False, labels="corrected")
     old, new = _labels(tmp_path / "orig"), _labels(tmp_path / "corr")
@@ -140,7 +131,7 @@ def test_evaluate_detector_reports_the_label_set(ambulance_dir: Path, tmp_path: 
         "0229_jpg.rf.c4d6ba6dc91c69092a78a3dbce174dfd",  # a fire engine beside a labelled ambulance
         "0009_jpg.rf.57b34231535de22443800ce18496f706",  # no correction
     ]
-    folder = _subset(ambulance_dir, tmp_path / "set", stems)
+    folder = yolo_subset(ambulance_dir, tmp_path / "set", stems)
     out = {}
     for labels in ("original", "corrected"):
         r = runner.invoke(

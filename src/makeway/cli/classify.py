@@ -26,6 +26,14 @@ classify_app = new_app(
     "Build crop data sets, compare classical classifiers, train, score, export and mine.",
 )
 _STUDY_OUT = Path("docs/study")
+_AmbulanceLabels = Annotated[
+    str,
+    typer.Option(
+        "--labels",
+        help="Label set of ambulance_yolo: corrected (the committed audit's corrections applied, "
+        "src/makeway/data/ambulance_yolo_corrections.csv) or original (the export as it is).",
+    ),
+]
 
 
 def _split_names(values: list[str] | None, default: list[str]) -> list[str]:
@@ -156,14 +164,7 @@ def build_ambulance_crops(
     ] = 0.1,
     size: Annotated[int, typer.Option(min=8, help="Crop side in pixels.")] = 224,
     threads: Annotated[int, typer.Option(min=1, help="Detector threads.")] = 1,
-    labels: Annotated[
-        str,
-        typer.Option(
-            "--labels",
-            help="Label set of ambulance_yolo: corrected (the committed audit's corrections applied, "
-            "src/makeway/data/ambulance_yolo_corrections.csv) or original (the export as it is).",
-        ),
-    ] = "corrected",
+    labels: _AmbulanceLabels = "corrected",
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")] = False,
 ) -> None:
     """Build a crop folder from a YOLO ambulance set.
@@ -518,14 +519,7 @@ def cross_source(
     ] = None,
     every: Annotated[int, typer.Option(min=1, help="road_clips: one crop every N frames of a track.")] = 5,
     threads: Annotated[int, typer.Option(min=1, help="ONNX Runtime threads.")] = 1,
-    labels: Annotated[
-        str,
-        typer.Option(
-            "--labels",
-            help="Label set of ambulance_yolo: corrected (the committed audit's corrections applied, "
-            "src/makeway/data/ambulance_yolo_corrections.csv) or original (the export as it is).",
-        ),
-    ] = "corrected",
+    labels: _AmbulanceLabels = "corrected",
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bars.")] = False,
 ) -> None:
     """Score EV crop classifiers on each unseen source.
