@@ -19,6 +19,7 @@ from makeway.perceive.audio.features import window_batch
 from makeway.perceive.audio.motion import (
     APPROACH_METHODS,
     DEFAULT_APPROACH_MODEL,
+    MIN_RECEDING_WINDOWS,
     TREND_HORIZONS_S,
     ApproachEstimator,
     TrendApproach,
@@ -94,6 +95,10 @@ def test_trend_approach_settings_and_model_errors(tmp_path: Path) -> None:
         TrendApproach(model=None, horizons=())
     with pytest.raises(ValueError, match="min_windows"):
         TrendApproach(model=None, min_windows=1)
+    for bad in (-1, 2.5, True, "6", None):
+        with pytest.raises(ValueError, match="min_receding_windows must be a whole number"):
+            TrendApproach(model=None, min_receding_windows=bad)  # type: ignore[arg-type]
+    assert TrendApproach(model=None, min_receding_windows=np.int64(0)).min_receding_windows == 0
     with pytest.raises(ValueError, match="no classifier"):
         TrendApproach(model=None).predict_proba(np.zeros((1, 12)))
     with pytest.raises(InputError, match="approach model not found"):
@@ -148,7 +153,8 @@ def test_shipped_classifier_tells_the_pass_by(pass_rec: Recording, networks: Sir
         assert (sel & phase).sum() >= 10 and (state[sel & phase] == truth[sel & phase]).mean() >= 0.8
     assert ((prob >= 0) & (prob <= 1)).all()
     # streaming gives the same decisions, one window at a time, inside the listener's messages
-    msgs = list(listen(pass_rec, model=networks, approach=TrendApproach()))
+    # (without the early receding calls withheld: the batch rows do not know the history's length)
+    msgs = list(listen(pass_rec, model=networks, approach=TrendApproach(min_receding_windows=0)))
     for i in np.flatnonzero(sel):
         src = msgs[i]["sources"][0]
         if np.isnan(state[i]):  # no cue yet
@@ -159,8 +165,52 @@ def test_shipped_classifier_tells_the_pass_by(pass_rec: Recording, networks: Sir
 
 
 def test_listen_picks_the_estimator(networks: SirenModel) -> None:
-    assert isinstance(default_approach(networks), TrendApproach)
+    est = default_approach(networks)
+    assert isinstance(est, TrendApproach)
+    assert est.min_receding_windows == MIN_RECEDING_WINDOWS == 6
     assert isinstance(default_approach(None), ApproachEstimator)
+
+
+def _stream(
+    est: TrendApproach, log_rate: float, n: int = 24
+) -> list[tuple[int, bool | None, bool, float | None]]:
+    """Feed ``n`` listener windows (0.5 s, hop 0.17 s) of quiet noise, each a siren window whose
+    network distance is ``40·exp(log_rate·t)``; per window ``(siren windows in the history, the
+    call, withheld_, probability_)``."""
+    rng = np.random.default_rng(7)
+    sr = 16000
+    out = []
+    for i in range(n):
+        t = 0.5 + 0.17 * i
+        window = 0.01 * rng.standard_normal((4, sr // 2))
+        approaching, _ = est.update(window, sr, t, distance_m=40.0 * math.exp(log_rate * t), is_siren=True)
+        out.append((len(est.history_), approaching, est.withheld_, est.probability_))
+    return out
+
+
+def test_trend_approach_withholds_early_receding_calls() -> None:
+    """A receding call is None (undecided, no probability) until 6 siren windows are in the history,
+    then given; the same estimator with ``min_receding_windows=0`` calls it at once. (On this noise
+    the classifier calls the first windows with a slope approaching, then receding from the fifth.)"""
+    held, free = _stream(TrendApproach(), 0.3), _stream(TrendApproach(min_receding_windows=0), 0.3)
+    for (n, call, withheld, p), (n0, call0, withheld0, p0) in zip(held, free, strict=True):
+        assert n == n0 and not withheld0
+        assert withheld == (call0 is False and n < MIN_RECEDING_WINDOWS)
+        if withheld:  # undecided, without a probability
+            assert call is None and p is None
+        else:  # anything else as without the rule (an approaching call among the first windows too)
+            assert (call, p) == (call0, p0)
+    assert any(w for _, _, w, _ in held)  # the classifier did call it receding early, and was held back
+    assert [c for n, c, _, _ in held if n >= MIN_RECEDING_WINDOWS][-1] is False
+    first = next(i for i, (_, c, _, _) in enumerate(held) if c is False)
+    assert held[first][0] == MIN_RECEDING_WINDOWS
+
+
+def test_trend_approach_does_not_delay_approaching_calls() -> None:
+    held, free = _stream(TrendApproach(), -0.3), _stream(TrendApproach(min_receding_windows=0), -0.3)
+    assert held == free
+    assert any(c is True and n < MIN_RECEDING_WINDOWS for n, c, _, _ in held)
+    assert not any(w for _, _, w, _ in held)
 
 
 def test_cli_train_approach_and_listen_approach(tmp_path: Path) -> None:

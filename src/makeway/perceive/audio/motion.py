@@ -248,6 +248,10 @@ TREND_HORIZONS_S = (1.0, 1.5, 2.5, 4.0)
 """Spans (s) over which :class:`TrendApproach` fits the slope of the network's log distance."""
 MIN_TREND_WINDOWS = 3
 """A slope needs at least this many siren windows within its span."""
+MIN_RECEDING_WINDOWS = 6
+""":class:`TrendApproach` withholds a *receding* call (``approaching`` None, undecided) until this
+many siren windows are in its history (6 windows of the listener's 0.17 s hop: about 1 s of siren,
+1.35 s of audio); an approaching call is never held back (issue 26, seed003)."""
 HINT_HORIZON_S = 1.5
 """The span whose slope :meth:`TrendApproach.update` returns as the ``ṙ/r`` hint."""
 
@@ -271,7 +275,17 @@ class TrendApproach:
     4. the classifier (gradient-boosted trees in ONNX; the one paired with the ranger set whose
        distances feed it, :func:`approach_model_for`, default :data:`DEFAULT_APPROACH_MODEL`) turns the
        row into ``probability_`` = P(approaching); ``approaching = probability_ ≥ 0.5``, or None
-       while no cue exists yet (no slope and no level slope).
+       while no cue exists yet (no slope and no level slope);
+    5. a *receding* call is withheld (``approaching`` None, ``probability_`` None, ``withheld_``
+       True) while fewer than ``min_receding_windows`` siren windows are in the history
+       (:data:`MIN_RECEDING_WINDOWS`, 6: about 1 s of siren at the listener's 0.17 s hop). An
+       approaching call is given at once. At the start of a siren the distance trend has two or
+       three noisy points and the level slope the siren's own onset; the classifier then calls a
+       siren that is closing in "receding" now and then, and a receding call lets the yield
+       decision wait (a receding EV behind is not yielded to), while an undecided one is treated
+       as approaching (:func:`~makeway.decide.yield_fsm.needs_yield`): on seed003 (an EV 50 m
+       behind) such an early call delayed the stop (issue 26; ``benchmarks/bench_seed003_timeline.py
+       --trace``). ``min_receding_windows=0`` turns this off.
 
     The classifier is trained by ``makeway audio train-approach`` on simulated training-split
     recordings (:mod:`makeway.train.approach`): the truth is the sign of the labelled range rate of
@@ -286,16 +300,28 @@ class TrendApproach:
         *,
         horizons: tuple[float, ...] = TREND_HORIZONS_S,
         min_windows: int = MIN_TREND_WINDOWS,
+        min_receding_windows: int = MIN_RECEDING_WINDOWS,
         level: ApproachEstimator | None = None,
         threads: int | None = 1,
     ) -> None:
+        """``horizons``: the spans (s) of the distance slopes; ``min_windows``: siren windows a slope
+        needs within its span; ``min_receding_windows``: siren windows (count, within the longest
+        span) the history must hold before a receding call is given (class docstring, item 5; 0:
+        never withheld); ``level``: the level/Doppler estimator (default a new
+        :class:`ApproachEstimator`); ``threads``: the classifier's ONNX threads."""
         if not horizons or min(horizons) <= 0:
             raise ValueError(f"horizons must be positive spans in seconds, got {horizons}")
         if min_windows < 2:
             raise ValueError(f"min_windows must be >= 2 (a slope needs two points), got {min_windows}")
+        n_receding = min_receding_windows
+        if isinstance(n_receding, bool) or not isinstance(n_receding, (int, np.integer)) or n_receding < 0:
+            raise ValueError(
+                f"min_receding_windows must be a whole number of windows >= 0, got {n_receding!r}"
+            )
         self.model = Path(model) if model is not None else None
         self.horizons = tuple(float(h) for h in horizons)
         self.min_windows = int(min_windows)
+        self.min_receding_windows = int(min_receding_windows)
         self.level = level if level is not None else ApproachEstimator()
         self.threads = threads
         self.session_: Any = None
@@ -305,7 +331,10 @@ class TrendApproach:
 
     def __repr__(self) -> str:
         name = self.model.name if self.model is not None else None
-        return f"TrendApproach(model={name!r}, horizons={self.horizons}, min_windows={self.min_windows})"
+        return (
+            f"TrendApproach(model={name!r}, horizons={self.horizons}, min_windows={self.min_windows}, "
+            f"min_receding_windows={self.min_receding_windows})"
+        )
 
     @property
     def feature_names(self) -> list[str]:
@@ -339,6 +368,7 @@ class TrendApproach:
         self.state_: bool | None = None
         self.probability_: float | None = None
         self.features_: np.ndarray | None = None
+        self.withheld_ = False  # this window's receding call was withheld (class docstring, item 5)
         return self
 
     def observe(
@@ -404,10 +434,15 @@ class TrendApproach:
         """Feed the window ``(channels, samples)`` that ends at ``time_s``, with the network's
         distance for it and the listener's decision; return ``(approaching, range_rate_hint)`` —
         ``approaching`` None while no cue exists, the hint ``ṙ/r`` (1/s) the slope of ln distance
-        over :data:`HINT_HORIZON_S` (None without one). ``probability_`` holds P(approaching)."""
+        over :data:`HINT_HORIZON_S` (None without one). ``probability_`` holds P(approaching).
+        A receding call is withheld (None) while the history holds fewer than
+        ``min_receding_windows`` siren windows (class docstring, item 5; ``withheld_`` says so)."""
         row = self.observe(window, sample_rate, time_s, distance_m=distance_m, is_siren=is_siren)
         state, p = self.decide(row[None])
         self.state_ = None if math.isnan(state[0]) else bool(state[0])
+        self.withheld_ = self.state_ is False and len(self.history_) < self.min_receding_windows
+        if self.withheld_:
+            self.state_ = None
         self.probability_ = None if self.state_ is None else float(p[0])
         k = self.horizons.index(HINT_HORIZON_S) if HINT_HORIZON_S in self.horizons else 0
         hint = float(row[2 * k]) if row[2 * k + 1] > 0 else None
