@@ -582,9 +582,9 @@ def train_far(
             min=10.0, max=350.0, help="The far/near boundary (m): far_probability is P(distance > this)."
         ),
     ] = 100.0,
-    epochs: Annotated[int, typer.Option(min=1, help="Most epochs (the best on validation is kept).")] = 60,
+    epochs: Annotated[int, typer.Option(min=1, help="Most epochs (the best on validation is kept).")] = 25,
     width: Annotated[int, typer.Option(min=4, help="Width of the two hidden layers.")] = 64,
-    lr: Annotated[float, typer.Option(min=0.0, help="Adam learning rate.")] = 2e-3,
+    lr: Annotated[float, typer.Option(min=0.0, help="Adam learning rate.")] = 1e-3,
     far_weight: Annotated[
         float, typer.Option(min=0.0, help="Weight of the far/near loss beside the distance likelihood.")
     ] = 1.0,

@@ -9,12 +9,12 @@ order, which gives one feature row per window. Labels come from the trajectories
 nearest siren's distance; windows with no siren that near are not used.
 
 **Network** (:class:`FarNet`). Inputs standardised inside the network (buffers fitted on the
-training rows), two hidden layers of ``width`` (ReLU, dropout 0.1), three outputs: ln distance,
+training rows), two hidden layers of ``width`` (ReLU, dropout 0.5), three outputs: ln distance,
 ln σ (clamped to [−4, 1.5]) and the far logit. Loss: the Gaussian negative log-likelihood of the
 true ln distance under (ln distance, σ) — which fits the distance and a calibrated spread together
 — plus ``far_weight`` × the binary cross-entropy of ``distance > far_boundary_m``.
 
-**Training.** Adam with weight decay, reduce-on-plateau on the validation loss of a seeded 15 % of
+**Training.** Adam with weight decay 0.01, reduce-on-plateau on the validation loss of a seeded 15 % of
 the training recordings (split by recording), best epoch kept. :func:`export_far_onnx` writes the
 ONNX file with the feature names, the far boundary, the networks that fed the rows and the training
 description in its metadata.
@@ -188,7 +188,13 @@ class FarNet(nn.Module):
     mean: torch.Tensor
     std: torch.Tensor
 
-    def __init__(self, n_features: int, width: int = 64, log_distance_offset: float = math.log(60.0)) -> None:
+    def __init__(
+        self,
+        n_features: int,
+        width: int = 64,
+        dropout: float = 0.5,
+        log_distance_offset: float = math.log(60.0),
+    ) -> None:
         super().__init__()
         self.register_buffer("mean", torch.zeros(n_features))
         self.register_buffer("std", torch.ones(n_features))
@@ -196,10 +202,10 @@ class FarNet(nn.Module):
         self.body = nn.Sequential(
             nn.Linear(n_features, width),
             nn.ReLU(),
-            nn.Dropout(0.1),
+            nn.Dropout(dropout),
             nn.Linear(width, width),
             nn.ReLU(),
-            nn.Dropout(0.1),
+            nn.Dropout(dropout),
         )
         self.head = nn.Linear(width, 3)
 
@@ -234,9 +240,9 @@ def train_far_net(
     *,
     far_boundary_m: float = FAR_BOUNDARY_M,
     width: int = 64,
-    epochs: int = 60,
-    lr: float = 2e-3,
-    weight_decay: float = 1e-4,
+    epochs: int = 25,
+    lr: float = 1e-3,
+    weight_decay: float = 1e-2,
     far_weight: float = 1.0,
     batch_size: int = 256,
     seed: int = 0,
@@ -349,8 +355,8 @@ def train_far_ranger(
     siren: SirenModel | None = None,
     far_boundary_m: float = FAR_BOUNDARY_M,
     width: int = 64,
-    epochs: int = 60,
-    lr: float = 2e-3,
+    epochs: int = 25,
+    lr: float = 1e-3,
     far_weight: float = 1.0,
     seed: int = 0,
     threads: int = 1,
