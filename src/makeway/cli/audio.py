@@ -595,9 +595,9 @@ def train_far(
     threads: Annotated[int, typer.Option(min=1, help="torch and ONNX Runtime threads.")] = 1,
     seed: Annotated[int, typer.Option(help="Seed (weights, batches, early-stopping split).")] = 0,
 ) -> None:
-    """Train the far ranger: distance, its uncertainty and a far/near call beyond 50 m.
+    """Train the far ranger for sirens beyond 50 m.
 
-    Every recording runs as `audio listen --far-ranger` runs it (the siren networks on every window,
+    It gives a distance, its uncertainty and a far/near call. Every recording runs as `audio listen --far-ranger` runs it (the siren networks on every window,
     the spectral shape, level and bearing trends over the last 3 s); windows whose nearest siren lies
     within 400 m are the training rows, labelled from the trajectories. A small network learns ln
     distance with its σ (Gaussian likelihood) and P(distance > --far-boundary); 15 % of the
