@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -155,7 +156,7 @@ def test_track_treats_a_far_fix_as_beyond_ranging() -> None:
     assert math.isnan(SirenTrackFusion().update(far, 0.0, 0.0, 0.0).distance_m)
 
 
-def test_bad_input_gives_clear_errors(tmp_path, siren: SirenModel) -> None:
+def test_bad_input_gives_clear_errors(tmp_path: Path, siren: SirenModel) -> None:
     with pytest.raises(InputError, match="not a makeway siren far ranger"):
         FarRanger(DEFAULT_SIREN_MODEL)
     with pytest.raises(InputError, match="train one with `makeway audio train-far`"):
@@ -168,7 +169,7 @@ def test_bad_input_gives_clear_errors(tmp_path, siren: SirenModel) -> None:
         SirenListener(siren.mics, 48_000, far_ranger=FarRanger())
 
 
-def test_cli_far_ranger_flags(tmp_path) -> None:
+def test_cli_far_ranger_flags(tmp_path: Path) -> None:
     run = [sys.executable, "-m", "makeway", "audio"]
     help_text = subprocess.run(
         [*run, "train-far", "--help"], capture_output=True, text=True, check=True

@@ -597,11 +597,12 @@ def train_far(
 ) -> None:
     """Train the far ranger for sirens beyond 50 m.
 
-    It gives a distance, its uncertainty and a far/near call. Every recording runs as `audio listen --far-ranger` runs it (the siren networks on every window,
-    the spectral shape, level and bearing trends over the last 3 s); windows whose nearest siren lies
-    within 400 m are the training rows, labelled from the trajectories. A small network learns ln
-    distance with its σ (Gaussian likelihood) and P(distance > --far-boundary); 15 % of the
-    recordings stop the training early. Written as ONNX (JSON line last). Needs torch."""
+    It gives a distance, its uncertainty and a far/near call. Every recording runs as
+    `audio listen --far-ranger` runs it (the siren networks on every window, the spectral shape,
+    level and bearing trends over the last 3 s); windows whose nearest siren lies within 400 m are
+    the training rows, labelled from the trajectories. A small network learns ln distance with its
+    σ (Gaussian likelihood) and P(distance > --far-boundary); 15 % of the recordings stop the
+    training early. Written as ONNX (JSON line last). Needs torch."""
     try:
         from makeway.train.far_range import train_far_ranger
     except ImportError as exc:

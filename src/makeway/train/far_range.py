@@ -153,8 +153,9 @@ def far_dataset(
     if cache is not None:
         from makeway.atomic import atomic_path
 
+        arrays: dict[str, Any] = {"key": np.array(key), **out}
         with atomic_path(cache) as tmp, open(tmp, "wb") as fh:
-            np.savez(fh, key=np.array(key), **out)
+            np.savez(fh, **arrays)
     return out
 
 

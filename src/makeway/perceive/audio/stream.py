@@ -25,6 +25,11 @@ Doppler; ``approach_probability`` null). ``sources`` is empty when there is no s
 ``level_db_spl`` is the window's level in the siren band at the array (the recording's
 calibration, or the networks' reference scale).
 
+With the far ranger (opt-in, ``far_ranger=``; :mod:`~makeway.perceive.audio.far_range`) the nearest
+siren also carries ``far_probability`` (P(distance > 100 m)) and ``distance_sigma`` (σ of ln
+distance), its ``distance_m`` is the far ranger's, and a far one (``far_probability ≥``
+:data:`~makeway.perceive.audio.far_range.FAR_CALL_PROBABILITY`) gets no approaching call.
+
 ``is_siren`` is decided on ``smoothed_probability``, the mean of this window and the ``smooth`` − 1
 before it, taken over their logits unless ``average="probability"``
 (:class:`~makeway.perceive.audio.windows.StreamSmoother`; with ``smooth = 1`` it is this window's
