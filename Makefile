@@ -8,7 +8,7 @@ OUT    ?= reports/demo
 
 .PHONY: venv demo test lint typecheck bench bench-sort bench-video bench-crops bench-detection bench-pull-over \
 	bench-siren-loop bench-audio bench-rig bench-v2x bench-fusion bench-roadside bench-lights bench-active-rule \
-	bench-rsu bench-fusion-ablation bench-mcap bench-engine bench-robust bench-speed bench-crossing bench-crossing-fresh bench-no-ev-2h bench-range-loop bench-approach-pairing bench-seed003-timeline bench-faults bench-overload bench-overload-listener bench-range bench-clip-fusion bench-framework-ab fuzz clean
+	bench-rsu bench-fusion-ablation bench-mcap bench-engine bench-robust bench-speed bench-crossing bench-crossing-fresh bench-no-ev-2h bench-range-loop bench-approach-pairing bench-seed003-timeline bench-faults bench-overload bench-overload-listener bench-range bench-far-range bench-far-loop bench-clip-fusion bench-framework-ab fuzz clean
 
 # `make demo` installs the runtime only; `make test` and the benchmarks add the dev extra (linters,
 # scikit-learn, XGBoost, torch for the training tests).
@@ -162,6 +162,16 @@ bench-clip-fusion: venv
 bench-range: venv
 	$(BIN)/python benchmarks/bench_audio_range_levels.py --n 25 --combo wide=localizer+ranger_wide+ranger_wide2
 	$(BIN)/python benchmarks/bench_audio_range_cues.py --n 25
+
+# sirens beyond 50 m (issue 25): the far ranger against the shipped networks and the level-only
+# oracle on held-out far scenes (EVs out to ~300 m, 110–135 dB at 1 m), then the heard closed loop
+# without and with it on the same scenes
+bench-far-range: venv
+	$(BIN)/python benchmarks/bench_audio_far_range.py --n 25
+
+bench-far-loop: venv
+	$(BIN)/python benchmarks/bench_closed_loop_siren.py --no-anchor --no-ev-runs 0
+	$(BIN)/python benchmarks/bench_closed_loop_siren.py --no-anchor --no-ev-runs 0 --far-ranger
 
 # the heard closed loop with the default and the wide siren rangers, same scenes (loud sirens)
 bench-range-loop: venv

@@ -27,7 +27,9 @@ there) and the listener's per-window false-alarm rate on the same audio.
 on sirens of 110–120 dB at 1 m) or ``wide`` (those trained on 105–140 dB), each averaged with the
 localizer's distance, and each with its own approaching/receding classifier
 (:func:`~makeway.perceive.audio.motion.approach_model_for`); to compare them on the same scenes and
-seeds. ``--siren-level LO,HI`` draws the
+seeds. ``--far-ranger [PATH]`` adds the far ranger (opt-in;
+:mod:`makeway.perceive.audio.far_range`; without a path the shipped one): far sirens get its
+distance and no approach call, and the track treats them as beyond ranging. ``--siren-level LO,HI`` draws the
 heard siren's emitted level from that range (dB SPL at 1 m; default 110–120, the networks' training
 prior; real sirens span about 110–135).
 
@@ -42,6 +44,7 @@ import sys
 import time
 from typing import Any
 
+from makeway.perceive.audio.far_range import DEFAULT_FAR_RANGER, FarRanger
 from makeway.perceive.audio.siren_model import (
     DEFAULT_SIREN_RANGERS,
     PRIOR_SIREN_RANGERS,
@@ -92,13 +95,21 @@ def main() -> int:
     ap.add_argument("--siren-level", default="110,120", help="siren level range, dB SPL at 1 m")
     ap.add_argument("--no-anchor", action="store_true", help="skip the modelled-perception anchor runs")
     ap.add_argument("--rangers", default="default", choices=sorted(RANGERS), help="distance networks")
+    ap.add_argument(
+        "--far-ranger",
+        nargs="?",
+        const=str(DEFAULT_FAR_RANGER),
+        default=None,
+        help="also run the far ranger (opt-in; without a value: the shipped one)",
+    )
     args = ap.parse_args()
     seeds = [int(s) for s in args.seeds.split(",") if s]
     sirens = [s for s in args.sirens.split(",") if s]
     names = [s for s in args.scenarios.split(",") if s]
     lo, hi = (float(v) for v in args.siren_level.split(","))
     model = SirenModel(ranger=RANGERS[args.rangers], localizer_distance=True)
-    print(f"siren stack: {model!r}")
+    far = FarRanger(args.far_ranger) if args.far_ranger else None
+    print(f"siren stack: {model!r}" + (f" + {far!r}" if far is not None else ""))
     runs: list[dict[str, Any]] = []
     cols = (
         "action",
@@ -133,6 +144,7 @@ def main() -> int:
                 cfg = SirenPerceptionConfig(
                     audio=LiveAudioConfig(seed=seed, siren=kind, noise=noise, siren_level_db=(lo, hi)),
                     model=model,
+                    far_ranger=far,
                 )
                 t0 = time.perf_counter()
                 res = run_scenario(sc, perception=cfg)
@@ -148,7 +160,9 @@ def main() -> int:
     quiet = SCENARIOS["no_ev"]()
     false_yields, windows, alarms = 0, 0, 0
     for k in range(args.no_ev_runs):
-        cfg = SirenPerceptionConfig(audio=LiveAudioConfig(seed=100 + k, noise="real"), model=model)
+        cfg = SirenPerceptionConfig(
+            audio=LiveAudioConfig(seed=100 + k, noise="real"), model=model, far_ranger=far
+        )
         res = run_scenario(quiet, perception=cfg)
         false_yields += sum(1 for _, _, to, _ in res.transitions if to == "moving_over")
         windows += len(res.siren)
@@ -183,7 +197,12 @@ def main() -> int:
         f"(simulated perception: expected action in {summary['simulated_action_ok']})"
     )
     rangers = [r.path.name for r in model.rangers]
-    print(json.dumps({"rangers": rangers, "summary": summary, "no_ev": no_ev, "runs": runs}))
+    far_name = None if far is None else far.path.name
+    print(
+        json.dumps(
+            {"rangers": rangers, "far_ranger": far_name, "summary": summary, "no_ev": no_ev, "runs": runs}
+        )
+    )
     return 0
 
 

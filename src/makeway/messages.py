@@ -300,13 +300,17 @@ class SirenSource:
     ``bearing_rad`` (0 ahead, positive to the left); ``distance_m`` in the ground plane, ``None`` when
     the producer gives none (a classical bearing, or a further source found by time–frequency
     assignment); ``approaching`` ``None`` when undecided, ``approach_probability`` P(approaching)
-    when a trained estimator gave one.
+    when a trained estimator gave one. With the far ranger (opt-in,
+    :mod:`makeway.perceive.audio.far_range`): ``far_probability`` P(distance > 100 m) and
+    ``distance_sigma`` the σ of ln distance (±1σ is ``distance · e^(±σ)``); ``None`` without it.
     """
 
     bearing_rad: float
     distance_m: float | None = None
     approaching: bool | None = None
     approach_probability: float | None = None
+    far_probability: float | None = None
+    distance_sigma: float | None = None
 
 
 @dataclass(frozen=True, slots=True)
@@ -351,6 +355,11 @@ class SirenObservation:
                 for s in self.sources
             ],
         }
+        for s, src in zip(self.sources, out["sources"], strict=True):
+            if s.far_probability is not None:  # only with the far ranger (opt-in)
+                src["far_probability"] = round(s.far_probability, 4)
+            if s.distance_sigma is not None:
+                src["distance_sigma"] = round(s.distance_sigma, 4)
         if self.health is not None and not self.health.ok:
             out["health"] = self.health.to_json()
         return out

@@ -409,6 +409,7 @@ def listen_recording(
     pose_topic: str | None = None,
     mcap: str | Path | None = None,
     realtime: bool = False,
+    far_ranger: str | Path | None = None,
 ) -> ListenRun:
     """Slide the siren listener (:func:`makeway.perceive.audio.stream.listen`) over the recording
     folder ``path``: the siren networks (shipped unless named; one thread), or a classical
@@ -424,7 +425,9 @@ def listen_recording(
     :mod:`makeway.sense.logs`): its ``audio_topic`` (default: its only audio topic) with the array
     description, and its ``pose_topic`` as the ego path (default: its only pose topic, if any), are
     listened to as a recording. With ``mcap`` the hops are also written there as a Foxglove MCAP file
-    (:func:`makeway.viz.foxglove.write_listen_mcap`).
+    (:func:`makeway.viz.foxglove.write_listen_mcap`). ``far_ranger`` (an ONNX file written by
+    ``makeway audio train-far``; opt-in) places sirens beyond 50 m (:mod:`makeway.perceive.audio
+    .far_range`); it needs the siren networks (not a ``baseline``).
 
     Raises:
         ValueError: contradictory options, or a recording shorter than one window (before listening).
@@ -448,7 +451,14 @@ def listen_recording(
         raise InputError(path, "a topic was named, but this is not an MCAP file or a ROS 2 bag folder")
     else:
         source = read_recording(path)
+    if far_ranger is not None and baseline is not None:
+        raise ValueError("--far-ranger reads the siren networks' outputs; it cannot go with --baseline")
     net = siren_networks(model, localizer, ranger, 1) if baseline is None else None
+    far = None
+    if far_ranger is not None:
+        from makeway.perceive.audio.far_range import FarRanger
+
+        far = FarRanger(far_ranger, threads=1)
     estimator = approach_estimator(approach, net)
     rec = assume_calibration(source, full_scale_db_spl)
     t0 = time.perf_counter()
@@ -465,6 +475,7 @@ def listen_recording(
             average=average,
             approach=estimator,
             realtime=realtime,
+            far_ranger=far,
         ):
             messages.append(msg)
             if on_message is not None:

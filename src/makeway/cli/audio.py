@@ -558,6 +558,79 @@ def train_approach(
     print_json_line(result)
 
 
+@audio_app.command("train-far")
+@friendly_errors
+def train_far(
+    data: Annotated[
+        list[Path],
+        typer.Option(
+            "--data",
+            help="Training recordings with sirens out to 300 m and beyond (`audio simulate --far-start`): "
+            "a folder of recording folders (repeatable).",
+        ),
+    ],
+    out: Annotated[
+        Path | None,
+        typer.Option("--out", "-o", help="ONNX far ranger to write (default: the shipped one)."),
+    ] = None,
+    model: ModelOption = None,
+    localizer: LocalizerOption = None,
+    ranger: RangerOption = None,
+    far_boundary: Annotated[
+        float,
+        typer.Option(
+            min=10.0, max=350.0, help="The far/near boundary (m): far_probability is P(distance > this)."
+        ),
+    ] = 100.0,
+    epochs: Annotated[int, typer.Option(min=1, help="Most epochs (the best on validation is kept).")] = 25,
+    width: Annotated[int, typer.Option(min=4, help="Width of the two hidden layers.")] = 64,
+    lr: Annotated[float, typer.Option(min=0.0, help="Adam learning rate.")] = 1e-3,
+    far_weight: Annotated[
+        float, typer.Option(min=0.0, help="Weight of the far/near loss beside the distance likelihood.")
+    ] = 1.0,
+    cache: Annotated[
+        Path | None,
+        typer.Option(help="Feature cache (.npz), reused when made from the same data and networks."),
+    ] = None,
+    threads: Annotated[int, typer.Option(min=1, help="torch and ONNX Runtime threads.")] = 1,
+    seed: Annotated[int, typer.Option(help="Seed (weights, batches, early-stopping split).")] = 0,
+) -> None:
+    """Train the far ranger for sirens beyond 50 m.
+
+    It gives a distance, its uncertainty and a far/near call. Every recording runs as
+    `audio listen --far-ranger` runs it (the siren networks on every window, the spectral shape,
+    level and bearing trends over the last 3 s); windows whose nearest siren lies within 400 m are
+    the training rows, labelled from the trajectories. A small network learns ln distance with its
+    σ (Gaussian likelihood) and P(distance > --far-boundary); 15 % of the recordings stop the
+    training early. Written as ONNX (JSON line last). Needs torch."""
+    try:
+        from makeway.train.far_range import train_far_ranger
+    except ImportError as exc:
+        raise ValueError(
+            f"training needs torch ({exc}); install it with: pip install -e '.[train]'"
+        ) from None
+    from makeway.apps.audio import siren_networks
+
+    summary = train_far_ranger(
+        data,
+        out,
+        siren=siren_networks(model, localizer, ranger, threads),
+        far_boundary_m=far_boundary,
+        width=width,
+        epochs=epochs,
+        lr=lr,
+        far_weight=far_weight,
+        seed=seed,
+        threads=threads,
+        cache=cache,
+        command=" ".join(["makeway audio train-far", *sys.argv[3:]])
+        if len(sys.argv) > 3
+        else "makeway audio train-far",
+        log=_log,
+    )
+    print_json_line(summary)
+
+
 @audio_app.command()
 @friendly_errors
 def listen(
@@ -627,6 +700,15 @@ def listen(
             "behind, the oldest waiting window is dropped, never the newest.",
         ),
     ] = False,
+    far_ranger: Annotated[
+        Path | None,
+        typer.Option(
+            help="Also run this far ranger (an ONNX file from `makeway audio train-far`; the shipped one is "
+            "src/makeway/models/siren_far_ranger.onnx): it places sirens beyond 50 m, adds far_probability "
+            "(P(distance > 100 m)) and distance_sigma to the nearest siren, and drops the approaching call "
+            "of a far one. Off by default.",
+        ),
+    ] = None,
 ) -> None:
     """Listen to a recording for sirens, hop by hop.
 
@@ -663,6 +745,7 @@ def listen(
         on_message=print_json_line if jsonl is None else None,
         progress=jsonl is not None,
         realtime=realtime,
+        far_ranger=far_ranger,
     )
     _calibration_note(int(run.uncalibrated), baseline)
     if jsonl is not None:

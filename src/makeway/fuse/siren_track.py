@@ -23,7 +23,9 @@ decision reads:
   docs/results.md, section "Closed loop heard by the siren stack"). A fix is *far* when the
   networks put it at ``far_m`` or more, or when its level in the siren band is so low that even
   the quietest siren (``quiet_siren_db_1m``, the low end of road sirens' 110–120 dB at 1 m) would
-  be ``far_m`` away. A far fix counts as a bearing with a
+  be ``far_m`` away, or (with the far ranger, opt-in) when the listener gives it a far
+  probability of :data:`~makeway.perceive.audio.far_range.FAR_CALL_PROBABILITY` or more. A far
+  fix counts as a bearing with a
   weak distance (radial sigma = the distance itself), and the belief then gives the bearing with
   distance and position unknown (NaN). Once the track has been in range, the relation and the
   approach call stay those of the last fix in range (an EV that went by stays gone by) until
@@ -57,6 +59,7 @@ from makeway.frames import to_vehicle_frame
 from makeway.fuse.kalman import cv_predict
 from makeway.fuse.relation import classify_relation
 from makeway.messages import EVBelief, EVRelation, SirenObservation
+from makeway.perceive.audio.far_range import FAR_CALL_PROBABILITY
 
 SOURCE = "siren"
 
@@ -218,7 +221,7 @@ class SirenTrackFusion:
         told = self.relation(rel_x, rel_y, ego_yaw)
         if told is not EVRelation.UNKNOWN:
             self.known_relation_ = told  # a track that could tell once keeps it while it cannot
-        far = self._is_far(float(src.distance_m), obs.level_db_spl)
+        far = self._is_far(float(src.distance_m), obs.level_db_spl, src.far_probability)
         self.near_fixes_ = 0 if far else self.near_fixes_ + 1
         near = self.near_fixes_ >= (self.near_after if self.placed_ else 1)
         if near:
@@ -254,10 +257,15 @@ class SirenTrackFusion:
             sensor_faults=faults,
         )
 
-    def _is_far(self, distance_m: float, level_db_spl: float | None) -> bool:
-        """A fix beyond ranging: the networks' distance at ``far_m`` or more, or a level so low that
-        even the quietest siren (``quiet_siren_db_1m``) would be ``far_m`` away."""
+    def _is_far(
+        self, distance_m: float, level_db_spl: float | None, far_probability: float | None = None
+    ) -> bool:
+        """A fix beyond ranging: the networks' distance at ``far_m`` or more, a far ranger's far
+        probability at :data:`~makeway.perceive.audio.far_range.FAR_CALL_PROBABILITY` or more, or a
+        level so low that even the quietest siren (``quiet_siren_db_1m``) would be ``far_m`` away."""
         if distance_m >= self.far_m:
+            return True
+        if far_probability is not None and far_probability >= FAR_CALL_PROBABILITY:
             return True
         if level_db_spl is None:
             return False

@@ -29,6 +29,7 @@ import numpy as np
 
 from makeway.fuse.siren_track import SOURCE, SirenTrackFusion
 from makeway.messages import EVBelief, SirenObservation, VehicleState
+from makeway.perceive.audio.far_range import FarRanger
 from makeway.perceive.audio.siren_model import SirenModel
 from makeway.perceive.audio.stream import SirenListener
 from makeway.perceive.audio.windows import HOP_S, LISTEN_SMOOTH
@@ -43,13 +44,16 @@ class SirenPerceptionConfig:
     latency added to each window's end, how many windows the listener's decision averages
     (``smooth``, default :data:`~makeway.perceive.audio.windows.LISTEN_SMOOTH` as ``makeway audio
     listen``), and the siren networks (``model``; default: the shipped ones, loaded per run — pass
-    one to share it between runs)."""
+    one to share it between runs) and, opt-in, the far ranger (``far_ranger``)."""
 
     audio: LiveAudioConfig = field(default_factory=LiveAudioConfig)
     hop_s: float = HOP_S
     latency_s: float = 0.02
     smooth: int = LISTEN_SMOOTH
     model: SirenModel | None = field(default=None, compare=False, repr=False)
+    far_ranger: FarRanger | None = field(default=None, compare=False, repr=False)
+    """The far ranger (opt-in, :mod:`~makeway.perceive.audio.far_range`; reset at the start of each
+    run, so one may be shared between runs); ``None``: none."""
 
     def __post_init__(self) -> None:
         if self.hop_s <= 0 or self.latency_s < 0 or self.smooth < 1:
@@ -96,6 +100,7 @@ class SirenPerception:
             smooth=cfg.smooth,
             full_scale_db_spl=self.array.full_scale_db_spl,
             source="the closed loop's simulated array",
+            far_ranger=None if cfg.far_ranger is None else cfg.far_ranger.reset(),
         )
         self.fusion = SirenTrackFusion()
         self._win = self.listener.window_samples

@@ -25,6 +25,11 @@ Doppler; ``approach_probability`` null). ``sources`` is empty when there is no s
 ``level_db_spl`` is the window's level in the siren band at the array (the recording's
 calibration, or the networks' reference scale).
 
+With the far ranger (opt-in, ``far_ranger=``; :mod:`~makeway.perceive.audio.far_range`) the nearest
+siren also carries ``far_probability`` (P(distance > 100 m)) and ``distance_sigma`` (σ of ln
+distance), its ``distance_m`` is the far ranger's, and a far one (``far_probability ≥``
+:data:`~makeway.perceive.audio.far_range.FAR_CALL_PROBABILITY`) gets no approaching call.
+
 ``is_siren`` is decided on ``smoothed_probability``, the mean of this window and the ``smooth`` − 1
 before it, taken over their logits unless ``average="probability"``
 (:class:`~makeway.perceive.audio.windows.StreamSmoother`; with ``smooth = 1`` it is this window's
@@ -47,6 +52,7 @@ import numpy as np
 from makeway.errors import InputError
 from makeway.messages import SirenObservation, SirenSource
 from makeway.perceive.audio.doa import DOA_METHODS, SirenEnergyDetector, detector_score
+from makeway.perceive.audio.far_range import FAR_CALL_PROBABILITY, FAR_DISTANCE_PROBABILITY, FarRanger
 from makeway.perceive.audio.features import band_level_db
 from makeway.perceive.audio.motion import ApproachEstimator, TrendApproach, approach_model_for
 from makeway.perceive.audio.multisource import SourceSeparator
@@ -96,6 +102,7 @@ class SirenListener:
         full_scale_db_spl: float | None = None,
         source: str | Path = "recording",
         health: bool = True,
+        far_ranger: FarRanger | None = None,
     ) -> None:
         self.check_health = bool(health)
         self.swap_check = SwapCheck(mics, int(sample_rate)) if self.check_health else None
@@ -110,7 +117,11 @@ class SirenListener:
                 raise ValueError(
                     f"the siren model works on {model.config.window_s:g} s windows, not {window_s:g} s"
                 )
+        if far_ranger is not None and model is None:
+            raise ValueError("the far ranger reads the siren networks' outputs: it needs the siren model")
         self.model = model
+        self.far_ranger = far_ranger
+        """The far ranger (opt-in; :mod:`~makeway.perceive.audio.far_range`), fed every window."""
         self.window_s = float(window_s)
         self.full_scale_db_spl = full_scale_db_spl
         assumed = model.full_scale_db_spl if model is not None else REFERENCE_FULL_SCALE_DB_SPL
@@ -146,6 +157,8 @@ class SirenListener:
         """Forget the history (decision smoothing, approach trend, what the swap check heard)."""
         self.smoother.reset()
         self.approach.reset()
+        if self.far_ranger is not None:
+            self.far_ranger.reset()
         if self.swap_check is not None:
             self.swap_check.reset()
         return self
@@ -174,6 +187,22 @@ class SirenListener:
         distance = float(pred.distance[0]) if pred is not None else None
         approaching, _ = self.approach.update(window, sr, t_end, distance_m=distance, is_siren=is_siren)
         p_approach = self.approach.probability_
+        level = band_level_db(window, sr) + self.full_scale
+        far = None
+        if self.far_ranger is not None and pred is not None:
+            far = self.far_ranger.update(
+                window,
+                sr,
+                float(t_end),
+                level_db_spl=level,
+                distance_m=float(pred.distance[0]),
+                bearing_rad=float(pred.theta[0]),
+                siren_probability=p,
+                sigma=None if pred.distance_sigma is None else float(pred.distance_sigma[0]),
+            )
+            if far.far_probability >= FAR_CALL_PROBABILITY:
+                # beyond the trend classifier's training range (100 m): no approach call
+                approaching, p_approach = None, None
         if model is not None and pred is not None:
             model.separator = self.separator
             found = model.sources(pred, 0, window, is_siren=is_siren)
@@ -189,7 +218,18 @@ class SirenListener:
             )
             for k, src in enumerate(found)
         )
-        level = band_level_db(window, sr) + self.full_scale
+        if far is not None and sources:
+            near_d = sources[0].distance_m
+            far_d = far.distance_m if far.far_probability >= FAR_DISTANCE_PROBABILITY else near_d
+            sources = (
+                replace(
+                    sources[0],
+                    distance_m=far_d,
+                    far_probability=far.far_probability,
+                    distance_sigma=far.sigma,
+                ),
+                *sources[1:],
+            )
         return SirenObservation(float(t_end), bool(is_siren), p, float(p_smooth), sources, level, health)
 
 
@@ -205,6 +245,7 @@ def listen(
     smooth: int = LISTEN_SMOOTH,
     average: str = SMOOTH_AVERAGE,
     realtime: bool = False,
+    far_ranger: FarRanger | None = None,
 ) -> Iterator[dict[str, Any]]:
     """One JSON message per hop over ``recording`` (see the module docstring): a
     :class:`SirenListener` stepped over the windows of
@@ -220,7 +261,11 @@ def listen(
     ``realtime`` plays the recording as a live array delivers it: a window every ``hop_s`` seconds
     of wall time, handed over through a latest-wins queue of one window
     (:class:`makeway.queues.LiveSource`), so when the listener falls behind the oldest waiting
-    window is dropped, never the newest, and each message is about the latest audio."""
+    window is dropped, never the newest, and each message is about the latest audio.
+
+    ``far_ranger`` (opt-in, needs ``model``): the far ranger
+    (:class:`~makeway.perceive.audio.far_range.FarRanger`) places the nearest siren beyond 50 m
+    and adds ``far_probability`` and ``distance_sigma`` to it."""
     sr = int(recording.sample_rate)
     listener = SirenListener(
         recording.mics,
@@ -234,6 +279,7 @@ def listen(
         window_s=window_s,
         full_scale_db_spl=recording.full_scale_db_spl,
         source=recording.path or "recording",
+        far_ranger=far_ranger,
     )
     audio = np.asarray(recording.audio)
     win = listener.window_samples
