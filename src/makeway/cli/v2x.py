@@ -85,8 +85,9 @@ def alert(
 ) -> None:
     """Sign one emergency-vehicle alert and write it.
 
-    About 300 bytes (155 with --signer digest). The alert is an ETSI DENM (cause 95, emergency vehicle approaching) signed
-    as IEEE 1609.2 data with the unit's ECDSA P-256 key, the signer named by its
+    About 300 bytes (155 with --signer digest). The alert is an ETSI DENM
+    (cause 95, emergency vehicle approaching) signed as IEEE 1609.2 data with
+    the unit's ECDSA P-256 key, the signer named by its
     certificate as ETSI TS 103 097 asks of DENMs.
 
     Prints its decoded fields as one JSON line.
