@@ -623,9 +623,7 @@ def train_far(
         seed=seed,
         threads=threads,
         cache=cache,
-        command=" ".join(["makeway audio train-far", *sys.argv[3:]])
-        if len(sys.argv) > 3
-        else "makeway audio train-far",
+        command=" ".join(["makeway audio train-far", *sys.argv[3:]]),
         log=_log,
     )
     print_json_line(summary)
