@@ -164,6 +164,83 @@ def test_yolox_loss_rewards_the_right_box_and_class() -> None:
     assert leaf.grad is not None and float(leaf.grad.abs().sum()) > 0
 
 
+# ------------------------------------------------------------------------------ full fine-tune
+
+
+def _samples(ambulance_dir: Path) -> list[fa.Sample]:
+    out = []
+    for stem in TRAIN_SIDE:
+        image = _image(ambulance_dir, stem)
+        gt = _gt(ambulance_dir, stem, image.shape[1], image.shape[0]).astype(np.float32)
+        out.append(fa.Sample(image, gt, np.zeros(len(gt), np.int64), stem, f"{stem}.jpg"))
+    return out
+
+
+def test_mosaic_keeps_each_box_on_its_vehicle(ambulance_dir: Path) -> None:
+    """Four real photos tiled, scaled and cut: every box left lies inside the canvas, is at least
+    2 px a side, and covers image content (not the grey pad); the same generator seed gives the
+    same view."""
+    samples = _samples(ambulance_dir)
+    group = [samples[0], samples[1], samples[2], samples[0]]
+    seen = 0
+    for seed in range(12):
+        canvas, boxes, classes = fa.mosaic_sample(group, np.random.default_rng(seed), 320)
+        again, boxes2, _ = fa.mosaic_sample(group, np.random.default_rng(seed), 320)
+        np.testing.assert_array_equal(canvas, again)
+        np.testing.assert_array_equal(boxes, boxes2)
+        assert canvas.shape == (320, 320, 3) and canvas.dtype == np.uint8
+        assert len(boxes) == len(classes) and set(classes.tolist()) <= {0}
+        assert (boxes >= 0).all() and (boxes <= 320).all()
+        assert ((boxes[:, 2:] - boxes[:, :2]) >= 2).all()
+        for x1, y1, x2, y2 in boxes.round().astype(int):
+            patch = canvas[y1:y2, x1:x2].astype(int)
+            assert (np.abs(patch - 114).max(axis=2) > 3).mean() > 0.5  # mostly photo, not pad
+        seen += len(boxes)
+    assert seen >= 12  # the ambulances survive most cuts
+    with pytest.raises(ValueError, match="4 samples"):
+        fa.mosaic_sample(samples[:3], np.random.default_rng(0), 320)
+
+
+def test_full_fine_tune_trains_every_layer(yolox_path: Path, ambulance_dir: Path) -> None:
+    """``part="full"``'s loop on three real photos, two epochs on the CPU with loader workers: the
+    gradient reaches the backbone's first convolution (the head-only path freezes it), the losses
+    are finite, the history holds each validated epoch, and the best validated weights are the ones
+    left."""
+    samples = _samples(ambulance_dir)
+    torch.manual_seed(0)
+    net = fa.EVDetNet.from_yolox(yolox_path)
+    first = next(iter(net.graph.weights.values())).detach().clone()
+    best, best_epoch, history = fa._fit_full(
+        net, samples, samples[:1], epochs=2, batch=2, size=128, lr=1e-3, head_lr=1e-2, seed=0,
+        workers=1, mosaic=0.5, val_every=1, max_minutes=None, progress=False, say=lambda _: None,
+        start=0.0,
+    )  # fmt: skip
+    assert [row["epoch"] for row in history] == [1.0, 2.0]
+    assert all(np.isfinite(row["loss"]) and row["loss"] > 0 for row in history)
+    conv = next(iter(net.graph.weights.values()))  # the backbone's first convolution
+    assert conv.grad is not None and float(conv.grad.abs().sum()) > 0  # the last step reached it
+    assert 0 <= best_epoch <= 2 and 0.0 <= best["map50"] <= 1.0
+    if best_epoch:
+        assert best["map50"] == pytest.approx(history[best_epoch - 1]["val_map50"])
+        assert not torch.equal(first, conv)
+    else:  # no epoch beat the start: the starting weights are back
+        assert torch.equal(first, conv)
+    assert best["map50"] == pytest.approx(fa.validate(net, samples[:1])["map50"])
+
+
+def test_train_detector_refuses_a_missing_gpu_and_an_unknown_part(
+    ambulance_dir: Path, tmp_path: Path
+) -> None:
+    """Checked before any image is read: one line, exit 2, nothing written."""
+    base = ["classify", "train-detector", str(tmp_path / "a.onnx"), "--data", str(ambulance_dir), "-q"]
+    r = runner.invoke(app, [*base, "--part", "everything"])
+    assert r.exit_code == 2 and "unknown part 'everything'" in r.output
+    if not torch.cuda.is_available():
+        r = runner.invoke(app, [*base, "--part", "full", "--device", "cuda"])
+        assert r.exit_code == 2 and "no CUDA device" in r.output
+    assert not (tmp_path / "a.onnx").exists()
+
+
 # ------------------------------------------------------------------------------------ ONNX round trip
 
 

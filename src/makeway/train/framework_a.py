@@ -63,6 +63,7 @@ from makeway.errors import InputError
 
 __all__ = [
     "INPUT_SIZE",
+    "TRAIN_PARTS",
     "VAL_FRACTION",
     "YOLOX_HEAD",
     "EVDetNet",
@@ -74,12 +75,16 @@ __all__ = [
     "export_ev_detector",
     "giou",
     "letterbox",
+    "mosaic_sample",
     "simota_assign",
     "train_framework_a",
     "yolox_loss",
 ]
 
 INPUT_SIZE = 416
+#: What :func:`train_framework_a` trains: ``head`` (backbone and neck frozen, their outputs cached;
+#: the CPU budget) or ``full`` (every layer, freshly augmented views every epoch; a GPU's budget).
+TRAIN_PARTS = ("head", "full")
 STRIDES = (8, 16, 32)
 VAL_FRACTION = 0.2
 #: The committed held-out images of ``ambulance_yolo/valid`` (the file
@@ -223,6 +228,14 @@ def _pair_iou(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
     return inter / (area_a[:, None] + area_b[None, :] - inter + 1e-9)
 
 
+def _no_match(cells: int, device: torch.device) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    return (
+        torch.zeros(cells, dtype=torch.bool, device=device),
+        torch.zeros(0, dtype=torch.long, device=device),
+        torch.zeros(0, device=device),
+    )
+
+
 @torch.no_grad()
 def simota_assign(
     boxes: torch.Tensor,
@@ -247,9 +260,9 @@ def simota_assign(
         ``(fg, matched, iou)``: the positive-cell mask ``(cells,)``, the ground-truth index of each
         positive cell and its prediction's IoU with it (both ``(n_fg,)``).
     """
-    cells = boxes.shape[0]
+    cells, dev = boxes.shape[0], boxes.device
     if gt.shape[0] == 0:
-        return torch.zeros(cells, dtype=torch.bool), torch.zeros(0, dtype=torch.long), torch.zeros(0)
+        return _no_match(cells, dev)
     centre = (xy + 0.5) * stride[:, None]  # (cells, 2)
     in_box = (
         (centre[None, :, 0] > gt[:, None, 0])
@@ -265,7 +278,7 @@ def simota_assign(
     cand = (in_box | in_ctr).any(dim=0)
     idx = torch.nonzero(cand).flatten()
     if idx.numel() == 0:
-        return torch.zeros(cells, dtype=torch.bool), torch.zeros(0, dtype=torch.long), torch.zeros(0)
+        return _no_match(cells, dev)
     ious = _pair_iou(gt, boxes[idx])  # (g, c)
     n_cls = cls_logit.shape[1]
     p = (torch.sigmoid(cls_logit[idx]) * torch.sigmoid(obj_logit[idx])[:, None]).sqrt()  # (c, C)
@@ -286,7 +299,7 @@ def simota_assign(
         match[:, multi] = False
         match[best, torch.nonzero(multi).flatten()] = True
     pos = match.any(dim=0)
-    fg = torch.zeros(cells, dtype=torch.bool)
+    fg = torch.zeros(cells, dtype=torch.bool, device=dev)
     fg[idx[pos]] = True
     matched = match[:, pos].float().argmax(dim=0)
     return fg, matched, ious[matched, torch.nonzero(pos).flatten()]
@@ -310,7 +323,7 @@ def yolox_loss(
         The scalar loss and its parts (``box``, ``obj``, ``cls``, ``n_fg``) as floats.
     """
     boxes = decode_boxes(raw[..., :4], xy, stride)
-    obj_t = torch.zeros(raw.shape[:2])
+    obj_t = torch.zeros(raw.shape[:2], device=raw.device)
     box_losses, cls_losses = [], []
     n_fg = 0
     for i, (gt, gt_cls) in enumerate(targets):
@@ -379,9 +392,13 @@ def build_dataset(
     model_path: str | Path | None = None,
     threads: int | None = None,
     progress: bool = True,
+    labels: str = "original",
 ) -> tuple[list[Sample], list[Sample], dict[str, int]]:
     """``(train, validation, counts)`` from the YOLO set ``data`` (module docstring); the committed
-    held-out images are left out before anything is read.
+    held-out images are left out before anything is read. ``labels``: the class-0 label set
+    (:data:`~makeway.sense.label_corrections.LABEL_SETS`): ``corrected`` applies the committed audit
+    of ``ambulance_yolo`` (EVs the export left unlabelled become class 0, not pseudo-labelled other
+    vehicles; ``counts["ev_boxes_corrected"]`` counts the boxes it changed).
 
     Raises:
         InputError: the folder is not a YOLO set, or lacks the committed held-out images (it is not
@@ -390,7 +407,18 @@ def build_dataset(
     from makeway.perceive.vision.detectors import VEHICLE_CLASSES, YoloxNano
     from makeway.progress import progress_bar
     from makeway.sense.crops import read_holdout, read_yolo_set, roboflow_source
+    from makeway.sense.label_corrections import (
+        CORRECTIONS_FILE,
+        LabelCorrection,
+        check_label_set,
+        corrected_boxes,
+        corrections_by_image,
+        read_corrections,
+    )
 
+    fixes: dict[str, list[LabelCorrection]] = {}
+    if check_label_set(labels) == "corrected":
+        fixes = corrections_by_image(read_corrections(CORRECTIONS_FILE))
     data = Path(data)
     if not data.is_dir():
         raise InputError(data, "YOLO folder not found (expected images/ and labels/)")
@@ -408,13 +436,19 @@ def build_dataset(
                     class_agnostic=True, num_threads=threads)  # fmt: skip
     train: list[Sample] = []
     val: list[Sample] = []
-    counts = {"images": 0, "ev_boxes": 0, "pseudo_boxes": 0, "pseudo_dropped": 0}
+    counts = {"images": 0, "ev_boxes": 0, "ev_boxes_corrected": 0, "pseudo_boxes": 0, "pseudo_dropped": 0}
     with progress_bar("pseudo-labelling vehicles", len(images), enabled=progress, unit="images") as bar:
         for item in images:
             image = cv2.imread(str(item.path), cv2.IMREAD_COLOR)
             if image is None:
                 raise InputError(item.path, "OpenCV could not decode this image")
-            amb = np.asarray([[b.x1, b.y1, b.x2, b.y2] for b in item.boxes_of(0)], np.float32).reshape(-1, 4)
+            truth = item.boxes_of(0)
+            rows = fixes.get(item.path.stem)
+            if rows:
+                fixed = corrected_boxes(truth, rows)
+                counts["ev_boxes_corrected"] += len(set(fixed) ^ set(truth))
+                truth = fixed
+            amb = np.asarray([[b.x1, b.y1, b.x2, b.y2] for b in truth], np.float32).reshape(-1, 4)
             vb, _, _ = det.detect_arrays(image)
             drop = _overlaps(vb, amb)
             other = vb[~drop]
@@ -516,6 +550,64 @@ def augment_sample(
     return canvas, boxes.astype(np.float32), classes
 
 
+def mosaic_sample(
+    samples: Sequence[Sample], rng: np.random.Generator, size: int = INPUT_SIZE
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """YOLOX's mosaic, simplified: four augmented views (:func:`augment_sample`) tiled on a
+    ``2·size`` square, scaled by a random 0.5–1.0 and cut to a random ``size``² window (boxes less
+    than 40 % visible dropped). Teaches small and cut-off vehicles from few photos."""
+    if len(samples) != 4:
+        raise ValueError(f"a mosaic takes 4 samples, got {len(samples)}")
+    big = np.full((2 * size, 2 * size, 3), 114, np.uint8)
+    parts_b, parts_c = [], []
+    for k, s in enumerate(samples):
+        img, b, c = augment_sample(s, rng, size)
+        ox, oy = (k % 2) * size, (k // 2) * size
+        big[oy : oy + size, ox : ox + size] = img
+        parts_b.append(b + np.array([ox, oy, ox, oy], np.float32))
+        parts_c.append(c)
+    f = float(rng.uniform(0.5, 1.0))
+    side = round(2 * size * f)
+    small = cv2.resize(big, (side, side), interpolation=cv2.INTER_AREA)
+    x0 = int(rng.integers(0, side - size + 1))
+    y0 = int(rng.integers(0, side - size + 1))
+    canvas = np.ascontiguousarray(small[y0 : y0 + size, x0 : x0 + size])
+    boxes = np.concatenate(parts_b) * (side / (2 * size)) - np.array([x0, y0, x0, y0], np.float32)
+    classes = np.concatenate(parts_c)
+    area = np.clip(boxes[:, 2:] - boxes[:, :2], 0, None).prod(axis=1)
+    clipped = np.clip(boxes, 0, size)
+    vis = np.clip(clipped[:, 2:] - clipped[:, :2], 0, None).prod(axis=1)
+    keep = (vis >= 0.4 * np.maximum(area, 1e-9)) & ((clipped[:, 2:] - clipped[:, :2]) >= 2).all(axis=1)
+    return canvas, clipped[keep].astype(np.float32), classes[keep]
+
+
+class _OnlineViews(torch.utils.data.Dataset[tuple[np.ndarray, np.ndarray, np.ndarray]]):
+    """Freshly augmented training views for the full fine-tune: item ``i`` of epoch ``epoch`` is a
+    view of sample ``i`` (a mosaic with it and three random others, with probability ``mosaic``),
+    drawn from a generator seeded by ``(seed, epoch, i)`` — the same views whatever the workers."""
+
+    def __init__(self, samples: Sequence[Sample], size: int, seed: int, mosaic: float) -> None:
+        self.samples, self.size, self.seed, self.mosaic = list(samples), size, seed, mosaic
+        self.epoch = 0
+
+    def __len__(self) -> int:
+        return len(self.samples)
+
+    def __getitem__(self, i: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        rng = np.random.default_rng([self.seed, self.epoch, i])
+        if rng.random() < self.mosaic:
+            others = rng.choice(len(self.samples), 3)
+            group = [self.samples[i], *(self.samples[int(k)] for k in others)]
+            order = rng.permutation(4)
+            return mosaic_sample([group[int(k)] for k in order], rng, self.size)
+        return augment_sample(self.samples[i], rng, self.size)
+
+
+def _collate(items: list[tuple[np.ndarray, np.ndarray, np.ndarray]]) -> tuple[torch.Tensor, list[Any]]:
+    images = _to_tensor([it[0] for it in items])
+    return images, [(torch.from_numpy(it[1]), torch.from_numpy(it[2])) for it in items]
+
+
 def _to_tensor(images: Sequence[np.ndarray]) -> torch.Tensor:
     return torch.from_numpy(np.stack(images).transpose(0, 3, 1, 2).astype(np.float32))
 
@@ -524,13 +616,15 @@ def _to_tensor(images: Sequence[np.ndarray]) -> torch.Tensor:
 
 
 def _predict(net: EVDetNet, images: Sequence[np.ndarray], batch: int = 8) -> list[np.ndarray]:
-    """``(cells, 7)`` exported-layout outputs of letterboxed images (eval mode, no grad)."""
+    """``(cells, 7)`` exported-layout outputs of letterboxed images (eval mode, no grad), on the
+    device the network's weights are on."""
     wrapped = _Export(net)
+    device = next(net.parameters()).device
     out: list[np.ndarray] = []
     net.eval()
     with torch.no_grad():
         for i in range(0, len(images), batch):
-            out.extend(wrapped(_to_tensor(images[i : i + batch])).numpy())
+            out.extend(wrapped(_to_tensor(images[i : i + batch]).to(device)).cpu().numpy())
     return out
 
 
@@ -725,14 +819,27 @@ def train_framework_a(
     max_minutes: float | None = None,
     progress: bool = True,
     log: Callable[[str], None] | None = None,
+    part: str = "head",
+    device: str = "cpu",
+    labels: str = "original",
+    mosaic: float = 0.5,
+    workers: int = 0,
+    val_every: int = 1,
 ) -> TrainResult:
     """Fine-tune Framework A's detector on ``data`` (``ambulance_yolo/valid``) and export it to
     ``out`` (module docstring).
 
-    ``views`` augmented views of each training image (``train_size``² px; the random scale 0.5–1.5
-    covers the runtime's 416) go once through the frozen backbone and neck (:func:`neck_views`);
-    each epoch then trains the head on all of them in random order. AdamW (weight decay 5e-4; the
-    new class convolutions at ``head_lr``), warm-up over the first epoch, then cosine decay.
+    ``part="full"`` trains every layer (:func:`_fit_full`): each epoch draws fresh augmented views
+    (``mosaic``: the share that are mosaics, :func:`mosaic_sample`) in ``workers`` processes, on
+    torch ``device`` (``cuda`` for a GPU); AdamW at ``lr`` for the pretrained layers and
+    ``head_lr`` for the new class layers, warm-up over the first epoch, cosine decay; validation
+    every ``val_every`` epochs. ``labels``: the class-0 label set (:func:`build_dataset`).
+
+    ``part="head"`` (the default): ``views`` augmented views of each training image
+    (``train_size``² px; the random scale 0.5–1.5 covers the runtime's 416) go once through the
+    frozen backbone and neck (:func:`neck_views`); each epoch then trains the head on all of them
+    in random order. AdamW (weight decay 5e-4; the new class convolutions at ``head_lr``),
+    warm-up over the first epoch, then cosine decay.
     Validation (at the runtime's 416 px) after every epoch; the best epoch's weights are exported
     with the F1-best ``ev_score`` threshold as the operating point. ``max_minutes`` stops after the
     epoch that passes it.
@@ -749,16 +856,43 @@ def train_framework_a(
     check_writable(out, folder=False)
     if train_size < 64 or train_size % 32:
         raise ValueError(f"train_size must be a multiple of 32 of at least 64, got {train_size}")
+    if part not in TRAIN_PARTS:
+        raise ValueError(f"unknown part {part!r}; one of {', '.join(TRAIN_PARTS)}")
+    if not 0.0 <= mosaic <= 1.0:
+        raise ValueError(f"mosaic must be a share in [0, 1], got {mosaic}")
+    dev = torch.device(device)
+    if dev.type == "cuda" and not torch.cuda.is_available():
+        raise ValueError(f"device {device!r} asked for, but torch sees no CUDA device")
     torch.set_num_threads(max(1, int(threads)))
     torch.manual_seed(seed)
     rng = np.random.default_rng(seed)
     start = time.perf_counter()
     net = EVDetNet.from_yolox(model_path)
-    train, val, counts = build_dataset(data, model_path=model_path, threads=threads, progress=progress)
+    train, val, counts = build_dataset(
+        data, model_path=model_path, threads=threads, progress=progress, labels=labels
+    )
     if not train or not val:
         raise InputError(data, "too few source photos for a training and a validation part")
     coco = coco_class_of_ambulances(train, model_path)
     say(f"data: {counts}; ambulance boxes as COCO classes: {coco}")
+    if part == "full":
+        net.to(dev)
+        fit = _fit_full(
+            net, train, val, epochs=epochs, batch=batch, size=train_size, lr=lr, head_lr=head_lr,
+            seed=seed, workers=workers, mosaic=mosaic, val_every=val_every, max_minutes=max_minutes,
+            progress=progress, say=say, start=start,
+        )  # fmt: skip
+        best, best_epoch, full_history = fit
+        net.to("cpu")
+        training = (
+            f"framework_a full fine-tune of YOLOX-nano: epochs={epochs} best_epoch={best_epoch} "
+            f"batch={batch} size={train_size} lr={lr} head_lr={head_lr} mosaic={mosaic} labels={labels} "
+            f"seed={seed} device={dev.type}; val mAP50={best['map50']:.4f} P={best['precision']:.4f} "
+            f"R={best['recall']:.4f} at ev_score>={best['threshold']:g}"
+        )
+        export_ev_detector(net, out, threshold=float(best["threshold"]), training=training)
+        seconds = time.perf_counter() - start
+        return TrainResult(out, best_epoch, float(best["threshold"]), best, counts, seconds, full_history, coco)
     session = neck_session(model_path, threads)
     val_neck = neck_features(session, [letterbox(s.image)[0] for s in val])
     feats, targets = neck_views(session, train, views, rng, train_size, progress=progress)
@@ -822,7 +956,8 @@ def train_framework_a(
     net.load_state_dict(best_state)
     training = (
         f"framework_a head on frozen YOLOX-nano neck: epochs={epochs} best_epoch={best_epoch} "
-        f"views={views} batch={batch} size={train_size} lr={lr} head_lr={head_lr} seed={seed}; "
+        f"views={views} batch={batch} size={train_size} lr={lr} head_lr={head_lr} labels={labels} "
+        f"seed={seed}; "
         f"val mAP50={best['map50']:.4f} P={best['precision']:.4f} R={best['recall']:.4f} "
         f"at ev_score>={best['threshold']:g}"
     )
@@ -830,6 +965,100 @@ def train_framework_a(
     return TrainResult(
         out, best_epoch, float(best["threshold"]), best, counts, time.perf_counter() - start, history, coco
     )
+
+
+def _fit_full(
+    net: EVDetNet,
+    train: Sequence[Sample],
+    val: Sequence[Sample],
+    *,
+    epochs: int,
+    batch: int,
+    size: int,
+    lr: float,
+    head_lr: float,
+    seed: int,
+    workers: int,
+    mosaic: float,
+    val_every: int,
+    max_minutes: float | None,
+    progress: bool,
+    say: Callable[[str], None],
+    start: float,
+) -> tuple[dict[str, Any], int, list[dict[str, float]]]:
+    """Train every layer of ``net`` (on the device its weights are on) on fresh views each epoch;
+    leaves the best validated weights in ``net``. Returns ``(best validation, best epoch,
+    history)``."""
+    from makeway.progress import progress_bar
+
+    dev = next(net.parameters()).device
+    for param in net.graph.weights.values():
+        param.requires_grad_(True)
+    views = _OnlineViews(train, size, seed, mosaic)
+    gen = torch.Generator().manual_seed(seed)
+    loader = torch.utils.data.DataLoader(
+        views, batch_size=batch, shuffle=True, drop_last=True, num_workers=max(0, int(workers)),
+        collate_fn=_collate, generator=gen, persistent_workers=False,
+    )  # fmt: skip
+    opt = torch.optim.AdamW(
+        [
+            {"params": list(net.graph.parameters()), "lr": lr},
+            {"params": list(net.cls.parameters()), "lr": head_lr},
+        ],
+        weight_decay=5e-4,
+    )
+    steps_per_epoch = max(1, len(views) // batch)
+    total = epochs * steps_per_epoch
+    base = [g["lr"] for g in opt.param_groups]
+    xy, st = (t.to(dev) for t in grid_of(size, size))
+    best = validate(net, val)
+    say(f"before training: validation mAP50 {best['map50']:.3f}")
+    best_state = {k: t.detach().clone() for k, t in net.state_dict().items()}
+    best_epoch, step = 0, 0
+    history: list[dict[str, float]] = []
+    with progress_bar("training Framework A (every layer)", total, enabled=progress, unit="steps") as bar:
+        for epoch in range(1, epochs + 1):
+            views.epoch = epoch
+            net.train()
+            sums = {"loss": 0.0, "box": 0.0, "obj": 0.0, "cls": 0.0}
+            for images, targets in loader:
+                frac = step / max(total, 1)
+                warm = min(1.0, (step + 1) / steps_per_epoch)
+                for g, lr0 in zip(opt.param_groups, base, strict=True):
+                    g["lr"] = lr0 * warm * 0.5 * (1 + np.cos(np.pi * frac))
+                tg = [(b.to(dev), c.to(dev)) for b, c in targets]
+                loss, parts = yolox_loss(_flatten(net(images.to(dev))), tg, xy, st)
+                opt.zero_grad()
+                loss.backward()
+                nn.utils.clip_grad_norm_(net.parameters(), 10.0)
+                opt.step()
+                sums["loss"] += float(loss.detach())
+                for k in ("box", "obj", "cls"):
+                    sums[k] += parts[k]
+                step += 1
+                bar()
+            minutes = (time.perf_counter() - start) / 60.0
+            over = max_minutes is not None and minutes > max_minutes
+            if epoch % max(1, val_every) and epoch != epochs and not over:
+                continue
+            v = validate(net, val)
+            row = {"epoch": float(epoch), **{k: x / steps_per_epoch for k, x in sums.items()}}
+            row.update({f"val_{k}": float(v[k]) for k in ("map50", "precision", "recall", "threshold")})
+            row["minutes"] = minutes
+            history.append(row)
+            say(
+                f"epoch {epoch}: loss {row['loss']:.3f} (box {row['box']:.3f} obj {row['obj']:.3f} "
+                f"cls {row['cls']:.3f}); validation mAP50 {v['map50']:.3f}, P {v['precision']:.3f} "
+                f"R {v['recall']:.3f} at {v['threshold']:.3f}; {minutes:.1f} min"
+            )
+            if v["map50"] > best["map50"]:
+                best, best_epoch = v, epoch
+                best_state = {k: t.detach().clone() for k, t in net.state_dict().items()}
+            if over:
+                say(f"stopping after epoch {epoch}: over {max_minutes} min")
+                break
+    net.load_state_dict(best_state)
+    return best, best_epoch, history
 
 
 def _neck_param_keys(net: EVDetNet, model_path: str | Path | None) -> list[str]:
