@@ -181,6 +181,14 @@ def test_cli_far_ranger_flags(tmp_path: Path) -> None:
         [*run, "train-far", "--data", str(tmp_path), "--far-boundary", "500"], capture_output=True, text=True
     )
     assert bad.returncode != 0 and "far-boundary" in bad.stderr
+    (tmp_path / "file").write_text("x")
+    unwritable = subprocess.run(
+        [*run, "train-far", "--data", str(tmp_path), "--out", str(tmp_path / "file" / "far.onnx")],
+        capture_output=True,
+        text=True,
+    )  # checked before any recording is read
+    assert unwritable.returncode == 2 and "far.onnx" in unwritable.stderr
+    assert "Traceback" not in unwritable.stderr
     rec = tmp_path / "rec"
     from makeway.sense.recording import write_recording
 

@@ -372,8 +372,10 @@ def train_far_ranger(
 
     Raises:
         ValueError: a bad setting, or no windows with a siren within 400 m (before training).
-        InputError: a recording folder cannot be read.
+        InputError: a recording folder cannot be read; ``out`` or ``cache`` cannot be written
+            (checked first).
     """
+    from makeway.atomic import check_writable
     from makeway.perceive.audio.far_range import DEFAULT_FAR_RANGER
     from makeway.progress import progress_bar
 
@@ -381,6 +383,9 @@ def train_far_ranger(
         raise ValueError(f"--far-boundary must lie in 10–350 m (labels reach 400 m), not {far_boundary_m:g}")
     say = log if log is not None else (lambda _line: None)
     target = Path(out) if out is not None else DEFAULT_FAR_RANGER
+    check_writable(target, folder=False)  # before hours of feature rows
+    if cache is not None:
+        check_writable(Path(cache), folder=False)
     model = siren if siren is not None else SirenModel(threads=threads)
     folders = [r for f in data for r in recording_folders(Path(f))]
     with progress_bar("far rows", len(folders), enabled=progress, unit="rec") as advance:
