@@ -892,7 +892,8 @@ def train_framework_a(
         )
         export_ev_detector(net, out, threshold=float(best["threshold"]), training=training)
         seconds = time.perf_counter() - start
-        return TrainResult(out, best_epoch, float(best["threshold"]), best, counts, seconds, full_history, coco)
+        threshold = float(best["threshold"])
+        return TrainResult(out, best_epoch, threshold, best, counts, seconds, full_history, coco)
     session = neck_session(model_path, threads)
     val_neck = neck_features(session, [letterbox(s.image)[0] for s in val])
     feats, targets = neck_views(session, train, views, rng, train_size, progress=progress)
