@@ -503,6 +503,16 @@ def letterbox(image: np.ndarray, size: int = INPUT_SIZE) -> tuple[np.ndarray, fl
     return canvas, r
 
 
+def _visible(boxes: np.ndarray, classes: np.ndarray, size: int) -> tuple[np.ndarray, np.ndarray]:
+    """Boxes moved onto a ``size``² canvas, clipped to it; those less than 40 % visible or under
+    2 px a side are dropped with their classes."""
+    area = np.clip(boxes[:, 2:] - boxes[:, :2], 0, None).prod(axis=1)
+    clipped = np.clip(boxes, 0, size)
+    vis = np.clip(clipped[:, 2:] - clipped[:, :2], 0, None).prod(axis=1)
+    keep = (vis >= 0.4 * np.maximum(area, 1e-9)) & ((clipped[:, 2:] - clipped[:, :2]) >= 2).all(axis=1)
+    return clipped[keep], classes[keep]
+
+
 def augment_sample(
     sample: Sample, rng: np.random.Generator, size: int = INPUT_SIZE, scale: tuple[float, float] = (0.5, 1.5)
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -521,12 +531,7 @@ def augment_sample(
     x0, y0 = max(ox, 0), max(oy, 0)
     x1, y1 = min(ox + nw, size), min(oy + nh, size)
     canvas[y0:y1, x0:x1] = resized[y0 - oy : y1 - oy, x0 - ox : x1 - ox]
-    boxes = sample.boxes * r + np.array([ox, oy, ox, oy], np.float32)
-    area = np.clip(boxes[:, 2:] - boxes[:, :2], 0, None).prod(axis=1)
-    clipped = np.clip(boxes, 0, size)
-    vis = np.clip(clipped[:, 2:] - clipped[:, :2], 0, None).prod(axis=1)
-    keep = (vis >= 0.4 * np.maximum(area, 1e-9)) & ((clipped[:, 2:] - clipped[:, :2]) >= 2).all(axis=1)
-    boxes, classes = clipped[keep], sample.classes[keep]
+    boxes, classes = _visible(sample.boxes * r + np.array([ox, oy, ox, oy], np.float32), sample.classes, size)
     if rng.random() < 0.5:
         canvas = np.ascontiguousarray(canvas[:, ::-1])
         boxes = boxes.copy()
@@ -573,12 +578,8 @@ def mosaic_sample(
     y0 = int(rng.integers(0, side - size + 1))
     canvas = np.ascontiguousarray(small[y0 : y0 + size, x0 : x0 + size])
     boxes = np.concatenate(parts_b) * (side / (2 * size)) - np.array([x0, y0, x0, y0], np.float32)
-    classes = np.concatenate(parts_c)
-    area = np.clip(boxes[:, 2:] - boxes[:, :2], 0, None).prod(axis=1)
-    clipped = np.clip(boxes, 0, size)
-    vis = np.clip(clipped[:, 2:] - clipped[:, :2], 0, None).prod(axis=1)
-    keep = (vis >= 0.4 * np.maximum(area, 1e-9)) & ((clipped[:, 2:] - clipped[:, :2]) >= 2).all(axis=1)
-    return canvas, clipped[keep].astype(np.float32), classes[keep]
+    boxes, classes = _visible(boxes, np.concatenate(parts_c), size)
+    return canvas, boxes.astype(np.float32), classes
 
 
 class _OnlineViews(torch.utils.data.Dataset[tuple[np.ndarray, np.ndarray, np.ndarray]]):
