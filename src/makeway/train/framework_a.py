@@ -922,33 +922,26 @@ def train_framework_a(
             order = rng.permutation(n)
             sums = {"loss": 0.0, "box": 0.0, "obj": 0.0, "cls": 0.0}
             for b in range(steps_per_epoch):
-                frac = step / max(total, 1)
-                warm = min(1.0, (step + 1) / steps_per_epoch)
-                for g, lr0 in zip(opt.param_groups, base, strict=True):
-                    g["lr"] = lr0 * warm * 0.5 * (1 + np.cos(np.pi * frac))
                 idx = np.sort(order[b * batch : (b + 1) * batch])
                 x = [torch.from_numpy(f[idx].astype(np.float32)) for f in feats]
                 tg = [(torch.from_numpy(targets[i][0]), torch.from_numpy(targets[i][1])) for i in idx]
-                loss, parts = yolox_loss(_flatten(net.head(x)), tg, xy, st)
-                opt.zero_grad()
-                loss.backward()
-                nn.utils.clip_grad_norm_(net.parameters(), 10.0)
-                opt.step()
-                sums["loss"] += float(loss.detach())
-                for k in ("box", "obj", "cls"):
-                    sums[k] += parts[k]
+                _step(
+                    net,
+                    opt,
+                    base,
+                    step / max(total, 1),
+                    (step + 1) / steps_per_epoch,
+                    net.head(x),
+                    tg,
+                    xy,
+                    st,
+                    sums,
+                )
                 step += 1
                 bar()
             v = validate(net, val, val_neck)
-            row = {"epoch": float(epoch), **{k: s / steps_per_epoch for k, s in sums.items()}}
-            row.update({f"val_{k}": float(v[k]) for k in ("map50", "precision", "recall", "threshold")})
-            row["minutes"] = (time.perf_counter() - start) / 60.0
+            row = _epoch_row(epoch, sums, steps_per_epoch, v, (time.perf_counter() - start) / 60.0, say)
             history.append(row)
-            say(
-                f"epoch {epoch}: loss {row['loss']:.3f} (box {row['box']:.3f} obj {row['obj']:.3f} "
-                f"cls {row['cls']:.3f}); validation mAP50 {v['map50']:.3f}, P {v['precision']:.3f} "
-                f"R {v['recall']:.3f} at {v['threshold']:.3f}; {row['minutes']:.1f} min"
-            )
             if v["map50"] > best["map50"]:
                 best, best_epoch = v, epoch
                 best_state = {k: t.detach().clone() for k, t in net.state_dict().items()}
@@ -967,6 +960,53 @@ def train_framework_a(
     return TrainResult(
         out, best_epoch, float(best["threshold"]), best, counts, time.perf_counter() - start, history, coco
     )
+
+
+def _step(
+    net: EVDetNet,
+    opt: torch.optim.Optimizer,
+    base: Sequence[float],
+    frac: float,
+    warm: float,
+    levels: list[tuple[torch.Tensor, torch.Tensor, torch.Tensor]],
+    targets: Sequence[tuple[torch.Tensor, torch.Tensor]],
+    xy: torch.Tensor,
+    stride: torch.Tensor,
+    sums: dict[str, float],
+) -> None:
+    """One AdamW step on YOLOX's loss of ``levels`` (the network's output for a batch): learning
+    rates ``base`` × warm-up ``min(1, warm)`` × cosine at ``frac`` of training; gradients clipped to
+    norm 10; the loss and its parts added to ``sums``."""
+    for g, lr0 in zip(opt.param_groups, base, strict=True):
+        g["lr"] = lr0 * min(1.0, warm) * 0.5 * (1 + np.cos(np.pi * frac))
+    loss, parts = yolox_loss(_flatten(levels), targets, xy, stride)
+    opt.zero_grad()
+    loss.backward()
+    nn.utils.clip_grad_norm_(net.parameters(), 10.0)
+    opt.step()
+    sums["loss"] += float(loss.detach())
+    for k in ("box", "obj", "cls"):
+        sums[k] += parts[k]
+
+
+def _epoch_row(
+    epoch: int,
+    sums: dict[str, float],
+    steps: int,
+    v: dict[str, Any],
+    minutes: float,
+    say: Callable[[str], None],
+) -> dict[str, float]:
+    """The history row of an epoch (mean losses, validation figures, minutes so far), also said."""
+    row = {"epoch": float(epoch), **{k: x / steps for k, x in sums.items()}}
+    row.update({f"val_{k}": float(v[k]) for k in ("map50", "precision", "recall", "threshold")})
+    row["minutes"] = minutes
+    say(
+        f"epoch {epoch}: loss {row['loss']:.3f} (box {row['box']:.3f} obj {row['obj']:.3f} "
+        f"cls {row['cls']:.3f}); validation mAP50 {v['map50']:.3f}, P {v['precision']:.3f} "
+        f"R {v['recall']:.3f} at {v['threshold']:.3f}; {minutes:.1f} min"
+    )
+    return row
 
 
 def _fit_full(
@@ -1024,19 +1064,20 @@ def _fit_full(
             net.train()
             sums = {"loss": 0.0, "box": 0.0, "obj": 0.0, "cls": 0.0}
             for images, targets in loader:
-                frac = step / max(total, 1)
-                warm = min(1.0, (step + 1) / steps_per_epoch)
-                for g, lr0 in zip(opt.param_groups, base, strict=True):
-                    g["lr"] = lr0 * warm * 0.5 * (1 + np.cos(np.pi * frac))
                 tg = [(b.to(dev), c.to(dev)) for b, c in targets]
-                loss, parts = yolox_loss(_flatten(net(images.to(dev))), tg, xy, st)
-                opt.zero_grad()
-                loss.backward()
-                nn.utils.clip_grad_norm_(net.parameters(), 10.0)
-                opt.step()
-                sums["loss"] += float(loss.detach())
-                for k in ("box", "obj", "cls"):
-                    sums[k] += parts[k]
+                levels = net(images.to(dev))
+                _step(
+                    net,
+                    opt,
+                    base,
+                    step / max(total, 1),
+                    (step + 1) / steps_per_epoch,
+                    levels,
+                    tg,
+                    xy,
+                    st,
+                    sums,
+                )
                 step += 1
                 bar()
             minutes = (time.perf_counter() - start) / 60.0
@@ -1044,15 +1085,7 @@ def _fit_full(
             if epoch % max(1, val_every) and epoch != epochs and not over:
                 continue
             v = validate(net, val)
-            row = {"epoch": float(epoch), **{k: x / steps_per_epoch for k, x in sums.items()}}
-            row.update({f"val_{k}": float(v[k]) for k in ("map50", "precision", "recall", "threshold")})
-            row["minutes"] = minutes
-            history.append(row)
-            say(
-                f"epoch {epoch}: loss {row['loss']:.3f} (box {row['box']:.3f} obj {row['obj']:.3f} "
-                f"cls {row['cls']:.3f}); validation mAP50 {v['map50']:.3f}, P {v['precision']:.3f} "
-                f"R {v['recall']:.3f} at {v['threshold']:.3f}; {minutes:.1f} min"
-            )
+            history.append(_epoch_row(epoch, sums, steps_per_epoch, v, minutes, say))
             if v["map50"] > best["map50"]:
                 best, best_epoch = v, epoch
                 best_state = {k: t.detach().clone() for k, t in net.state_dict().items()}
