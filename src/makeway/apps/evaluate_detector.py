@@ -234,19 +234,9 @@ def evaluate_detector(
     from makeway.perceive.vision.detectors import DETECTORS
     from makeway.perceive.vision.ev_classifier import load_crop_classifier
     from makeway.sense.crops import read_yolo_set
-    from makeway.sense.label_corrections import (
-        CORRECTIONS_FILE,
-        LabelCorrection,
-        check_label_set,
-        corrected_boxes,
-        corrections_by_image,
-        read_corrections,
-    )
+    from makeway.sense.label_corrections import LabelSet
 
-    labels = check_label_set(labels)
-    fixes: dict[str, list[LabelCorrection]] = {}
-    if labels == "corrected":
-        fixes = corrections_by_image(read_corrections(CORRECTIONS_FILE))
+    truth_set = LabelSet(labels)
     if framework not in FRAMEWORKS:
         raise ValueError(f"unknown framework {framework!r}; one of {', '.join(FRAMEWORKS)}")
     if score not in SCORES:
@@ -267,17 +257,11 @@ def evaluate_detector(
     if max_images is not None:
         images = images[:max_images]
     judged: list[BoxJudgements] = []
-    n_corrected = 0
     for item in images:
         image = cv2.imread(str(item.path), cv2.IMREAD_COLOR)
         if image is None:
             raise InputError(item.path, "OpenCV could not decode this image")
-        truth = item.boxes_of(0)
-        rows = fixes.get(item.path.stem)
-        if rows:
-            fixed = corrected_boxes(truth, rows)
-            n_corrected += len(set(fixed) ^ set(truth))
-            truth = fixed
+        truth = truth_set.boxes(item.path.stem, item.boxes_of(0))
         gt = np.asarray([[b.x1, b.y1, b.x2, b.y2] for b in truth], dtype=np.float64)
         start = time.perf_counter()
         if framework == "a":
@@ -300,7 +284,7 @@ def evaluate_detector(
         classifier=str(classifier),
         split=split,
         ms_per_image=1000.0 * sum(j.seconds for j in judged) / max(len(judged), 1),
-        labels=labels,
-        boxes_corrected=n_corrected,
+        labels=truth_set.labels,
+        boxes_corrected=truth_set.changed,
     )
     return out

@@ -47,6 +47,7 @@ __all__ = [
     "LABEL_SETS",
     "MATCH_IOU",
     "LabelCorrection",
+    "LabelSet",
     "check_label_set",
     "correct_crop_items",
     "corrected_boxes",
@@ -232,3 +233,29 @@ def correct_crop_items(
         added = crop_of(row.box)
         if added is not None:
             yield f"c{k}", added, 1
+
+
+class LabelSet:
+    """The class-0 ground truth of ``ambulance_yolo`` under one label set (:data:`LABEL_SETS`):
+    ``original`` leaves every image's boxes as they are, ``corrected`` applies the committed rows
+    (:data:`CORRECTIONS_FILE`, or ``path``) image by image; :attr:`changed` counts the boxes added
+    or removed so far.
+
+    Raises:
+        ValueError: an unknown label set.
+        InputError: the corrections file is missing or malformed (names the file).
+    """
+
+    def __init__(self, labels: str, path: str | Path = CORRECTIONS_FILE) -> None:
+        self.labels = check_label_set(labels)
+        self.rows = corrections_by_image(read_corrections(path)) if self.labels == "corrected" else {}
+        self.changed = 0
+
+    def boxes(self, stem: str, boxes: Sequence[Box]) -> list[Box]:
+        """Image ``stem``'s ground-truth EV boxes under this label set."""
+        rows = self.rows.get(stem)
+        if not rows:
+            return list(boxes)
+        fixed = corrected_boxes(boxes, rows)
+        self.changed += len(set(fixed) ^ set(boxes))
+        return fixed

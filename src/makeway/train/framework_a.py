@@ -407,18 +407,9 @@ def build_dataset(
     from makeway.perceive.vision.detectors import VEHICLE_CLASSES, YoloxNano
     from makeway.progress import progress_bar
     from makeway.sense.crops import read_holdout, read_yolo_set, roboflow_source
-    from makeway.sense.label_corrections import (
-        CORRECTIONS_FILE,
-        LabelCorrection,
-        check_label_set,
-        corrected_boxes,
-        corrections_by_image,
-        read_corrections,
-    )
+    from makeway.sense.label_corrections import LabelSet
 
-    fixes: dict[str, list[LabelCorrection]] = {}
-    if check_label_set(labels) == "corrected":
-        fixes = corrections_by_image(read_corrections(CORRECTIONS_FILE))
+    truth_set = LabelSet(labels)
     data = Path(data)
     if not data.is_dir():
         raise InputError(data, "YOLO folder not found (expected images/ and labels/)")
@@ -442,12 +433,7 @@ def build_dataset(
             image = cv2.imread(str(item.path), cv2.IMREAD_COLOR)
             if image is None:
                 raise InputError(item.path, "OpenCV could not decode this image")
-            truth = item.boxes_of(0)
-            rows = fixes.get(item.path.stem)
-            if rows:
-                fixed = corrected_boxes(truth, rows)
-                counts["ev_boxes_corrected"] += len(set(fixed) ^ set(truth))
-                truth = fixed
+            truth = truth_set.boxes(item.path.stem, item.boxes_of(0))
             amb = np.asarray([[b.x1, b.y1, b.x2, b.y2] for b in truth], np.float32).reshape(-1, 4)
             vb, _, _ = det.detect_arrays(image)
             drop = _overlaps(vb, amb)
@@ -462,6 +448,7 @@ def build_dataset(
             counts["pseudo_boxes"] += len(other)
             counts["pseudo_dropped"] += int(drop.sum())
             bar()
+    counts["ev_boxes_corrected"] = truth_set.changed
     counts["train_images"], counts["val_images"] = len(train), len(val)
     counts["train_sources"] = len({s.source for s in train})
     counts["val_sources"] = len({s.source for s in val})
@@ -925,18 +912,7 @@ def train_framework_a(
                 idx = np.sort(order[b * batch : (b + 1) * batch])
                 x = [torch.from_numpy(f[idx].astype(np.float32)) for f in feats]
                 tg = [(torch.from_numpy(targets[i][0]), torch.from_numpy(targets[i][1])) for i in idx]
-                _step(
-                    net,
-                    opt,
-                    base,
-                    step / max(total, 1),
-                    (step + 1) / steps_per_epoch,
-                    net.head(x),
-                    tg,
-                    xy,
-                    st,
-                    sums,
-                )
+                _step(net, opt, base, (step, total, steps_per_epoch), net.head(x), tg, (xy, st), sums)
                 step += 1
                 bar()
             v = validate(net, val, val_neck)
@@ -966,20 +942,21 @@ def _step(
     net: EVDetNet,
     opt: torch.optim.Optimizer,
     base: Sequence[float],
-    frac: float,
-    warm: float,
+    when: tuple[int, int, int],
     levels: list[tuple[torch.Tensor, torch.Tensor, torch.Tensor]],
     targets: Sequence[tuple[torch.Tensor, torch.Tensor]],
-    xy: torch.Tensor,
-    stride: torch.Tensor,
+    grid: tuple[torch.Tensor, torch.Tensor],
     sums: dict[str, float],
 ) -> None:
-    """One AdamW step on YOLOX's loss of ``levels`` (the network's output for a batch): learning
-    rates ``base`` × warm-up ``min(1, warm)`` × cosine at ``frac`` of training; gradients clipped to
-    norm 10; the loss and its parts added to ``sums``."""
+    """One AdamW step on YOLOX's loss of ``levels`` (the network's output for a batch) at ``when`` =
+    ``(step, total steps, steps per epoch)``: learning rates ``base`` × warm-up over the first epoch
+    × cosine decay; gradients clipped to norm 10; the loss and its parts added to ``sums``.
+    ``grid``: the cells' ``(xy, stride)`` (:func:`grid_of`)."""
+    step, total, per_epoch = when
+    warm = min(1.0, (step + 1) / per_epoch)
     for g, lr0 in zip(opt.param_groups, base, strict=True):
-        g["lr"] = lr0 * min(1.0, warm) * 0.5 * (1 + np.cos(np.pi * frac))
-    loss, parts = yolox_loss(_flatten(levels), targets, xy, stride)
+        g["lr"] = lr0 * warm * 0.5 * (1 + np.cos(np.pi * step / max(total, 1)))
+    loss, parts = yolox_loss(_flatten(levels), targets, *grid)
     opt.zero_grad()
     loss.backward()
     nn.utils.clip_grad_norm_(net.parameters(), 10.0)
@@ -1066,18 +1043,7 @@ def _fit_full(
             for images, targets in loader:
                 tg = [(b.to(dev), c.to(dev)) for b, c in targets]
                 levels = net(images.to(dev))
-                _step(
-                    net,
-                    opt,
-                    base,
-                    step / max(total, 1),
-                    (step + 1) / steps_per_epoch,
-                    levels,
-                    tg,
-                    xy,
-                    st,
-                    sums,
-                )
+                _step(net, opt, base, (step, total, steps_per_epoch), levels, tg, (xy, st), sums)
                 step += 1
                 bar()
             minutes = (time.perf_counter() - start) / 60.0
