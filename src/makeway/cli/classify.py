@@ -391,8 +391,8 @@ def train_detector(
     device: Annotated[str, typer.Option(help="Torch device of --part full: cpu or cuda.")] = "cpu",
     labels: _AmbulanceLabels = "original",
     mosaic: Annotated[
-        float, typer.Option(min=0.0, max=1.0, help="--part full: share of training views that are mosaics.")
-    ] = 0.5,
+        float, typer.Option(min=0.0, max=1.0, help="Share of training views that are mosaics of four photos.")
+    ] = 0.0,
     workers: Annotated[int, typer.Option(min=0, help="--part full: processes drawing augmented views.")] = 0,
     val_every: Annotated[int, typer.Option(min=1, help="--part full: validate every N epochs.")] = 1,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")] = False,

@@ -72,6 +72,7 @@ __all__ = [
     "augment_sample",
     "build_dataset",
     "coco_class_of_ambulances",
+    "draw_view",
     "export_ev_detector",
     "giou",
     "letterbox",
@@ -569,6 +570,20 @@ def mosaic_sample(
     return canvas, boxes.astype(np.float32), classes
 
 
+def draw_view(
+    samples: Sequence[Sample], i: int, rng: np.random.Generator, size: int, mosaic: float = 0.0
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """One training view of ``samples[i]``: with probability ``mosaic`` a mosaic of it and three
+    other samples drawn at random (:func:`mosaic_sample`), else :func:`augment_sample` of it alone
+    (``mosaic`` 0 draws nothing extra from ``rng``)."""
+    if mosaic > 0.0 and rng.random() < mosaic:
+        others = rng.choice(len(samples), 3)
+        group = [samples[i], *(samples[int(k)] for k in others)]
+        order = rng.permutation(4)
+        return mosaic_sample([group[int(k)] for k in order], rng, size)
+    return augment_sample(samples[i], rng, size)
+
+
 class _OnlineViews(torch.utils.data.Dataset[tuple[np.ndarray, np.ndarray, np.ndarray]]):
     """Freshly augmented training views for the full fine-tune: item ``i`` of epoch ``epoch`` is a
     view of sample ``i`` (a mosaic with it and three random others, with probability ``mosaic``),
@@ -583,12 +598,7 @@ class _OnlineViews(torch.utils.data.Dataset[tuple[np.ndarray, np.ndarray, np.nda
 
     def __getitem__(self, i: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         rng = np.random.default_rng([self.seed, self.epoch, i])
-        if rng.random() < self.mosaic:
-            others = rng.choice(len(self.samples), 3)
-            group = [self.samples[i], *(self.samples[int(k)] for k in others)]
-            order = rng.permutation(4)
-            return mosaic_sample([group[int(k)] for k in order], rng, self.size)
-        return augment_sample(self.samples[i], rng, self.size)
+        return draw_view(self.samples, i, rng, self.size, self.mosaic)
 
 
 def _collate(items: list[tuple[np.ndarray, np.ndarray, np.ndarray]]) -> tuple[torch.Tensor, list[Any]]:
@@ -697,9 +707,11 @@ def neck_views(
     size: int,
     *,
     progress: bool = True,
+    mosaic: float = 0.0,
 ) -> tuple[list[np.ndarray], list[tuple[np.ndarray, np.ndarray]]]:
-    """``views`` augmented views (:func:`augment_sample`) of every sample through the frozen
-    network: the neck maps of all views and their ``(boxes, classes)`` targets."""
+    """``views`` augmented views (:func:`draw_view`; ``mosaic`` the share of mosaics) of every
+    sample through the frozen network: the neck maps of all views and their ``(boxes, classes)``
+    targets."""
     from makeway.progress import progress_bar
 
     feats: list[list[np.ndarray]] = [[], [], []]
@@ -710,7 +722,9 @@ def neck_views(
     ) as bar:
         for _ in range(views):
             for i in range(0, len(samples), 32):
-                items = [augment_sample(s, rng, size) for s in samples[i : i + 32]]
+                items = [
+                    draw_view(samples, j, rng, size, mosaic) for j in range(i, min(i + 32, len(samples)))
+                ]
                 for k, f in enumerate(neck_features(session, [it[0] for it in items])):
                     feats[k].append(f)
                 targets.extend((it[1], it[2]) for it in items)
@@ -810,15 +824,16 @@ def train_framework_a(
     part: str = "head",
     device: str = "cpu",
     labels: str = "original",
-    mosaic: float = 0.5,
+    mosaic: float = 0.0,
     workers: int = 0,
     val_every: int = 1,
 ) -> TrainResult:
     """Fine-tune Framework A's detector on ``data`` (``ambulance_yolo/valid``) and export it to
     ``out`` (module docstring).
 
+    ``mosaic``: the share of training views that are mosaics (:func:`draw_view`; both parts).
     ``part="full"`` trains every layer (:func:`_fit_full`): each epoch draws fresh augmented views
-    (``mosaic``: the share that are mosaics, :func:`mosaic_sample`) in ``workers`` processes, on
+    in ``workers`` processes, on
     torch ``device`` (``cuda`` for a GPU); AdamW at ``lr`` for the pretrained layers and
     ``head_lr`` for the new class layers, warm-up over the first epoch, cosine decay; validation
     every ``val_every`` epochs. ``labels``: the class-0 label set (:func:`build_dataset`).
@@ -884,7 +899,7 @@ def train_framework_a(
         return TrainResult(out, best_epoch, threshold, best, counts, seconds, full_history, coco)
     session = neck_session(model_path, threads)
     val_neck = neck_features(session, [letterbox(s.image)[0] for s in val])
-    feats, targets = neck_views(session, train, views, rng, train_size, progress=progress)
+    feats, targets = neck_views(session, train, views, rng, train_size, progress=progress, mosaic=mosaic)
     say(f"cached {len(targets)} augmented views; {(time.perf_counter() - start) / 60:.1f} min")
     neck_keys = set(_neck_param_keys(net, model_path))
     for key, param in net.graph.weights.items():
