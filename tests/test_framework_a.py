@@ -226,6 +226,12 @@ def test_full_fine_tune_trains_every_layer(yolox_path: Path, ambulance_dir: Path
     else:  # no epoch beat the start: the starting weights are back
         assert torch.equal(first, conv)
     assert best["map50"] == pytest.approx(fa.validate(net, samples[:1])["map50"])
+    with pytest.raises(ValueError, match="only 3 training images"):
+        fa._fit_full(
+            net, samples, samples[:1], epochs=1, batch=4, size=128, lr=1e-3, head_lr=1e-2, seed=0,
+            workers=0, mosaic=0.0, val_every=1, max_minutes=None, progress=False, say=lambda _: None,
+            start=0.0,
+        )  # fmt: skip
 
 
 def test_train_detector_refuses_a_missing_gpu_and_an_unknown_part(

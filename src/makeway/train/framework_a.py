@@ -1028,6 +1028,8 @@ def _fit_full(
     dev = next(net.parameters()).device
     for param in net.graph.weights.values():
         param.requires_grad_(True)
+    if len(train) < batch:
+        raise ValueError(f"batches of {batch} images, only {len(train)} training images: lower --batch-size")
     views = _OnlineViews(train, size, seed, mosaic)
     gen = torch.Generator().manual_seed(seed)
     loader = torch.utils.data.DataLoader(
