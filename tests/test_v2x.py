@@ -20,7 +20,7 @@ import pytest
 from cryptography.hazmat.primitives import hashes
 from cryptography.hazmat.primitives.asymmetric import ec
 from cryptography.hazmat.primitives.asymmetric.utils import decode_dss_signature
-from typer.testing import CliRunner
+from typer.testing import CliRunner, Result
 
 from conftest import start_car_listener
 from makeway.cli.main import app
@@ -296,56 +296,21 @@ def test_cli_contract(tmp_path: Path) -> None:
     assert oct((tmp_path / "k" / "rsu.key").stat().st_mode & 0o777) == "0o600"
     assert not any(b"PRIVATE KEY" in p.read_bytes() for p in trust.rglob("*") if p.is_file())
 
+    def invoke_alert(name: str, *extra: str) -> Result:
+        flags = ["--lat", "48.1", "--lon", "11.5", "--heading-deg", "90", "--speed-mps", "12"]
+        key = ["--key", str(tmp_path / "k" / "rsu.key")]
+        return runner.invoke(app, ["v2x", "alert", *key, *flags, "--out", str(tmp_path / name), *extra])
+
     def alert(name: str, *extra: str) -> Path:
-        out = tmp_path / name
-        res = runner.invoke(
-            app,
-            [
-                "v2x",
-                "alert",
-                "--key",
-                str(tmp_path / "k" / "rsu.key"),
-                "--lat",
-                "48.1",
-                "--lon",
-                "11.5",
-                "--heading-deg",
-                "90",
-                "--speed-mps",
-                "12",
-                "--out",
-                str(out),
-                *extra,
-            ],
-        )
+        res = invoke_alert(name, *extra)
         assert res.exit_code == 0, res.output
-        return out
+        return tmp_path / name
 
     a, b = alert("a.msg"), alert("b.msg", "--no-siren")
     stale = alert("stale.msg", "--generation-time", str(time.time() - 3600))
     digest = alert("digest.msg", "--signer", "digest")
     assert digest.stat().st_size == SIGNED_SIZE < a.stat().st_size <= MAX_SIGNED_SIZE
-    bad_form = runner.invoke(
-        app,
-        [
-            "v2x",
-            "alert",
-            "--key",
-            str(tmp_path / "k" / "rsu.key"),
-            "--lat",
-            "1",
-            "--lon",
-            "1",
-            "--heading-deg",
-            "0",
-            "--speed-mps",
-            "1",
-            "--out",
-            str(tmp_path / "never.msg"),
-            "--signer",
-            "name",
-        ],
-    )
+    bad_form = invoke_alert("never.msg", "--signer", "name")
     assert bad_form.exit_code == 2 and "--signer" in bad_form.stderr and not (tmp_path / "never.msg").exists()
     garbage = tmp_path / "garbage.msg"
     garbage.write_bytes(b"not an alert at all")
