@@ -114,6 +114,39 @@ def test_v2x_subscriber_drops_the_oldest_when_flooded() -> None:
     assert got == [b"payload %d" % k for k in range(45, 50)]
 
 
+def test_v2x_subscriber_calls_back_on_zenohs_own_thread() -> None:
+    """A car subscribes to 20 segments without a Python thread per subscriber (zenoh-python's
+    default hand-over: with 10 cars in a process, 200 threads contending for the interpreter let
+    the verify queues back up in ``bench_v2x_load.py``), and still receives on every segment."""
+    port = free_loopback_port()
+    car = open_peer(listen=[f"tcp/127.0.0.1:{port}"])
+    unit = open_peer(connect=[f"tcp/127.0.0.1:{port}"])
+    segments = [f"seg-{k:02d}" for k in range(20)]
+    try:
+        before = threading.active_count()
+        sub = AlertSubscriber(car, segments, queue="fifo")
+        assert threading.active_count() == before
+        pubs = [AlertPublisher(unit, s) for s in segments]
+        assert all(p.wait_for_subscribers(10.0) for p in pubs)
+        for k, p in enumerate(pubs):
+            p.publish(b"payload %d" % k)
+        got = []
+        for r in sub.receive(10.0):
+            got.append(r)
+            if len(got) == len(segments):
+                break
+        assert threading.active_count() == before
+        for p in pubs:
+            p.close()
+        sub.close()
+    finally:
+        unit.close()
+        car.close()
+    assert sorted((r.key.rsplit("/", 1)[1], r.payload) for r in got) == [
+        (s, b"payload %d" % k) for k, s in enumerate(segments)
+    ]
+
+
 def test_video_pipeline_as_a_live_camera(video_dir: Path) -> None:
     """``run_video(realtime=True)``: frames come on the video's clock; whatever the pipeline could not
     take in time is dropped oldest first, the newest frame is always processed, in order."""
