@@ -7,7 +7,7 @@ DEV    := $(VENV)/.dev
 OUT    ?= reports/demo
 
 .PHONY: venv demo test lint typecheck bench bench-sort bench-video bench-crops bench-detection bench-pull-over \
-	bench-siren-loop bench-audio bench-rig bench-v2x bench-fusion bench-roadside bench-lights bench-active-rule \
+	bench-siren-loop bench-audio bench-rig bench-v2x bench-fusion bench-roadside bench-lights bench-lights-flash bench-active-rule \
 	bench-rsu bench-fusion-ablation bench-mcap bench-engine bench-robust bench-speed bench-crossing bench-crossing-fresh bench-no-ev-2h bench-range-loop bench-approach-pairing bench-seed003-timeline bench-faults bench-overload bench-overload-listener bench-range bench-far-range bench-far-loop bench-clip-fusion bench-framework-ab fuzz clean
 
 # `make demo` installs the runtime only; `make test` and the benchmarks add the dev extra (linters,
@@ -100,6 +100,10 @@ bench-roadside: venv
 # lit-light detection on the held-out sources: rule baseline, CNN with and without colour attention
 bench-lights: venv
 	$(BIN)/python benchmarks/bench_lights.py --breakdown
+
+# the flash cue as a filter on the light detector's boxes (every frame of the night and validation clips)
+bench-lights-flash: venv
+	$(BIN)/python benchmarks/bench_lights_flash.py --clips night_ambulance_lights,intersection_cam_ambulance
 
 # the video pipeline's active-EV rules (crop / lights / lights+crop) on the labelled clips; lights speed
 bench-active-rule: venv
