@@ -5,6 +5,9 @@ of a labelled clip, its boxes (at its operating threshold) go through :class:`Li
 ``makeway lights``, and each labelled frame is scored three ways with seed 004's metrics (the same
 as ``bench_lights.py``):
 
+With ``--follow-vehicles`` (the default, as in the pipeline) the tracker also gets YOLOX-nano → SORT
+vehicle tracks, so lights follow their vehicle (:class:`LightTracker`).
+
 * ``per frame`` — the detector's boxes as they are (the anchor: ``bench_lights.py``'s figure);
 * ``flashing`` — only boxes whose light track the flash cue calls flashing (1–4 Hz on/off over the
   tracker's window); the others keep 2 % of their score, so mAP still ranks them, last;
@@ -34,9 +37,11 @@ import numpy as np
 from makeway.eval.lights import FrameResult, match_frame, summarise
 from makeway.messages import LightDetection
 from makeway.paths import data_dir
-from makeway.perceive.vision.light_verify import VerifiedLightDetector
+from makeway.perceive.vision.detectors import Detector
+from makeway.perceive.vision.light_verify import VerifiedLightDetector, vehicle_detector
 from makeway.sense.video import VideoReader
 from makeway.track.lights import LightTrack, LightTracker
+from makeway.track.sort import Sort
 from makeway.train.light_labels import iter_label_frames, read_labels, source_path
 from makeway.train.light_split import LABEL_DIR, SPLITS, load_split
 
@@ -46,7 +51,7 @@ FIGURES = ("array_precision", "array_recall", "vehicle_precision", "vehicle_reca
 
 
 def _run_clip(
-    name: str, root: Path, threads: int
+    name: str, root: Path, threads: int, follow: bool, tracker_kw: dict[str, Any]
 ) -> tuple[list[FrameResult], dict[str, Any], dict[str, Any]]:
     labels = read_labels(LABEL_DIR / f"{name}.csv")
     split = SPLITS[name]
@@ -58,13 +63,19 @@ def _run_clip(
     probe = VerifiedLightDetector(colours="all", num_threads=threads)
     detector = VerifiedLightDetector(colours="all", num_threads=threads, threshold=min(0.01, probe.threshold))
     op = probe.threshold
-    tracker = LightTracker()
+    tracker = LightTracker(**tracker_kw)
+    vehicles = vehicle_detector(threads) if follow else None
+    sort = Sort()
     results: dict[str, list[FrameResult]] = {p: [] for p in POLICIES}
     ages: dict[str, list[tuple[float, bool]]] = {"true": [], "false": []}
     for key, img in iter_label_frames(labels, root, every=True):
         dets = detector.detect(img, int(key))
         strong = [d for d in dets if d.score >= op]
-        tracks = tracker.update(strong, int(key) / fps, img)
+        cars = None
+        if vehicles is not None:  # as the pipeline: YOLOX-nano → SORT, the light tracker follows them
+            arrays = vehicles.detect_arrays(img)
+            cars = sort.update(Detector.to_detections((arrays[0], arrays[1], arrays[2])))
+        tracks = tracker.update(strong, int(key) / fps, img, vehicles=cars)
         by_box: dict[tuple[float, ...], LightTrack] = {
             (t.box.x1, t.box.y1, t.box.x2, t.box.y2): t for t in tracks if t.detected
         }
@@ -119,7 +130,16 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--clips", default="night_ambulance_lights", help="comma-separated labelled clips")
     ap.add_argument("--threads", type=int, default=1, help="ONNX Runtime threads (default 1)")
     ap.add_argument("--json", type=Path, default=None, help="also write the figures as JSON")
+    ap.add_argument(
+        "--follow-vehicles",
+        action=argparse.BooleanOptionalAction,
+        default=True,
+        help="lights follow their vehicle's SORT track, as in the pipeline (default)",
+    )
+    ap.add_argument("--gate", type=float, default=None, help="the light tracker's gate (default its own)")
+    ap.add_argument("--max-gap-s", type=float, default=None, help="the light tracker's max_gap_s")
     args = ap.parse_args(argv)
+    tracker_kw = {k: v for k, v in (("gate", args.gate), ("max_gap_s", args.max_gap_s)) if v is not None}
     root = data_dir()
     if root is None:
         print("shared data not found (set MAKEWAY_DATA)", file=sys.stderr)
@@ -131,11 +151,18 @@ def main(argv: list[str] | None = None) -> int:
             return 2
     out: dict[str, Any] = {}
     for name in clips:
-        _, summary, info = _run_clip(name, Path(root), args.threads)
-        out[name] = {"policies": summary, **info}
+        _, summary, info = _run_clip(name, Path(root), args.threads, args.follow_vehicles, tracker_kw)
+        out[name] = {
+            "policies": summary,
+            "follow_vehicles": args.follow_vehicles,
+            "tracker": tracker_kw,
+            **info,
+        }
         print(
             f"\n{name} ({SPLITS[name]} split; every frame through the detector and LightTracker at "
-            f"{info['fps']:.2f} fps; P/R at score ≥ {info['threshold']:.2f}, IoU 0.5)"
+            f"{info['fps']:.2f} fps, lights {'following their vehicle' if args.follow_vehicles else 'alone'}"
+            f"{', ' + str(tracker_kw) if tracker_kw else ''}; "
+            f"P/R at score ≥ {info['threshold']:.2f}, IoU 0.5)"
         )
         print(f"{'boxes kept':18s} {'arrP':>6s} {'arrR':>6s} {'vehP':>6s} {'vehR':>6s} {'mAP50':>6s}")
         for policy, m in summary.items():

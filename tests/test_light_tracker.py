@@ -78,6 +78,38 @@ def test_steady_lamp_is_not_flashing_and_a_2hz_lamp_is(with_frames: bool) -> Non
     assert not blink[0].flashing  # not before an on/off cycle has been seen
 
 
+def test_a_lamp_on_a_moving_vehicle_follows_it_through_its_off_phases() -> None:
+    """A van drives right at 16 px a frame (400 px/s) with a blue roof lamp blinking at 2 Hz. On
+    its own the tracker loses the lamp at every off phase (the lamp is 9 lamp sizes away when it
+    comes back) and never calls it flashing; given the van's track it keeps one lamp track, reads
+    the level where the lamp now is, and calls it flashing at 2 Hz once its window is full."""
+    det = build_light_detector(DEFAULT_LIGHT_DETECTOR, "eu")
+    frames, vans = [], []
+    for i in range(75):
+        img = np.full((160, 1320, 3), 20, np.uint8)
+        x = 20 + 16 * i
+        cv2.rectangle(img, (x, 60), (x + 80, 140), (90, 90, 90), -1)  # the van, dark grey
+        if (i / FPS * 2.0) % 1.0 < 0.5:
+            cv2.circle(img, (x + 40, 66), 5, (255, 90, 0), -1)  # the lamp on its roof
+        frames.append(img)
+        vans.append(Track(7, Box(x, 60, x + 80, 140)))
+    for follow in (False, True):
+        tracker = LightTracker()
+        history: dict[int, list[LightTrack]] = defaultdict(list)
+        for i, img in enumerate(frames):
+            lights = tracker.update(det.detect(img, i), i / FPS, img, vehicles=[vans[i]] if follow else None)
+            for lt in lights:
+                history[lt.track_id].append(lt)
+        if not follow:
+            assert len(history) >= 6 and not any(lt.flashing for h in history.values() for lt in h)
+            continue
+        (lamp,) = history.values()
+        assert len(lamp) == 75
+        late = lamp[-25:]
+        assert all(lt.flashing and lt.flash_hz == pytest.approx(2.0, abs=0.3) for lt in late)
+        assert all(abs(lt.box.center[0] - (vans[-25 + k].box.x1 + 40)) < 3 for k, lt in enumerate(late))
+
+
 def test_tracks_end_after_the_gap_and_do_not_jump_across_colours_or_sizes() -> None:
     tracker = LightTracker(max_gap_s=0.2)
     small = LightDetection(Box(10, 10, 14, 14), "blue", 0.9)

@@ -30,6 +30,13 @@ and 0 otherwise. Over the last ``window_s`` seconds the on/off states give
 A steady light (brake light, street lamp, traffic light, headlight) stays on: no changes, not
 flashing. Times are in seconds from the frame times the caller passes.
 
+**Following vehicles.** Given the frame's vehicle tracks (``update(..., vehicles=...)``, Framework B's
+SORT tracks), a light seen inside a vehicle's box, or in a band of ``anchor_band`` box heights above
+it, is anchored to that vehicle (the smallest such box) at its relative place ``(u, v)`` in the box.
+In the next frame with that vehicle, before association, the light's box moves so that its centre
+sits at the same relative place in the vehicle's new box: the camera's and the vehicle's motion no
+longer break the track, and in its off phase the level is read where the lamp now is.
+
 **Lights evidence** (:func:`vehicle_light_evidence`) and the **active rules**
 (:func:`active_probability`) turn light tracks into per-frame votes for Framework B's vehicle
 tracks: a flashing emergency-coloured light in the upper part of a vehicle's box or just above it.
@@ -131,6 +138,7 @@ class _Light:
     """A live light track's state (internal)."""
 
     __slots__ = (
+        "anchor",
         "box",
         "colour",
         "first_s",
@@ -156,6 +164,7 @@ class _Light:
         self.peak = 0.0
         self.size = max(det.box.width, det.box.height)
         self.history: deque[tuple[float, float, bool]] = deque()  # (t, level, on)
+        self.anchor: tuple[int, float, float] | None = None  # (vehicle track id, u, v) in its box
 
 
 class LightTracker:
@@ -173,6 +182,7 @@ class LightTracker:
         max_size_ratio: largest ratio of box sizes (``max(w, h)``) for a match.
         min_peak_px: smallest peak level (lit pixels) in the window for ``flashing``.
         relax_v, relax_s: how far the level's HSV ranges are relaxed in value and saturation.
+        anchor_band: how far above a vehicle's box (in box heights) a light is still anchored to it.
         hsv: HSV ranges per colour for the level (default
             :data:`~makeway.perceive.vision.light_colour.DEFAULT_HSV`).
     """
@@ -195,6 +205,7 @@ class LightTracker:
         relax_v: int = 40,
         relax_s: int = 30,
         hsv: dict[str, list[tuple[int, int, int, int]]] | None = None,
+        anchor_band: float = 0.3,
     ) -> None:
         if window_s <= 0 or max_gap_s < 0:
             raise ValueError(f"window_s must be > 0 and max_gap_s >= 0, got {window_s}, {max_gap_s}")
@@ -217,6 +228,7 @@ class LightTracker:
         self.relax_v = int(relax_v)
         self.relax_s = int(relax_s)
         self.hsv = dict(hsv if hsv is not None else DEFAULT_HSV)
+        self.anchor_band = float(anchor_band)
         self._tracks: list[_Light] = []
         self._next_id = 1
 
@@ -271,6 +283,39 @@ class LightTracker:
                 )
         return float(np.count_nonzero(mask))
 
+    # ---------------------------------------------------------------------------------- vehicles
+    def _follow(self, vehicles: Sequence[Track]) -> None:
+        """Move every anchored light with its vehicle (module docstring)."""
+        boxes = {v.track_id: v.box for v in vehicles}
+        for t in self._tracks:
+            if t.anchor is None or t.anchor[0] not in boxes:
+                continue
+            b = boxes[t.anchor[0]]
+            cx, cy = t.box.center
+            dx = b.x1 + t.anchor[1] * b.width - cx
+            dy = b.y1 + t.anchor[2] * b.height - cy
+            t.box = Box(t.box.x1 + dx, t.box.y1 + dy, t.box.x2 + dx, t.box.y2 + dy)
+
+    def _anchor(self, vehicles: Sequence[Track]) -> None:
+        """Anchor each light seen this frame to the smallest vehicle box it is in or just above."""
+        for t in self._tracks:
+            if not t.seen:
+                continue
+            cx, cy = t.box.center
+            best: tuple[float, Track] | None = None
+            for v in vehicles:
+                b = v.box
+                if b.width <= 0 or b.height <= 0:
+                    continue
+                inside = b.x1 <= cx <= b.x2 and b.y1 - self.anchor_band * b.height <= cy <= b.y2
+                if inside and (best is None or b.area < best[0]):
+                    best = (b.area, v)
+            if best is None:
+                t.anchor = None
+            else:
+                b = best[1].box
+                t.anchor = (best[1].track_id, (cx - b.x1) / b.width, (cy - b.y1) / b.height)
+
     # ------------------------------------------------------------------------------------ update
     def update(
         self,
@@ -278,6 +323,7 @@ class LightTracker:
         time_s: float,
         frame_bgr: np.ndarray | None = None,
         hsv: np.ndarray | None = None,
+        vehicles: Sequence[Track] | None = None,
     ) -> list[LightTrack]:
         """Add one frame's detections (at ``time_s`` seconds, frames in time order); return every
         live track.
@@ -285,9 +331,12 @@ class LightTracker:
         ``frame_bgr`` (the frame the detections came from) lets the tracker read each track's region
         level, so that a lamp the detector misses while it is lit still counts as on; without it
         the on/off signal is the detections alone. ``hsv`` may pass the frame already converted to
-        HSV (OpenCV units) to save the per-region conversions.
+        HSV (OpenCV units) to save the per-region conversions. ``vehicles`` (this frame's vehicle
+        tracks, image pixels) lets lights follow their vehicle (module docstring).
         """
         dets = list(detections)
+        if vehicles is not None:
+            self._follow(vehicles)
         matches = self._associate(dets)
         matched_d = {d for d, _ in matches}
         for t in self._tracks:
@@ -301,6 +350,8 @@ class LightTracker:
             if i not in matched_d:
                 self._tracks.append(_Light(self._next_id, det, time_s))
                 self._next_id += 1
+        if vehicles is not None:
+            self._anchor(vehicles)
         if hsv is None and frame_bgr is not None and len(self._tracks) > 16:
             hsv = cv2.cvtColor(frame_bgr, cv2.COLOR_BGR2HSV)  # one conversion beats many crops
         out = []
