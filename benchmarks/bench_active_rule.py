@@ -69,7 +69,7 @@ def light_evidence(
     detector_name: str,
     colours: str,
     progress: bool = False,
-    follow: bool = True,
+    follow: bool = False,
     tracker_kw: dict[str, Any] | None = None,
 ) -> dict[tuple[int, int], tuple[bool, bool]]:
     """``(frame, track id) → (lit, flashing)`` for every recorded vehicle track of one clip; with
@@ -175,10 +175,9 @@ def main() -> int:
     ap.add_argument("--speed-only", action="store_true", help="only the speed figures")
     ap.add_argument(
         "--follow-vehicles",
-        action=argparse.BooleanOptionalAction,
-        default=True,
-        help="the light tracker gets the vehicle tracks, so lights follow their vehicle (default, as "
-        "the pipeline); --no-follow-vehicles: lights tracked on their own",
+        action="store_true",
+        help="the light tracker gets the vehicle tracks, so lights follow their vehicle (the pipeline "
+        "does not: on these clips it did not help)",
     )
     ap.add_argument("--gate", type=float, default=None, help="light tracker's gate (default its own)")
     ap.add_argument(

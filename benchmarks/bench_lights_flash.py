@@ -5,8 +5,8 @@ of a labelled clip, its boxes (at its operating threshold) go through :class:`Li
 ``makeway lights``, and each labelled frame is scored three ways with seed 004's metrics (the same
 as ``bench_lights.py``):
 
-With ``--follow-vehicles`` (the default, as in the pipeline) the tracker also gets YOLOX-nano → SORT
-vehicle tracks, so lights follow their vehicle (:class:`LightTracker`).
+With ``--follow-vehicles`` the tracker also gets YOLOX-nano → SORT vehicle tracks, so lights follow
+their vehicle (:class:`LightTracker`; the pipeline does not pass them).
 
 * ``per frame`` — the detector's boxes as they are (the anchor: ``bench_lights.py``'s figure);
 * ``flashing`` — only boxes whose light track the flash cue calls flashing (1–4 Hz on/off over the
@@ -132,9 +132,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--json", type=Path, default=None, help="also write the figures as JSON")
     ap.add_argument(
         "--follow-vehicles",
-        action=argparse.BooleanOptionalAction,
-        default=True,
-        help="lights follow their vehicle's SORT track, as in the pipeline (default)",
+        action="store_true",
+        help="lights follow their vehicle's SORT track (YOLOX-nano → SORT as in the pipeline)",
     )
     ap.add_argument("--gate", type=float, default=None, help="the light tracker's gate (default its own)")
     ap.add_argument("--max-gap-s", type=float, default=None, help="the light tracker's max_gap_s")

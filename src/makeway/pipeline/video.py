@@ -104,8 +104,7 @@ class VisionPipeline:
             :func:`~makeway.track.lights.vehicle_light_evidence`. The per-frame votes go through
             the smoother. Without a classifier, ``crop`` gives tracks no EV state.
         light_tracker: the light tracker of the lights rules (default ``LightTracker()``); its
-            detections come with each frame (:meth:`process_detections`), and it gets the frame's
-            vehicle tracks, so that lights follow their vehicle.
+            detections come with each frame (:meth:`process_detections`).
         camera_health: check the camera's health (:class:`~makeway.perceive.health.CameraHealth`;
             ``False`` checks nothing). While the camera
             is frozen or black, frames are not tracked: each reports the last trusted frame's tracks
@@ -196,7 +195,7 @@ class VisionPipeline:
         if self.light_tracker is not None:
             # white lights never make a vehicle active (headlights, street lamps): not tracked here
             kept = [d for d in lights if d.colour in SATURATED]
-            self.light_tracks = self.light_tracker.update(kept, time_s, image_bgr, vehicles=tracks)
+            self.light_tracks = self.light_tracker.update(kept, time_s, image_bgr)
             evidence = vehicle_light_evidence(tracks, self.light_tracks)
         t2 = time.perf_counter()
         states: tuple[EVTrackState, ...] = ()
