@@ -196,7 +196,7 @@ fuzz: venv
 	$(BIN)/python benchmarks/bench_fuzz.py --profile long
 
 bench: bench-sort bench-video bench-crops bench-detection bench-pull-over bench-siren-loop bench-audio bench-rig \
-	bench-v2x bench-fusion bench-roadside bench-lights bench-active-rule bench-rsu \
+	bench-v2x bench-fusion bench-roadside bench-lights bench-lights-flash bench-active-rule bench-rsu \
 	bench-fusion-ablation bench-mcap bench-engine bench-robust bench-speed bench-faults bench-overload bench-overload-listener \
 	bench-range bench-clip-fusion bench-framework-ab
 

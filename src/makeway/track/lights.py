@@ -35,7 +35,9 @@ SORT tracks), a light seen inside a vehicle's box, or in a band of ``anchor_band
 it, is anchored to that vehicle (the smallest such box) at its relative place ``(u, v)`` in the box.
 In the next frame with that vehicle, before association, the light's box moves so that its centre
 sits at the same relative place in the vehicle's new box: the camera's and the vehicle's motion no
-longer break the track, and in its off phase the level is read where the lamp now is.
+longer break the track, and in its off phase the level is read where the lamp now is. The video
+pipeline does not pass its tracks (on the shared clips it did not help; docs/results.md, "Lit lights
+in the video pipeline").
 
 **Lights evidence** (:func:`vehicle_light_evidence`) and the **active rules**
 (:func:`active_probability`) turn light tracks into per-frame votes for Framework B's vehicle

@@ -149,11 +149,10 @@ def direct_callback(fn: Callable[[zenoh.Sample], Any]) -> Any:
 
     Given a plain function, zenoh-python starts a Python thread per subscriber and hands each sample
     over to it. A car subscribed to 20 segments then has 20 such threads, and on a host running
-    many cars they contend for the interpreter: in ``benchmarks/bench_v2x_load.py`` (50 cars in 5
-    processes) the cars' verify queues backed up for seconds. Called directly, a sample costs about
-    17 µs of CPU instead of 37 µs on the development machine, and no thread is added. ``fn`` must
-    therefore be short and never block (here: stamp, copy the bytes, queue). Falls back to the plain
-    function where the installed zenoh has no ``indirect`` option."""
+    many cars they contend for the interpreter. Called directly, a sample costs about half the CPU
+    and no thread is added (figures: docs/results.md, "V2X alerts", load). ``fn`` must therefore be
+    short and never block (here: stamp, copy the bytes, queue). Falls back to the plain function
+    where the installed zenoh has no ``indirect`` option."""
     try:
         return zenoh.handlers.Callback(fn, indirect=False)
     except (AttributeError, TypeError):  # an eclipse-zenoh without the (unstable) option
