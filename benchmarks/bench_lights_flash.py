@@ -35,7 +35,6 @@ from typing import Any
 import numpy as np
 
 from makeway.eval.lights import FrameResult, match_frame, summarise
-from makeway.messages import LightDetection
 from makeway.paths import data_dir
 from makeway.perceive.vision.detectors import Detector
 from makeway.perceive.vision.light_verify import VerifiedLightDetector, vehicle_detector
@@ -52,7 +51,7 @@ FIGURES = ("array_precision", "array_recall", "vehicle_precision", "vehicle_reca
 
 def _run_clip(
     name: str, root: Path, threads: int, follow: bool, tracker_kw: dict[str, Any]
-) -> tuple[list[FrameResult], dict[str, Any], dict[str, Any]]:
+) -> tuple[dict[str, Any], dict[str, Any]]:
     labels = read_labels(LABEL_DIR / f"{name}.csv")
     split = SPLITS[name]
     gt = {
@@ -65,14 +64,16 @@ def _run_clip(
     op = probe.threshold
     tracker = LightTracker(**tracker_kw)
     vehicles = vehicle_detector(threads) if follow else None
-    sort = Sort()
+    sort = Sort() if follow else None
     results: dict[str, list[FrameResult]] = {p: [] for p in POLICIES}
     ages: dict[str, list[tuple[float, bool]]] = {"true": [], "false": []}
     for key, img in iter_label_frames(labels, root, every=True):
         dets = detector.detect(img, int(key))
         strong = [d for d in dets if d.score >= op]
         cars = None
-        if vehicles is not None:  # as the pipeline: YOLOX-nano → SORT, the light tracker follows them
+        if (
+            vehicles is not None and sort is not None
+        ):  # as the pipeline: YOLOX-nano → SORT, the light tracker follows them
             arrays = vehicles.detect_arrays(img)
             cars = sort.update(Detector.to_detections((arrays[0], arrays[1], arrays[2])))
         tracks = tracker.update(strong, int(key) / fps, img, vehicles=cars)
@@ -87,12 +88,15 @@ def _run_clip(
         track_of = [by_box.get((d.box.x1, d.box.y1, d.box.x2, d.box.y2)) for d in dets]
         flashing = np.array([t is not None and t.flashing for t in track_of], bool)
         new = np.array([t is not None and t.age_s < tracker.window_s for t in track_of], bool)
-        for policy, keep in (("per frame", np.ones(len(dets), bool)), ("flashing", flashing)):
-            scores = np.where(keep, base, DOWN * base)
+        keep = {
+            "per frame": np.ones(len(dets), bool),
+            "flashing": flashing,
+            "flashing or new": flashing | new,
+        }
+        for policy, kept in keep.items():
+            scores = np.where(kept, base, DOWN * base)
             results[policy].append(FrameResult(name, key, frame.boxes, frame.vehicles, boxes, scores))
-        scores = np.where(flashing | new, base, DOWN * base)
-        results["flashing or new"].append(FrameResult(name, key, frame.boxes, frame.vehicles, boxes, scores))
-        _book_ages(strong, track_of, dets, frame.boxes, ages)
+        _book_ages(boxes, base, base >= op, track_of, frame.boxes, ages)
     summary = {p: summarise(rs, score_threshold=op)[name] for p, rs in results.items()}
     diag = {
         kind: {
@@ -103,23 +107,23 @@ def _run_clip(
         }
         for kind, v in ages.items()
     }
-    return results["per frame"], summary, {"fps": fps, "threshold": op, "boxes": diag}
+    return summary, {"fps": fps, "threshold": op, "boxes": diag}
 
 
 def _book_ages(
-    strong: list[LightDetection],
+    boxes: np.ndarray,
+    scores: np.ndarray,
+    strong: np.ndarray,
     track_of: list[LightTrack | None],
-    dets: list[LightDetection],
     gt_boxes: np.ndarray,
     ages: dict[str, list[tuple[float, bool]]],
 ) -> None:
-    """Record (track age, flashing) of each box at the operating threshold, as true or false."""
-    sel = [i for i, d in enumerate(dets) if d in strong and track_of[i] is not None]
+    """Record (track age, flashing) of each box at the operating threshold (``strong``), as true
+    (matching a labelled lamp) or false."""
+    sel = [i for i in np.flatnonzero(strong) if track_of[i] is not None]
     if not sel:
         return
-    b = np.array([[dets[i].box.x1, dets[i].box.y1, dets[i].box.x2, dets[i].box.y2] for i in sel], np.float64)
-    s = np.array([dets[i].score for i in sel], np.float64)
-    for i, j in zip(sel, match_frame(b, s, gt_boxes), strict=True):
+    for i, j in zip(sel, match_frame(boxes[sel], scores[sel], gt_boxes), strict=True):
         t = track_of[i]
         assert t is not None
         ages["true" if j >= 0 else "false"].append((t.age_s, t.flashing))
@@ -150,7 +154,7 @@ def main(argv: list[str] | None = None) -> int:
             return 2
     out: dict[str, Any] = {}
     for name in clips:
-        _, summary, info = _run_clip(name, Path(root), args.threads, args.follow_vehicles, tracker_kw)
+        summary, info = _run_clip(name, Path(root), args.threads, args.follow_vehicles, tracker_kw)
         out[name] = {
             "policies": summary,
             "follow_vehicles": args.follow_vehicles,
