@@ -61,7 +61,9 @@ def test_shipped_verifier_loads_and_scores_probabilities() -> None:
     v = LightVerifier()
     assert 0.0 < v.threshold < 1.0
     assert v.feature_names[: len(FEATURE_NAMES)] == FEATURE_NAMES
-    assert v.uses_vehicles and v.feature_names == FEATURE_NAMES + CONTEXT_FEATURE_NAMES
+    assert v.uses_vehicles and v.feature_names[:200] == FEATURE_NAMES + CONTEXT_FEATURE_NAMES
+    assert v.uses_appearance and v.appearance is not None
+    assert v.feature_names[200:] == v.appearance.feature_names and len(v.feature_names) == 208
     x = np.random.default_rng(0).random((7, len(v.feature_names)), dtype=np.float32)
     p = v.score(x)
     assert p.shape == (7,) and np.all((p >= 0) & (p <= 1))
@@ -78,7 +80,8 @@ def test_keeps_most_true_lights_and_drops_most_hard_negatives(frames) -> None:
         assert feats.shape == (len(props), len(FEATURE_NAMES)) and np.isfinite(feats).all()
         boxes = np.array([p["box"] for p in props], float).reshape(-1, 4)
         ctx = context_features(boxes, [p["colour"] for p in props], vehicles.detect_arrays(img))
-        prob = v.score(np.concatenate([feats, ctx], axis=1))
+        assert v.appearance is not None
+        prob = v.score(np.concatenate([feats, ctx, v.appearance.transform(img, boxes)], axis=1))
         iou_gt = box_iou_matrix(boxes, gt).max(axis=1) if len(gt) else np.zeros(len(boxes))
         iou_neg = box_iou_matrix(boxes, neg).max(axis=1) if len(neg) else np.zeros(len(boxes))
         true = iou_gt >= 0.5

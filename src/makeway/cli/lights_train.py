@@ -64,9 +64,18 @@ def lights_train(
         typer.Option(
             "--verifier",
             help="Train the 'verified' detector's proposal verifier (boosted trees; the shipped one: "
-            "src/makeway/models/lights_verifier.onnx) instead of the CNN; uses --seed and --data only.",
+            "src/makeway/models/lights_verifier.onnx) instead of the CNN; uses --seed, --data and "
+            "--appearance only.",
         ),
     ] = False,
+    appearance: Annotated[
+        int,
+        typer.Option(
+            min=0,
+            help="With --verifier: appearance columns per proposal (a patch around it through "
+            "YOLOX-nano's backbone, projected on this many principal axes); 0 for none.",
+        ),
+    ] = 8,
 ) -> None:
     """Train a lit-light model (CNN or verifier) as ONNX.
 
@@ -78,7 +87,7 @@ def lights_train(
     if verifier:
         from makeway.train.light_verifier import train_light_verifier
 
-        v = train_light_verifier(out, data_root=data, seed=seed)
+        v = train_light_verifier(out, data_root=data, seed=seed, appearance=appearance)
         val = v["validation"]
         console.print(
             f"wrote {v['model']} ({v['size_bytes'] / 1e6:.2f} MB): {v['train_rows']} train proposals "

@@ -31,9 +31,11 @@ from makeway.eval.detection import box_iou_matrix
 from makeway.eval.lights import FrameResult, metrics
 from makeway.perceive.vision.light_colour import COLOURS
 from makeway.perceive.vision.light_verify import (
+    APPEARANCE_PREFIX,
     CONTEXT_FEATURE_NAMES,
     DEFAULT_VERIFIER_MODEL,
     FEATURE_NAMES,
+    ProposalAppearance,
     Vehicles,
     context_features,
     nms,
@@ -122,11 +124,15 @@ CV_NEGATIVES = 0.25
 
 def feature_names_for(width: int) -> tuple[str, ...]:
     """The column names of feature rows ``width`` wide: the proposal's own (:data:`FEATURE_NAMES`),
-    or those followed by the vehicle context (:data:`CONTEXT_FEATURE_NAMES`)."""
-    for names in (FEATURE_NAMES, FEATURE_NAMES + CONTEXT_FEATURE_NAMES):
-        if width == len(names):
-            return names
-    raise ValueError(f"feature rows of {width} columns match neither feature set")
+    those followed by the vehicle context (:data:`CONTEXT_FEATURE_NAMES`), or both followed by
+    ``width − 200`` appearance columns (``app_0`` …, :class:`ProposalAppearance`)."""
+    with_context = FEATURE_NAMES + CONTEXT_FEATURE_NAMES
+    if width == len(FEATURE_NAMES):
+        return FEATURE_NAMES
+    if width >= len(with_context):
+        extra = width - len(with_context)
+        return with_context + tuple(f"{APPEARANCE_PREFIX}{i}" for i in range(extra))
+    raise ValueError(f"feature rows of {width} columns match no feature set")
 
 
 def verifier_rows(
@@ -135,6 +141,7 @@ def verifier_rows(
     *,
     label_positives: bool = False,
     vehicles: Callable[[np.ndarray], Vehicles] | None = None,
+    extra_features: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None,
     advance: Callable[[int], Any] | None = None,
 ) -> dict[str, Any]:
     """Feature rows of one split: ``x`` (n, F), ``y`` (n,) bool, ``frame`` (n,) frame index, and per
@@ -143,7 +150,8 @@ def verifier_rows(
     ``origin`` (n,) is the frame every row came from, extra positives included). With ``vehicles``
     (a frame's BGR pixels → its vehicle boxes, e.g. the vehicle detector's ``detect_arrays``) every
     row also gets the vehicle-context columns (:func:`context_features`; an extra label positive is
-    described among its frame's proposals)."""
+    described among its frame's proposals). ``extra_features`` (a frame's BGR pixels and boxes ``(n, 4)`` →
+    feature rows ``(n, k)``) appends ``k`` more columns to every row, after the context."""
     from makeway.train.light_split import load_split
 
     frames, _ = load_split(split, data_root, input_size=None)
@@ -162,6 +170,8 @@ def verifier_rows(
         x = verifier_features(f.image, props)
         if veh is not None:
             x = np.concatenate([x, context_features(b, pc, veh)], axis=1)
+        if extra_features is not None:
+            x = np.concatenate([x, extra_features(f.image, b)], axis=1)
         y = np.zeros(len(props), bool)
         if len(f.boxes) and len(props):
             y = box_iou_matrix(b, f.boxes).max(axis=1) >= 0.5
@@ -187,6 +197,9 @@ def verifier_rows(
             if veh is not None:
                 ctx = context_features(f.boxes, list(f.colours), veh, peer_boxes=b, peer_colours=pc)
                 xe = np.concatenate([xe, ctx], axis=1)
+            if extra_features is not None:
+                gt = np.asarray(f.boxes, np.float64).reshape(-1, 4)
+                xe = np.concatenate([xe, extra_features(f.image, gt)], axis=1)
             xs.append(xe)
             ys.append(np.ones(len(extra), bool))
             fi.append(np.full(len(extra), -1))
@@ -222,9 +235,12 @@ def fit_verifier(
 
     y = np.asarray(y, bool)
     x = np.array(x, np.float32)
-    if x.ndim == 2 and x.shape[1] in (len(FEATURE_NAMES), len(FEATURE_NAMES) + len(CONTEXT_FEATURE_NAMES)):
-        names = feature_names_for(x.shape[1])
-        cols = [names.index(n) for n in ignored if n in names]
+    try:
+        names = feature_names_for(x.shape[1]) if x.ndim == 2 else ()
+    except ValueError:  # rows of another layout: nothing is known to ignore
+        names = ()
+    cols = [names.index(n) for n in ignored if n in names]
+    if cols:
         x[:, cols] = 0.0  # constant: never split on
     if len(np.unique(y)) < 2:
         raise ValueError("the training proposals hold only one class")
@@ -530,6 +546,7 @@ def fit_from_rows(
         "train_cv": {**{k: cv_summ[k] for k in keys}, "ap50": _finite(cv_ap)},
         "features": len(feature_names_for(tr["x"].shape[1])),
         "vehicle_context": tr["x"].shape[1] > len(FEATURE_NAMES),
+        "appearance_components": max(0, tr["x"].shape[1] - len(FEATURE_NAMES + CONTEXT_FEATURE_NAMES)),
         "refine_boxes": refine,
         "params": XGB_PARAMS,
         "ignored_features": list(ignored),
@@ -547,14 +564,18 @@ def train_light_verifier(
     seed: int = 0,
     refine: bool = False,
     vehicle_context: bool = True,
+    appearance: int = 8,
     progress: bool = True,
 ) -> dict[str, Any]:
     """Train the verifier on the train split, pick its threshold on the train split's grouped
     out-of-fold scores pooled with the validation split (module docstring) and write it as ONNX to
     ``out`` (default: the shipped ``models/lights_verifier.onnx``). With ``vehicle_context`` the
     rows also describe each proposal against the frame's vehicle boxes (YOLOX-nano,
-    :func:`~makeway.perceive.vision.light_verify.context_features`). Returns the counts, the
-    threshold, the validation and train cross-validation figures and the seconds taken.
+    :func:`~makeway.perceive.vision.light_verify.context_features`); with ``appearance`` > 0
+    (vehicle context needed) they end with that many appearance columns
+    (:class:`~makeway.perceive.vision.light_verify.ProposalAppearance`, its standardisation and
+    principal axes fitted on the train rows and stored in the model's metadata). Returns the
+    counts, the threshold, the validation and train cross-validation figures and the seconds taken.
 
     Raises:
         InputError: no shared data folder, ``out``'s folder does not exist, or (with
@@ -572,10 +593,13 @@ def train_light_verifier(
     root = Path(data_root) if data_root is not None else data_dir()
     if root is None or not Path(root).is_dir():
         raise InputError(str(data_root), "shared data folder not found (set MAKEWAY_DATA)")
+    if appearance < 0 or (appearance and not vehicle_context):
+        raise ValueError("appearance columns need the vehicle context and a count >= 0")
     t0 = time.perf_counter()
     vehicles = None
     if vehicle_context:
         vehicles = vehicle_detector(num_threads=1).detect_arrays
+    app = ProposalAppearance(n_components=appearance) if appearance else None
     rows = {}
     for split in ("train", "val"):
         n = len(load_split(split, root, keep_images=False)[0])
@@ -585,8 +609,16 @@ def train_light_verifier(
                 root,
                 label_positives=label_positives and split == "train",
                 vehicles=vehicles,
+                extra_features=app.vectors if app is not None else None,
                 advance=advance,
             )
+    meta: dict[str, Any] = {}
+    if app is not None:  # the backbone's vectors → their coordinates on the train rows' principal axes
+        width = len(FEATURE_NAMES + CONTEXT_FEATURE_NAMES)
+        app.fit(rows["train"]["x"][:, width:], seed=0)
+        for r in rows.values():
+            r["x"] = np.concatenate([r["x"][:, :width], app.project(r["x"][:, width:])], axis=1)
+        meta["appearance"] = app.to_json()
     ignored = IGNORED_FEATURES + (IGNORED_CONTEXT_FEATURES if vehicle_context else ())
     fitted = fit_from_rows(
         rows["train"], rows["val"], seed=seed, refine=refine, ignored=ignored, progress=progress
@@ -598,6 +630,7 @@ def train_light_verifier(
         {
             "threshold": str(fitted["threshold"]),
             "training": {k: v for k, v in result.items() if k != "model"},
+            **meta,
         },
         refiner=fitted["refiner"],
     )

@@ -11,9 +11,12 @@ and colour-mask statistics of the box and of its context ring (the box grown by 
 every side); the context patch's value and saturation resized to 8×8; the proposal's colour, score,
 cues and the settings that found it — optionally followed by its **vehicle context**
 (:func:`context_features`: where it sits in or near the frame's vehicle boxes, found by YOLOX-nano or
-handed over by the video pipeline, and whether a red/blue partner shares the box) — and
-gradient-boosted trees (ONNX, ONNX Runtime only) give the probability that it is a lit emergency
-light. The model's metadata names the columns it reads; the shipped model reads the context.
+handed over by the video pipeline, and whether a red/blue partner shares the box) and, last, its
+**appearance** (:class:`ProposalAppearance`: a square patch centred on the proposal, four times its
+longer side, through YOLOX-nano's COCO backbone, pooled, projected on a few principal components of
+the training proposals) — and gradient-boosted trees (ONNX, ONNX Runtime only) give the
+probability that it is a lit emergency light. The model's metadata names the columns it reads;
+the shipped model reads the context and the appearance.
 A model with the output ``box_offsets`` also refines each kept box (:func:`refine_boxes`:
 boosted-tree regressors on the same features predict how far each side of the proposal lies from
 the lit part a person would box — the rules often box a lamp with its glow, or only part of it,
@@ -28,6 +31,7 @@ from __future__ import annotations
 
 import json
 from collections.abc import Sequence
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -44,6 +48,7 @@ from makeway.perceive.vision.light_colour import COLOURS, WIDE_HSV, ProposalConf
 Vehicles = tuple[np.ndarray, np.ndarray, np.ndarray]
 
 __all__ = [
+    "APPEARANCE_PREFIX",
     "BOX_OUTPUT",
     "CONTEXT_FEATURE_NAMES",
     "DEFAULT_VERIFIER_MODEL",
@@ -51,8 +56,10 @@ __all__ = [
     "PROPOSAL_CONFIGS",
     "VEHICLE_DETECTOR_SETTINGS",
     "LightVerifier",
+    "ProposalAppearance",
     "Vehicles",
     "VerifiedLightDetector",
+    "appearance_patches",
     "context_features",
     "nms",
     "proposals",
@@ -360,6 +367,165 @@ def verifier_features(frame_bgr: np.ndarray, props: Sequence[dict[str, Any]]) ->
     return np.concatenate([geo, core, ring, contrast, meta, patches], axis=1).astype(np.float32)
 
 
+#: Column-name prefix of the appearance features (``app_0`` … ``app_{k-1}``).
+APPEARANCE_PREFIX = "app_"
+
+
+def appearance_patches(
+    frame_bgr: np.ndarray,
+    boxes: np.ndarray,
+    *,
+    size: int = 64,
+    context: float = 4.0,
+    min_side_px: float = 32.0,
+) -> np.ndarray:
+    """Square BGR patches ``(n, size, size, 3)`` uint8, one per box ``(n, 4)`` (x1, y1, x2, y2,
+    pixels): centred on the box, ``context`` times its longer side (at least ``min_side_px``) across,
+    resampled to ``size`` pixels; what falls outside the frame is grey (114, YOLOX's padding)."""
+    b = np.asarray(boxes, np.float64).reshape(-1, 4)
+    out = np.empty((len(b), size, size, 3), np.uint8)
+    for i, (x1, y1, x2, y2) in enumerate(b):
+        side = max(min_side_px, context * max(x2 - x1, y2 - y1))
+        k = size / side
+        m = np.array([[k, 0.0, size / 2 - k * (x1 + x2) / 2], [0.0, k, size / 2 - k * (y1 + y2) / 2]])
+        out[i] = cv2.warpAffine(
+            frame_bgr,
+            m,
+            (size, size),
+            flags=cv2.INTER_AREA if k < 1 else cv2.INTER_LINEAR,
+            borderMode=cv2.BORDER_CONSTANT,
+            borderValue=(114, 114, 114),
+        )
+    return out
+
+
+@dataclass
+class ProposalAppearance:
+    """What a proposal and its surroundings look like to a pretrained network, in a few numbers.
+
+    Each proposal's patch (:func:`appearance_patches`) goes through the registered ``backbone``'s
+    ``layers`` (:class:`~makeway.perceive.vision.backbone.BackboneFeatures`: per channel the global
+    average and max) → a vector ``d`` long (384 for YOLOX-nano ``dark3 + dark4``); :meth:`fit`
+    learns each column's mean and standard deviation and the first ``n_components`` principal
+    axes of the standardised vectors, and :meth:`transform` gives each proposal's coordinates on
+    them ``(n, n_components)`` float32 — the verifier's ``app_*`` columns. The fitted state travels
+    in the verifier's metadata (:meth:`to_json`, :meth:`from_json`). The backbone's ONNX Runtime
+    session is made on first use."""
+
+    n_components: int = 8
+    backbone: str = "yolox_nano"
+    layers: tuple[str, ...] = ("dark3", "dark4")
+    input_size: int = 64
+    context: float = 4.0
+    min_side_px: float = 32.0
+    num_threads: int = 1
+    mean_: np.ndarray | None = field(default=None, repr=False)
+    scale_: np.ndarray | None = field(default=None, repr=False)
+    components_: np.ndarray | None = field(default=None, repr=False)
+    _net: Any = field(default=None, init=False, repr=False, compare=False)
+
+    @property
+    def feature_names(self) -> tuple[str, ...]:
+        """The ``app_*`` column names."""
+        return tuple(f"{APPEARANCE_PREFIX}{i}" for i in range(self.n_components))
+
+    def vectors(self, frame_bgr: np.ndarray, boxes: np.ndarray) -> np.ndarray:
+        """The backbone's pooled vectors ``(n, d)`` float32 of the patches around ``boxes``."""
+        if self._net is None:
+            from makeway.perceive.vision.backbone import BackboneFeatures
+
+            self._net = BackboneFeatures(
+                layers=self.layers,
+                input_size=self.input_size,
+                num_threads=self.num_threads,
+                backbone=self.backbone,
+            )
+        b = np.asarray(boxes, np.float64).reshape(-1, 4)
+        if len(b) == 0:
+            return np.zeros((0, self._net.dim), np.float32)
+        patches = appearance_patches(
+            frame_bgr, b, size=self.input_size, context=self.context, min_side_px=self.min_side_px
+        )
+        return np.asarray(self._net.transform(patches), np.float32)
+
+    def fit(self, vectors: np.ndarray, *, max_rows: int = 50_000, seed: int = 0) -> ProposalAppearance:
+        """Learn the standardisation from every row of ``vectors`` ``(n, d)`` and the principal axes
+        from at most ``max_rows`` of them (drawn with ``seed``)."""
+        v = np.asarray(vectors, np.float64)
+        if v.ndim != 2 or len(v) < self.n_components or v.shape[1] < self.n_components:
+            raise ValueError(f"need at least {self.n_components} rows and columns, got {v.shape}")
+        self.mean_ = v.mean(axis=0)
+        self.scale_ = v.std(axis=0) + 1e-6
+        z = (v - self.mean_) / self.scale_
+        pick = np.random.default_rng(seed).choice(len(z), min(len(z), max_rows), replace=False)
+        _, _, vt = np.linalg.svd(z[pick], full_matrices=False)
+        self.components_ = vt[: self.n_components].T
+        return self
+
+    def project(self, vectors: np.ndarray) -> np.ndarray:
+        """Fitted coordinates ``(n, n_components)`` float32 of backbone vectors ``(n, d)``."""
+        if self.mean_ is None or self.scale_ is None or self.components_ is None:
+            raise ValueError("ProposalAppearance is not fitted")
+        v = np.asarray(vectors, np.float64).reshape(-1, len(self.mean_))
+        return (((v - self.mean_) / self.scale_) @ self.components_).astype(np.float32)
+
+    def transform(self, frame_bgr: np.ndarray, boxes: np.ndarray) -> np.ndarray:
+        """The ``app_*`` columns ``(n, n_components)`` of the proposals ``boxes`` of one frame."""
+        return self.project(self.vectors(frame_bgr, boxes))
+
+    def to_json(self) -> str:
+        """The settings and fitted state as JSON (the verifier model's ``appearance`` metadata)."""
+        if self.mean_ is None or self.scale_ is None or self.components_ is None:
+            raise ValueError("ProposalAppearance is not fitted")
+        return json.dumps(
+            {
+                "backbone": self.backbone,
+                "layers": list(self.layers),
+                "input_size": self.input_size,
+                "context": self.context,
+                "min_side_px": self.min_side_px,
+                "mean": [float(x) for x in self.mean_],
+                "scale": [float(x) for x in self.scale_],
+                "components": [[float(x) for x in row] for row in self.components_],
+            }
+        )
+
+    @classmethod
+    def from_json(cls, text: str, *, num_threads: int = 1) -> ProposalAppearance:
+        """The fitted object :meth:`to_json` wrote; ``ValueError`` when it is malformed."""
+        try:
+            d = json.loads(text)
+            mean = np.asarray(d["mean"], np.float64)
+            scale = np.asarray(d["scale"], np.float64)
+            comp = np.asarray(d["components"], np.float64)
+            out = cls(
+                n_components=int(comp.shape[1]),
+                backbone=str(d["backbone"]),
+                layers=tuple(str(x) for x in d["layers"]),
+                input_size=int(d["input_size"]),
+                context=float(d["context"]),
+                min_side_px=float(d["min_side_px"]),
+                num_threads=num_threads,
+                mean_=mean,
+                scale_=scale,
+                components_=comp,
+            )
+        except (ValueError, TypeError, KeyError, IndexError) as exc:
+            raise ValueError(f"malformed appearance settings ({exc})") from None
+        ok = (
+            mean.ndim == 1
+            and scale.shape == mean.shape
+            and comp.ndim == 2
+            and comp.shape[0] == len(mean)
+            and np.isfinite(comp).all()
+            and np.isfinite(mean).all()
+            and bool((scale > 0).all())
+        )
+        if not ok:
+            raise ValueError("malformed appearance settings (shapes or values)")
+        return out
+
+
 def refine_boxes(boxes: np.ndarray, offsets: np.ndarray, size: tuple[int, int]) -> np.ndarray:
     """Proposal boxes ``(n, 4)`` moved by predicted corrections ``(n, 4)``: each corner moves by its
     offset times the box's width (x) or height (y), the result is clipped to the frame ``size``
@@ -429,17 +595,30 @@ class LightVerifier:
         except (ValueError, TypeError) as exc:
             raise InputError(path, f"malformed light verifier metadata ({exc})") from None
         with_context = FEATURE_NAMES + CONTEXT_FEATURE_NAMES
-        if not isinstance(names, list) or tuple(names) not in (FEATURE_NAMES, with_context):
+        #: The appearance columns' extractor (:class:`ProposalAppearance`) when the model reads
+        #: them (metadata ``appearance``), else None.
+        self.appearance: ProposalAppearance | None = None
+        if "appearance" in meta:
+            try:
+                self.appearance = ProposalAppearance.from_json(meta["appearance"], num_threads=num_threads)
+            except ValueError as exc:
+                raise InputError(path, f"light verifier metadata: {exc}") from None
+        with_appearance = with_context + (self.appearance.feature_names if self.appearance else ())
+        known = (FEATURE_NAMES, with_context, with_appearance)
+        if not isinstance(names, list) or tuple(names) not in known:
             n = len(names) if isinstance(names, list) else 0
             raise InputError(
                 path,
-                f"its features do not match this code's ({n} vs {len(FEATURE_NAMES)} or {len(with_context)})",
+                f"its features do not match this code's ({n} vs "
+                f"{' or '.join(str(len(k)) for k in dict.fromkeys(known))})",
             )
+        #: Column names of the feature rows the model reads.
+        self.feature_names: tuple[str, ...] = tuple(names)
         #: Whether the model reads the vehicle-context columns (:func:`context_features`) after the
         #: proposal's own (:func:`verifier_features`).
-        self.uses_vehicles = tuple(names) == with_context
-        #: Column names of the feature rows the model reads.
-        self.feature_names: tuple[str, ...] = with_context if self.uses_vehicles else FEATURE_NAMES
+        self.uses_vehicles = len(names) > len(FEATURE_NAMES)
+        #: Whether the model reads the appearance columns (:attr:`appearance`) after the context.
+        self.uses_appearance = len(names) > len(with_context)
         if not 0.0 <= threshold <= 1.0:
             raise InputError(path, f"malformed light verifier metadata (threshold {threshold} not in [0, 1])")
         self.path = path
@@ -493,7 +672,9 @@ class VerifiedLightDetector:
 
     A verifier that reads the vehicle context (:attr:`uses_vehicles`) needs the frame's vehicle
     boxes: pass those the pipeline already found as ``detect(..., vehicles=...)``, else the
-    detector runs its own YOLOX-nano (:func:`vehicle_detector`, created on first use).
+    detector runs its own YOLOX-nano (:func:`vehicle_detector`, created on first use). A verifier
+    that also reads the proposals' appearance runs YOLOX-nano's backbone on a 64-px patch per
+    proposal (:class:`ProposalAppearance`).
     """
 
     def __init__(
@@ -513,7 +694,7 @@ class VerifiedLightDetector:
         #: Whether :meth:`detect` uses vehicle boxes (given, or found by its own vehicle detector).
         self.uses_vehicles = self.verifier.uses_vehicles
         self._vehicle_detector: Any = None
-        if self.uses_vehicles:
+        if self.uses_vehicles:  # the appearance columns come after the context: same weights
             # fail at construction, not on the first frame, when the vehicle detector's weights are
             # missing; the detector itself is made on first use (a pipeline passes its own boxes)
             from makeway.perceive.vision.detectors import DETECTORS, resolve_model_path
@@ -551,6 +732,9 @@ class VerifiedLightDetector:
                 peer_colours=[p["colour"] for p in pool],
             )
             x = np.concatenate([x, ctx], axis=1)
+        if self.verifier.appearance is not None and self.verifier.uses_appearance:
+            boxes = np.array([p["box"] for p in props], np.float64)
+            x = np.concatenate([x, self.verifier.appearance.transform(frame_bgr, boxes)], axis=1)
         prob, offsets = self.verifier.score_and_offsets(x)
         sel = np.flatnonzero(prob >= self.threshold)
         if len(sel) == 0:
