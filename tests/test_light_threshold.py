@@ -145,3 +145,27 @@ def test_exported_verifier_with_box_refiner_runs_in_onnx_runtime(tmp_path) -> No
     plain = Path(tmp_path) / "plain.onnx"
     _export(clf, plain, {"threshold": "0.4"})
     assert not LightVerifier(plain).refines_boxes and LightVerifier(plain).score_and_offsets(x[:3])[1] is None
+
+
+def test_bagged_verifier_is_the_mean_of_its_boosters(tmp_path) -> None:
+    """Boosters fitted with several seeds export as one ONNX graph whose probability is their mean
+    (what ``makeway lights-train --verifier --bag N`` ships); one booster in a list exports as it is."""
+    require_module("xgboost")
+    from pathlib import Path
+
+    from makeway.perceive.vision.light_verify import FEATURE_NAMES, LightVerifier
+    from makeway.train.light_verifier import _export, fit_verifier
+
+    rng = np.random.default_rng(3)
+    x = rng.normal(size=(300, len(FEATURE_NAMES))).astype(np.float32)
+    y = x[:, 0] + 0.5 * rng.normal(size=300) > 0.3
+    boosters = [fit_verifier(x, y, seed=s, threads=1) for s in range(3)]
+    each = np.array([b.predict_proba(x[:25])[:, 1] for b in boosters])
+    assert np.ptp(each, axis=0).max() > 1e-3  # the seeds do give different boosters
+    path = Path(tmp_path) / "bag.onnx"
+    _export(boosters, path, {"threshold": "0.3"})
+    v = LightVerifier(path)
+    assert v.threshold == 0.3 and np.allclose(v.score(x[:25]), each.mean(axis=0), atol=1e-5)
+    one = Path(tmp_path) / "one.onnx"
+    _export(boosters[:1], one, {"threshold": "0.3"})
+    assert np.allclose(LightVerifier(one).score(x[:25]), each[0], atol=1e-5)

@@ -64,8 +64,8 @@ def lights_train(
         typer.Option(
             "--verifier",
             help="Train the 'verified' detector's proposal verifier (boosted trees; the shipped one: "
-            "src/makeway/models/lights_verifier.onnx) instead of the CNN; uses --seed, --data and "
-            "--appearance only.",
+            "src/makeway/models/lights_verifier.onnx) instead of the CNN; uses --seed, --data, "
+            "--appearance and --bag only.",
         ),
     ] = False,
     appearance: Annotated[
@@ -76,6 +76,13 @@ def lights_train(
             "YOLOX-nano's backbone, projected on this many principal axes); 0 for none.",
         ),
     ] = 8,
+    bag: Annotated[
+        int,
+        typer.Option(
+            min=1,
+            help="With --verifier: boosters averaged (fitted with seeds --seed … --seed + BAG − 1).",
+        ),
+    ] = 3,
 ) -> None:
     """Train a lit-light model (CNN or verifier) as ONNX.
 
@@ -87,7 +94,7 @@ def lights_train(
     if verifier:
         from makeway.train.light_verifier import train_light_verifier
 
-        v = train_light_verifier(out, data_root=data, seed=seed, appearance=appearance)
+        v = train_light_verifier(out, data_root=data, seed=seed, appearance=appearance, bag=bag)
         val = v["validation"]
         console.print(
             f"wrote {v['model']} ({v['size_bytes'] / 1e6:.2f} MB): {v['train_rows']} train proposals "
