@@ -436,26 +436,41 @@ def _to_onnx(model: Any) -> Any:
     )
 
 
+def _graft(graph: Any, model: Any, prefix: str) -> list[str]:
+    """Copy the ONNX ``model``'s nodes and weights into ``graph``, names prefixed, its input wired to
+    the graph's ``features``; returns the copied outputs' names."""
+    import onnx
+
+    sub = onnx.compose.add_prefix(model, prefix=prefix)
+    inp = sub.graph.input[0].name
+    for node in sub.graph.node:
+        node.input[:] = ["features" if i == inp else i for i in node.input]
+    graph.node.extend(sub.graph.node)
+    graph.initializer.extend(sub.graph.initializer)
+    return [o.name for o in sub.graph.output]
+
+
+def _with_default_opset(onx: Any) -> None:
+    """Declare the default ONNX domain (the converters' graphs import only ``ai.onnx.ml``)."""
+    from onnx import helper
+
+    if not any(op.domain in ("", "ai.onnx") for op in onx.opset_import):
+        onx.opset_import.append(helper.make_opsetid("", ONNX_OPSET))
+
+
 def _mean_of(models: Sequence[Any]) -> Any:
     """One ONNX graph reading ``features`` whose ``probabilities`` are the mean of the boosters'
     (XGBoost classifiers, bagged over seeds) and whose ``label`` is their arg-max."""
     import onnx
     from onnx import helper
 
-    parts = [onnx.compose.add_prefix(_to_onnx(m), prefix=f"bag{i}_") for i, m in enumerate(models)]
+    parts = [_to_onnx(m) for m in models]
     onx = onnx.ModelProto()
     onx.CopyFrom(parts[0])
     graph = onx.graph
     del graph.node[:], graph.initializer[:], graph.output[:]
     graph.input[0].name = "features"
-    probs = []
-    for sub in parts:
-        inp = sub.graph.input[0].name
-        for node in sub.graph.node:
-            node.input[:] = ["features" if i == inp else i for i in node.input]
-        graph.node.extend(sub.graph.node)
-        graph.initializer.extend(sub.graph.initializer)
-        probs.append(sub.graph.output[1].name)
+    probs = [_graft(graph, sub, f"bag{i}_")[1] for i, sub in enumerate(parts)]
     graph.node.append(helper.make_node("Mean", probs, ["probabilities"], name="bag_mean"))
     graph.node.append(
         helper.make_node("ArgMax", ["probabilities"], ["label"], axis=1, keepdims=0, name="bag_label")
@@ -466,8 +481,7 @@ def _mean_of(models: Sequence[Any]) -> Any:
             helper.make_tensor_value_info("probabilities", onnx.TensorProto.FLOAT, [None, 2]),
         ]
     )
-    if not any(op.domain in ("", "ai.onnx") for op in onx.opset_import):
-        onx.opset_import.append(helper.make_opsetid("", ONNX_OPSET))
+    _with_default_opset(onx)
     onnx.checker.check_model(onx)
     return onx
 
@@ -497,18 +511,9 @@ def _export(clf: Any, path: Path, meta_extra: dict[str, Any], refiner: Sequence[
         width = int(clf.n_features_in_)
     if refiner:
         graph = onx.graph
-        parts = []
-        for c, reg in enumerate(refiner):
-            sub = onnx.compose.add_prefix(_to_onnx(reg), prefix=f"refine{c}_")
-            inp = sub.graph.input[0].name
-            for node in sub.graph.node:
-                node.input[:] = ["features" if i == inp else i for i in node.input]
-            graph.node.extend(sub.graph.node)
-            graph.initializer.extend(sub.graph.initializer)
-            parts.append(sub.graph.output[0].name)
+        parts = [_graft(graph, _to_onnx(reg), f"refine{c}_")[0] for c, reg in enumerate(refiner)]
         graph.node.append(helper.make_node("Concat", parts, [BOX_OUTPUT], axis=1, name="box_offsets_concat"))
-        if not any(op.domain in ("", "ai.onnx") for op in onx.opset_import):
-            onx.opset_import.append(helper.make_opsetid("", ONNX_OPSET))
+        _with_default_opset(onx)
         graph.output.append(helper.make_tensor_value_info(BOX_OUTPUT, onnx.TensorProto.FLOAT, [None, 4]))
         onnx.checker.check_model(onx)
     meta = {
