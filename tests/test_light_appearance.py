@@ -53,12 +53,22 @@ def test_projection_fits_round_trips_and_refuses_bad_state() -> None:
     assert back.n_components == 2 and back.layers == ("dark3", "dark4") and back.input_size == 64
     assert np.allclose(back.project(v[:5]), t[:5], atol=1e-5)
     assert app.feature_names == ("app_0", "app_1")
+    with pytest.raises(ValueError, match=r"\(n, 40\)"):
+        app.project(v[:, :10])
     with pytest.raises(ValueError, match="not fitted"):
         ProposalAppearance().project(v)
     with pytest.raises(ValueError, match="at least"):
         ProposalAppearance(n_components=8).fit(v[:3])
     d = json.loads(app.to_json())
-    for bad in ({**d, "scale": [0.0] * 40}, {**d, "components": [[1.0]] * 3}, {"mean": [1]}):
+    bads = (
+        {**d, "scale": [0.0] * 40},
+        {**d, "components": [[1.0]] * 3},
+        {"mean": [1]},
+        {**d, "backbone": "resnet"},
+        {**d, "layers": ["dark9"]},
+        {**d, "input_size": 50},
+    )
+    for bad in bads:
         with pytest.raises(ValueError, match="malformed"):
             ProposalAppearance.from_json(json.dumps(bad))
     with pytest.raises(ValueError, match="malformed"):

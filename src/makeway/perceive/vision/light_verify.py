@@ -466,7 +466,9 @@ class ProposalAppearance:
         """Fitted coordinates ``(n, n_components)`` float32 of backbone vectors ``(n, d)``."""
         if self.mean_ is None or self.scale_ is None or self.components_ is None:
             raise ValueError("ProposalAppearance is not fitted")
-        v = np.asarray(vectors, np.float64).reshape(-1, len(self.mean_))
+        v = np.asarray(vectors, np.float64)
+        if v.ndim != 2 or v.shape[1] != len(self.mean_):
+            raise ValueError(f"expected backbone vectors (n, {len(self.mean_)}), got {v.shape}")
         return (((v - self.mean_) / self.scale_) @ self.components_).astype(np.float32)
 
     def transform(self, frame_bgr: np.ndarray, boxes: np.ndarray) -> np.ndarray:
@@ -512,8 +514,17 @@ class ProposalAppearance:
             )
         except (ValueError, TypeError, KeyError, IndexError) as exc:
             raise ValueError(f"malformed appearance settings ({exc})") from None
+        from makeway.perceive.vision.backbone import BACKBONES
+
+        spec = BACKBONES.get(out.backbone)
         ok = (
-            mean.ndim == 1
+            spec is not None
+            and all(layer in spec.layers for layer in out.layers)
+            and out.input_size >= 32
+            and out.input_size % 32 == 0
+            and out.context > 0
+            and out.min_side_px > 0
+            and mean.ndim == 1
             and scale.shape == mean.shape
             and comp.ndim == 2
             and comp.shape[0] == len(mean)
@@ -522,7 +533,7 @@ class ProposalAppearance:
             and bool((scale > 0).all())
         )
         if not ok:
-            raise ValueError("malformed appearance settings (shapes or values)")
+            raise ValueError("malformed appearance settings (backbone, layers, sizes, shapes or values)")
         return out
 
 
