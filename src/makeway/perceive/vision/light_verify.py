@@ -606,8 +606,8 @@ class LightVerifier:
         except (ValueError, TypeError) as exc:
             raise InputError(path, f"malformed light verifier metadata ({exc})") from None
         with_context = FEATURE_NAMES + CONTEXT_FEATURE_NAMES
-        #: The appearance columns' extractor (:class:`ProposalAppearance`) when the model reads
-        #: them (metadata ``appearance``), else None.
+        #: The appearance columns' extractor (:class:`ProposalAppearance`, from the metadata
+        #: ``appearance``) when the model reads them, else None.
         self.appearance: ProposalAppearance | None = None
         if "appearance" in meta:
             try:
@@ -630,6 +630,8 @@ class LightVerifier:
         self.uses_vehicles = len(names) > len(FEATURE_NAMES)
         #: Whether the model reads the appearance columns (:attr:`appearance`) after the context.
         self.uses_appearance = len(names) > len(with_context)
+        if not self.uses_appearance:
+            self.appearance = None  # settings in the metadata that no column reads
         if not 0.0 <= threshold <= 1.0:
             raise InputError(path, f"malformed light verifier metadata (threshold {threshold} not in [0, 1])")
         self.path = path
@@ -733,24 +735,24 @@ class VerifiedLightDetector:
         if not props:
             return []
         x = verifier_features(frame_bgr, props)
+        prop_boxes = np.array([p["box"] for p in props], np.float64)
         if self.uses_vehicles:
             veh = vehicles if vehicles is not None else self.vehicles(frame_bgr)
             ctx = context_features(
-                np.array([p["box"] for p in props], np.float64),
+                prop_boxes,
                 [p["colour"] for p in props],
                 veh,
                 peer_boxes=np.array([p["box"] for p in pool], np.float64),
                 peer_colours=[p["colour"] for p in pool],
             )
             x = np.concatenate([x, ctx], axis=1)
-        if self.verifier.appearance is not None and self.verifier.uses_appearance:
-            boxes = np.array([p["box"] for p in props], np.float64)
-            x = np.concatenate([x, self.verifier.appearance.transform(frame_bgr, boxes)], axis=1)
+        if self.verifier.appearance is not None:
+            x = np.concatenate([x, self.verifier.appearance.transform(frame_bgr, prop_boxes)], axis=1)
         prob, offsets = self.verifier.score_and_offsets(x)
         sel = np.flatnonzero(prob >= self.threshold)
         if len(sel) == 0:
             return []
-        boxes = np.array([props[i]["box"] for i in sel], np.float64)
+        boxes = prop_boxes[sel]
         if offsets is not None:
             h, w = frame_bgr.shape[:2]
             boxes = refine_boxes(boxes, offsets[sel], (w, h))
