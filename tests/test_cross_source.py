@@ -266,3 +266,65 @@ def test_labels_csv_has_a_group_column(sources: dict[str, CropSet]) -> None:
     assert root is not None
     with (root / "labels.csv").open() as fh:
         assert next(csv.reader(fh)) == ["image", "emergency", "group"]
+
+
+def test_head_trainer_with_quality_matching_fits_on_the_softened_positives(
+    sources: dict[str, CropSet], tmp_path: Path
+) -> None:
+    """The trainer's head equals one fitted by hand on features of
+    :func:`~makeway.train.crop_quality.match_positive_quality`'s images, and differs from the
+    plain trainer's (some positives were softened)."""
+    from makeway.eval.cross_source import merge_sources
+    from makeway.train.crop_quality import match_positive_quality, source_of_groups
+    from makeway.train.ev_head import head_trainer
+
+    fire = sources["fire"]
+    train = merge_sources(
+        {"ambulance_yolo": sources["ambulance_yolo"], "fire": fire.subset(np.arange(0, len(fire), 2))}
+    )
+    test = sources["ev_crops"].subset(np.arange(12))
+    blocks = ["yolox_nano@160:dark5"]  # one small block keeps the three fits quick
+    cache = FeatureCache(blocks, folder=tmp_path, progress=False)
+    matched = head_trainer(blocks, cache=cache, match_quality=True)(train)
+    plain = head_trainer(blocks, cache=cache)(train)
+    images, shrunk = match_positive_quality(
+        train.load_images(cache.input_size, cache=False),
+        train.labels,
+        source_of_groups(train.groups, len(train)),
+        seed=0,
+    )
+    assert (shrunk > 0).any() and not shrunk[train.labels == 0].any()
+    x, xm = cache.extractor.transform_pair(images)
+    by_hand = EVCropClassifier(blocks=blocks, seed=0).fit_features(
+        x, train.labels, x_mirrored=xm, groups=train.groups
+    )
+    x_test, xm_test = cache.features(test)
+    expected = by_hand.predict_proba_features(x_test, xm_test)
+    np.testing.assert_allclose(matched.predict_crop_set(test), expected, atol=1e-6)
+    assert not np.allclose(plain.predict_crop_set(test), expected, atol=1e-3)
+
+
+def test_cli_train_with_quality_matching_says_what_it_softened(
+    sources: dict[str, CropSet], tmp_path: Path
+) -> None:
+    fire = sources["fire"]
+    assert fire.root is not None and 0 < fire.n_positive < len(fire)
+    out = tmp_path / "head.npz"
+    r = runner.invoke(
+        classify_app,
+        [
+            "train",
+            "--data",
+            str(fire.root),
+            "--match-quality",
+            "--block",
+            "yolox_nano@160:dark5",
+            "--out",
+            str(out),
+        ],
+    )
+    assert r.exit_code == 0, r.output
+    head = EVCropClassifier.load(out)
+    assert "positive crops made as soft as its negatives" in head.training
+    n = int(head.training.split(", ")[-1].split()[0])
+    assert 0 < n <= fire.n_positive  # the clip's EVs are sharper than the traffic around them

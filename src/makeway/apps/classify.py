@@ -433,6 +433,7 @@ def cross_source_evaluation(
     on_score: Callable[[Any], None] | None = None,
     log: Callable[[str], None] | None = None,
     labels: str = "corrected",
+    match_quality: bool = False,
 ) -> CrossSourceRun:
     """The cross-source protocol (:mod:`makeway.eval.cross_source`) over the labelled crop sources.
 
@@ -450,7 +451,10 @@ def cross_source_evaluation(
     shared data folder (default: found as :func:`makeway.paths.data_dir` does). ``labels`` is the
     label set of ``ambulance_yolo`` (``corrected``: the committed audit's corrections applied,
     :mod:`makeway.sense.label_corrections`; ``original``: the export as it is); each set is built
-    and cached apart. ``on_score`` gets each score when known; ``log`` a line per step.
+    and cached apart. ``match_quality``: the ``train`` recipes first make each source's positive
+    crops as soft as its negatives (:mod:`makeway.train.crop_quality`; in road photos and video
+    the EV is usually the sharpest vehicle, so sharpness would otherwise tell the class).
+    ``on_score`` gets each score when known; ``log`` a line per step.
 
     Raises:
         InputError: the data folder, a model file or a crop folder is missing or unreadable, or a
@@ -575,15 +579,22 @@ def cross_source_evaluation(
         worst[name] = worst_source(score_sources(model, fixed_sets, model=name, on_score=emit))
     folds = None if held_out is None else [known[s] for s in held_out]
     for trainer_name in train:
-        label = f"{trainer_name} (leave-one-source-out)"
+        label = f"{trainer_name} (leave-one-source-out{', quality matched' if match_quality else ''})"
         trainer: Callable[[CropSet], Any]
         if trainer_name == "effnet_ft":
             from makeway.train.effnet import effnet_crop_trainer
 
-            trainer = effnet_crop_trainer(root / "effnet_ft", input_size=input_size, threads=threads, log=log)
+            trainer = effnet_crop_trainer(
+                root / "effnet_ft",
+                input_size=input_size,
+                threads=threads,
+                match_quality=match_quality,
+                log=log,
+            )
         else:
             trainer = head_trainer(
-                cache=FeatureCache(folder=features_dir, num_threads=threads, progress=progress)
+                cache=FeatureCache(folder=features_dir, num_threads=threads, progress=progress),
+                match_quality=match_quality,
             )
         worst[label] = worst_source(
             leave_one_source_out(crop_sets, trainer, model=label, held_out=folds, on_score=emit, log=log)

@@ -293,6 +293,14 @@ def train(
         str,
         typer.Option(help="CNNs: the model judging --unlabelled: default|fast|fastest or a file."),
     ] = "default",
+    match_quality: Annotated[
+        bool,
+        typer.Option(
+            "--match-quality",
+            help="First make each --data folder's EV crops as soft as its other vehicles (in road "
+            "footage the EV is usually the sharpest vehicle, which a model would learn instead).",
+        ),
+    ] = False,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")] = False,
 ) -> None:
     """Train an EV crop classifier.
@@ -326,6 +334,7 @@ def train(
             threads=threads,
             unlabelled=unlabelled,
             teacher=teacher,
+            match_quality=match_quality,
             progress=not quiet,
             log=_log,
         )
@@ -347,7 +356,7 @@ def train(
         clf = EVCropClassifier(blocks=blocks, flip=flip, threshold=threshold, seed=seed, shrink=shrink or ())
     except ValueError as exc:
         raise typer.BadParameter(str(exc), param_hint="--shrink") from None
-    run = train_ev_head(clf, data, out, log=_log)
+    run = train_ev_head(clf, data, out, match_quality=match_quality, log=_log)
     _print_held_out(run.held_out, "committed holdout")
 
 
@@ -541,6 +550,15 @@ def cross_source(
     every: Annotated[int, typer.Option(min=1, help="road_clips: one crop every N frames of a track.")] = 5,
     threads: Annotated[int, typer.Option(min=1, help="ONNX Runtime threads.")] = 1,
     labels: _AmbulanceLabels = "corrected",
+    match_quality: Annotated[
+        bool,
+        typer.Option(
+            "--match-quality",
+            help="--train: first make each source's EV crops as soft as its other vehicles (in road "
+            "footage the EV is usually the sharpest vehicle, which a model would learn instead of "
+            "the vehicle).",
+        ),
+    ] = False,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bars.")] = False,
 ) -> None:
     """Score EV crop classifiers on each unseen source.
@@ -576,6 +594,7 @@ def cross_source(
         on_score=lambda score: print_json_line(score.as_dict()),
         log=_log,
         labels=labels,
+        match_quality=match_quality,
     )
     print_json_line(
         {

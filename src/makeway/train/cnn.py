@@ -1051,6 +1051,7 @@ def train_crop_cnn(
     threads: int = 2,
     unlabelled: Sequence[str | Path] | None = None,
     teacher: str = "default",
+    match_quality: bool = False,
     progress: bool = True,
     log: Callable[[str], None] | None = None,
 ) -> CropTrainingRun:
@@ -1062,8 +1063,10 @@ def train_crop_cnn(
     :class:`~makeway.train.effnet.StrongAugment`) and the checkpoint beside it (``.pt``). On ev_crops only the
     training part is used, and the committed held-out part is scored afterwards through ONNX Runtime.
     With ``unlabelled`` crop folders, the ``teacher``'s probabilities on them are trained on too
-    (:func:`teacher_targets`). ``log`` receives a line per data set, per epoch (with ``progress``)
-    and for the files written.
+    (:func:`teacher_targets`). ``match_quality``: each folder's positive crops are first made as
+    soft as its negatives (:func:`makeway.train.crop_quality.match_positive_quality`; each folder
+    is one source). ``log`` receives a line per data set, per epoch (with ``progress``) and for the
+    files written.
 
     Raises:
         ValueError: an unknown ``arch`` (lists the known ones).
@@ -1132,6 +1135,12 @@ def train_crop_cnn(
         parts.append(f"{folder.name}: {what}, {len(crops)} crops, {crops.n_positive} positive")
         images = crops.load_images(input_size, cache=False)
         groups = crops.groups if crops.groups is not None else near_duplicate_groups(images)
+        if match_quality:
+            from makeway.train.crop_quality import match_one_source
+
+            images, note = match_one_source(images, crops.labels, seed=seed)
+            say(f"{folder.name}: {note}")
+            parts[-1] += f", {note}"
         xs.append(images)
         ys.append(crops.labels)
         gs.append(np.asarray([f"{k}:{g}" for g in groups]))

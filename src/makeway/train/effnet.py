@@ -396,6 +396,7 @@ def effnet_crop_trainer(
     threshold: float = 0.5,
     threads: int = 2,
     seed: int = 0,
+    match_quality: bool = False,
     log: Callable[[str], None] | None = None,
 ) -> Callable[[Any], Any]:
     """A trainer for :func:`makeway.eval.cross_source.leave_one_source_out`: fine-tunes
@@ -405,7 +406,9 @@ def effnet_crop_trainer(
     runtime classifier (:func:`~makeway.perceive.vision.efficientnet_lite.load_effnet_delta`), so
     the protocol scores what would ship. ``epochs = 3``: in the first fold run (held out
     ``ev_crops``, 6 epochs) the validation loss was lowest after epoch 2 and never lower later;
-    ``input_size = 224``: lower validation loss than 128 px in each of the three folds."""
+    ``input_size = 224``: lower validation loss than 128 px in each of the three folds.
+    ``match_quality``: each source's positive crops are first made as soft as its negatives
+    (:func:`makeway.train.crop_quality.match_positive_quality`; the source is the group's prefix)."""
     import hashlib
 
     from makeway.perceive.vision.efficientnet_lite import load_effnet_delta
@@ -413,6 +416,14 @@ def effnet_crop_trainer(
 
     def train(crops: Any) -> Any:
         images = crops.load_images(input_size, cache=False)
+        if match_quality:
+            from makeway.train.crop_quality import match_positive_quality, source_of_groups
+
+            images, shrunk = match_positive_quality(
+                images, crops.labels, source_of_groups(crops.groups, len(crops)), seed=seed
+            )
+            if log is not None:
+                log(f"effnet_ft: {int((shrunk > 0).sum())} positives softened to their source's negatives")
         clf = CNNClassifier(
             "effnet_ft",
             input_size=input_size,
@@ -435,7 +446,8 @@ def effnet_crop_trainer(
         training = f"{len(crops)} crops ({crops.n_positive} EVs) in {n_groups} groups"
         clf.fit(images, crops.labels, crops.groups, training=training, on_epoch=show)
         key = hashlib.sha256("\n".join(str(p) for p in crops.paths).encode()).hexdigest()[:12]
-        out = Path(work_dir) / f"effnet_ft-{key}-s{input_size}-e{epochs}-seed{seed}.npz"
+        tag = "-mq" if match_quality else ""
+        out = Path(work_dir) / f"effnet_ft-{key}-s{input_size}-e{epochs}-seed{seed}{tag}.npz"
         out.parent.mkdir(parents=True, exist_ok=True)
         assert isinstance(clf.model_, EfficientNetLite0Binary)
         export_delta(clf.model_, out, input_size=input_size, threshold=threshold, training=training)

@@ -43,13 +43,16 @@ def train_ev_head(
     data: Sequence[str | Path],
     out: str | Path | None = None,
     *,
+    match_quality: bool = False,
     log: Callable[[str], None] | None = None,
 ) -> CropTrainingRun:
     """Fit the head ``clf`` (its feature blocks, mirror and shrink settings as constructed) on the crop
     folders ``data`` and save it to ``out`` (default: the shipped head's path). On ev_crops only the
     training part is used (the committed holdout is left out) and the held-out part is scored
     afterwards. Near-duplicate crops stay in one fold of the inner cross-validation that picks the
-    regularisation C. ``log`` receives a line per folder and one for the file written.
+    regularisation C. ``match_quality``: each folder's positive crops are first made as soft as its
+    negatives (:func:`makeway.train.crop_quality.match_positive_quality`; each folder is one
+    source). ``log`` receives a line per folder and one for the file written.
 
     Raises:
         InputError: a crop folder cannot be read (all are read before any work), or ``out`` cannot be
@@ -82,6 +85,12 @@ def train_ev_head(
         images = crops.load_images(clf.input_size, cache=False)
         # near-duplicates stay in one inner-CV fold (as the holdout keeps them on one side)
         groups = np.char.add(f"{len(gs)}:", near_duplicate_groups(images).astype(str))
+        if match_quality:
+            from makeway.train.crop_quality import match_one_source
+
+            images, note = match_one_source(images, crops.labels, seed=clf.seed)
+            say(f"{folder.name}: {note}")
+            parts[-1] += f", {note}"
         x, x_mirrored, y, g = clf.training_features(images, crops.labels, groups)
         xs.append(x)
         if x_mirrored is not None:
@@ -251,11 +260,15 @@ def head_trainer(
     threshold: float = 0.5,
     seed: int = 0,
     cache: FeatureCache | None = None,
+    match_quality: bool = False,
 ) -> Callable[[CropSet], CachedHead]:
     """A trainer for :func:`makeway.eval.cross_source.leave_one_source_out`: fits a new
     :class:`EVCropClassifier` (``blocks``, ``flip``, ``threshold``, ``seed``; as the shipped
     ``default`` head with the defaults) on a crop set's features from ``cache`` (default: a new
-    in-memory one), keeping each ``group`` in one fold of the inner cross-validation that picks C."""
+    in-memory one), keeping each ``group`` in one fold of the inner cross-validation that picks C.
+    ``match_quality``: each source's positive crops are first made as soft as its negatives
+    (:func:`makeway.train.crop_quality.match_positive_quality`; the source is the group's prefix);
+    the features of the crops it changes are computed afresh, not cached."""
     features = cache if cache is not None else FeatureCache(blocks, flip=flip, folder=None)
     wanted = [str(b) for b in EVCropClassifier(blocks=blocks).blocks]
     if [str(b) for b in features.extractor.blocks] != wanted or (flip and not features.flip):
@@ -264,6 +277,22 @@ def head_trainer(
     def train(crops: CropSet) -> CachedHead:
         clf = EVCropClassifier(blocks=blocks, flip=flip, threshold=threshold, seed=seed)
         x, xm = features.features(crops)
+        if match_quality:
+            from makeway.train.crop_quality import match_positive_quality, source_of_groups
+
+            images, shrunk = match_positive_quality(
+                crops.load_images(features.input_size, cache=False),
+                crops.labels,
+                source_of_groups(crops.groups, len(crops)),
+                seed=seed,
+            )
+            changed = np.flatnonzero(shrunk > 0)
+            if len(changed):
+                x, xm = x.copy(), None if xm is None else xm.copy()
+                fx, fxm = features.extractor.transform_pair(images[changed])
+                x[changed] = fx
+                if xm is not None and fxm is not None:
+                    xm[changed] = fxm
         clf.fit_features(
             x,
             crops.labels,
