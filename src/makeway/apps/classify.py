@@ -13,11 +13,14 @@ import platform
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from makeway.errors import InputError
+
+if TYPE_CHECKING:
+    from makeway.sense.crops import CropSet
 
 __all__ = [
     "CROSS_SOURCES",
@@ -25,6 +28,7 @@ __all__ = [
     "CrossSourceRun",
     "StudyRun",
     "build_ambulance_crops",
+    "built_cross_sources",
     "cross_source_evaluation",
     "evaluate_crop_classifier",
     "run_classical_study",
@@ -417,6 +421,85 @@ def _file_digest(path: Path) -> str:
     return hashlib.sha256(path.read_bytes()).hexdigest()[:16]
 
 
+def built_cross_sources(
+    names: Sequence[str],
+    data: Path | None,
+    cache: Path,
+    *,
+    labels: str = "corrected",
+    every: int = 5,
+    threads: int = 1,
+    progress: bool = True,
+    log: Callable[[str], None] | None = None,
+) -> dict[str, CropSet]:
+    """The crop sets of the shared sources ``names`` (of :data:`CROSS_SOURCES`), in that order:
+    ``ev_crops`` with near-duplicate clusters as groups; ``ambulance_yolo`` (``labels`` =
+    ``corrected`` or ``original``) and ``road_clips`` (one crop every ``every`` frames of a labelled
+    track) built on first use into ``cache/sources`` (video boxes in ``cache/clip_boxes``). ``data``
+    is the shared data folder (needed when ``names`` is not empty).
+
+    Raises:
+        InputError: the data folder, the ambulance_yolo set or a labelled road clip is missing.
+    """
+    from makeway.sense.crops import CropSet, near_duplicate_groups, read_crop_folder
+    from makeway.sense.label_corrections import CORRECTIONS_FILE
+
+    def say(line: str) -> None:
+        if log is not None:
+            log(line)
+
+    wanted = [n for n in names if n in CROSS_SOURCES]
+    if not wanted:
+        return {}
+    if data is None or not data.is_dir():
+        raise InputError(
+            data or "../shared/data", "shared data folder not found; pass --data or set MAKEWAY_DATA"
+        )
+    base, root = data, cache
+    crop_sets: dict[str, CropSet] = {}
+    for name in wanted:
+        if name == "ev_crops":
+            crops = read_crop_folder(base / "vision" / "ev_crops")
+            # near-duplicate clusters as groups: kept in one fold of a trainer's inner CV
+            images = crops.load_images(64, cache=False)
+            groups = near_duplicate_groups(images).astype(str)
+            crop_sets[name] = CropSet(crops.paths, crops.labels, groups, crops.root)
+        elif name == "ambulance_yolo":
+            yolo = base / "vision" / "ambulance_yolo" / "valid"
+            if not yolo.is_dir():
+                raise InputError(yolo, "ambulance_yolo set not found")
+            if labels == "original":  # the key of the original set is kept: its cache stays valid
+                key = _cache_key(data=yolo.resolve(), v=1)
+            else:
+                key = _cache_key(data=yolo.resolve(), v=1, corrections=_file_digest(CORRECTIONS_FILE))
+            folder = root / "sources" / f"ambulance_yolo-{key}"
+            if not (folder / "labels.csv").is_file():
+                say(f"building the ambulance_yolo crops ({labels} labels) → {folder}")
+                build_ambulance_crops(folder, yolo, threads=threads, progress=progress, labels=labels)
+            crop_sets[name] = read_crop_folder(folder)
+        else:  # road_clips
+            from makeway.eval.actor_sweep import TRACK_LABELS, read_track_labels
+            from makeway.pipeline.track_crops import build_track_crops
+
+            clips = [base / "video" / f"{c}.mp4" for c in read_track_labels(TRACK_LABELS).clips]
+            for clip in clips:
+                if not clip.is_file():
+                    raise InputError(clip, "road clip not found (its tracks are labelled in the package)")
+            key = _cache_key(
+                clips=[(c.name, c.stat().st_size) for c in clips],
+                labels=_file_digest(TRACK_LABELS),
+                every=every,
+            )
+            folder = root / "sources" / f"road_clips-{key}"
+            if not (folder / "labels.csv").is_file():
+                say(f"building the road-clip track crops → {folder}")
+                build_track_crops(
+                    folder, clips, cache_dir=root / "clip_boxes", every=every, progress=progress
+                )
+            crop_sets[name] = read_crop_folder(folder)
+    return crop_sets
+
+
 def cross_source_evaluation(
     models: Sequence[str] = (),
     train: Sequence[str] = (),
@@ -466,7 +549,7 @@ def cross_source_evaluation(
     from makeway.paths import data_dir
     from makeway.perceive.vision.ev_classifier import EVCropClassifier, load_crop_classifier
     from makeway.registry import Registry, UnknownNameError
-    from makeway.sense.crops import CropSet, committed_split, near_duplicate_groups, read_crop_folder
+    from makeway.sense.crops import committed_split, read_crop_folder
     from makeway.sense.label_corrections import CORRECTIONS_FILE, check_label_set, read_corrections
     from makeway.train.ev_head import FeatureCache, cached_head, head_trainer
 
@@ -496,56 +579,10 @@ def cross_source_evaluation(
     root = (
         Path(cache).expanduser() if cache is not None else Path.home() / ".cache" / "makeway" / "cross_source"
     )
-    base: Path | None = None
-    if any(n in CROSS_SOURCES for n in wanted):
-        base = Path(data).expanduser() if data is not None else data_dir()
-        if base is None or not base.is_dir():
-            raise InputError(
-                data or "../shared/data", "shared data folder not found; pass --data or set MAKEWAY_DATA"
-            )
-
-    crop_sets: dict[str, CropSet] = {}
-    for name in wanted:
-        assert base is not None
-        if name == "ev_crops":
-            crops = read_crop_folder(base / "vision" / "ev_crops")
-            # near-duplicate clusters as groups: kept in one fold of a trainer's inner CV
-            images = crops.load_images(64, cache=False)
-            groups = near_duplicate_groups(images).astype(str)
-            crop_sets[name] = CropSet(crops.paths, crops.labels, groups, crops.root)
-        elif name == "ambulance_yolo":
-            yolo = base / "vision" / "ambulance_yolo" / "valid"
-            if not yolo.is_dir():
-                raise InputError(yolo, "ambulance_yolo set not found")
-            if labels == "original":  # the key of the original set is kept: its cache stays valid
-                key = _cache_key(data=yolo.resolve(), v=1)
-            else:
-                key = _cache_key(data=yolo.resolve(), v=1, corrections=_file_digest(CORRECTIONS_FILE))
-            folder = root / "sources" / f"ambulance_yolo-{key}"
-            if not (folder / "labels.csv").is_file():
-                say(f"building the ambulance_yolo crops ({labels} labels) → {folder}")
-                build_ambulance_crops(folder, yolo, threads=threads, progress=progress, labels=labels)
-            crop_sets[name] = read_crop_folder(folder)
-        else:  # road_clips
-            from makeway.eval.actor_sweep import TRACK_LABELS, read_track_labels
-            from makeway.pipeline.track_crops import build_track_crops
-
-            clips = [base / "video" / f"{c}.mp4" for c in read_track_labels(TRACK_LABELS).clips]
-            for clip in clips:
-                if not clip.is_file():
-                    raise InputError(clip, "road clip not found (its tracks are labelled in the package)")
-            key = _cache_key(
-                clips=[(c.name, c.stat().st_size) for c in clips],
-                labels=_file_digest(TRACK_LABELS),
-                every=every,
-            )
-            folder = root / "sources" / f"road_clips-{key}"
-            if not (folder / "labels.csv").is_file():
-                say(f"building the road-clip track crops → {folder}")
-                build_track_crops(
-                    folder, clips, cache_dir=root / "clip_boxes", every=every, progress=progress
-                )
-            crop_sets[name] = read_crop_folder(folder)
+    base = Path(data).expanduser() if data is not None else data_dir()
+    crop_sets = built_cross_sources(
+        wanted, base, root, labels=labels, every=every, threads=threads, progress=progress, log=log
+    )
     crop_sets.update(extra_sets)
     for name, crops in crop_sets.items():
         if len(crops) == 0:  # pragma: no cover - read_crop_folder refuses empty folders

@@ -397,6 +397,7 @@ def effnet_crop_trainer(
     threads: int = 2,
     seed: int = 0,
     match_quality: bool = False,
+    reuse: bool = False,
     log: Callable[[str], None] | None = None,
 ) -> Callable[[Any], Any]:
     """A trainer for :func:`makeway.eval.cross_source.leave_one_source_out`: fine-tunes
@@ -408,13 +409,23 @@ def effnet_crop_trainer(
     ``ev_crops``, 6 epochs) the validation loss was lowest after epoch 2 and never lower later;
     ``input_size = 224``: lower validation loss than 128 px in each of the three folds.
     ``match_quality``: each source's positive crops are first made as soft as its negatives
-    (:func:`makeway.train.crop_quality.match_positive_quality`; the source is the group's prefix)."""
+    (:func:`makeway.train.crop_quality.match_positive_quality`; the source is the group's prefix).
+    The delta's name holds the training crops' digest, ``input_size``, ``epochs``, ``seed`` and the
+    quality setting; with ``reuse`` a delta of that name already in ``work_dir`` is loaded instead
+    of trained again (the other settings are not in the name: keep them fixed in a work folder)."""
     import hashlib
 
     from makeway.perceive.vision.efficientnet_lite import load_effnet_delta
     from makeway.train.cnn import CNNClassifier
 
     def train(crops: Any) -> Any:
+        key = hashlib.sha256("\n".join(str(p) for p in crops.paths).encode()).hexdigest()[:12]
+        tag = "-mq" if match_quality else ""
+        out = Path(work_dir) / f"effnet_ft-{key}-s{input_size}-e{epochs}-seed{seed}{tag}.npz"
+        if reuse and out.is_file():
+            if log is not None:
+                log(f"effnet_ft: reusing {out}")
+            return load_effnet_delta(out, num_threads=threads)
         images = crops.load_images(input_size, cache=False)
         if match_quality:
             from makeway.train.crop_quality import match_positive_quality, source_of_groups
@@ -445,9 +456,6 @@ def effnet_crop_trainer(
         n_groups = len(set(np.asarray(crops.groups).tolist())) if crops.groups is not None else len(crops)
         training = f"{len(crops)} crops ({crops.n_positive} EVs) in {n_groups} groups"
         clf.fit(images, crops.labels, crops.groups, training=training, on_epoch=show)
-        key = hashlib.sha256("\n".join(str(p) for p in crops.paths).encode()).hexdigest()[:12]
-        tag = "-mq" if match_quality else ""
-        out = Path(work_dir) / f"effnet_ft-{key}-s{input_size}-e{epochs}-seed{seed}{tag}.npz"
         out.parent.mkdir(parents=True, exist_ok=True)
         assert isinstance(clf.model_, EfficientNetLite0Binary)
         export_delta(clf.model_, out, input_size=input_size, threshold=threshold, training=training)
