@@ -8,7 +8,7 @@ OUT    ?= reports/demo
 
 .PHONY: venv demo test lint typecheck bench bench-sort bench-video bench-crops bench-detection bench-pull-over \
 	bench-siren-loop bench-audio bench-rig bench-v2x bench-fusion bench-roadside bench-lights bench-lights-flash bench-active-rule \
-	bench-rsu bench-fusion-ablation bench-mcap bench-engine bench-robust bench-speed bench-crossing bench-crossing-fresh bench-no-ev-2h bench-range-loop bench-approach-pairing bench-seed003-timeline bench-faults bench-overload bench-overload-listener bench-range bench-far-range bench-far-loop bench-clip-fusion bench-framework-ab fuzz clean
+	bench-rsu bench-fusion-ablation bench-mcap bench-engine bench-robust bench-speed bench-crossing bench-crossing-fresh bench-no-ev-2h bench-range-loop bench-approach-pairing bench-seed003-timeline bench-faults bench-overload bench-overload-listener bench-range bench-far-range bench-far-loop bench-clip-fusion bench-framework-ab bench-cross-source-seeds fuzz clean
 
 # `make demo` installs the runtime only; `make test` and the benchmarks add the dev extra (linters,
 # scikit-learn, XGBoost, torch for the training tests).
@@ -52,6 +52,11 @@ bench-video: venv
 bench-crops: venv
 	$(BIN)/python benchmarks/bench_cnn_latency.py
 	$(BIN)/python benchmarks/bench_track_sweep.py
+
+# EV crop classifiers across sources: three seeds with and without quality matching, and their
+# seed bags (the first run trains 18 EfficientNet-Lite0 fine-tunes, 1–2 h on 2 cores)
+bench-cross-source-seeds: venv
+	$(BIN)/python benchmarks/bench_cross_source_seeds.py --seeds 0,1,2
 
 # EV detection on images (vehicle detector + crop classifier) on the held-out ambulance_yolo split;
 # the detection metrics beside pycocotools / torchmetrics where either is installed

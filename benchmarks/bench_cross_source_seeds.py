@@ -17,7 +17,7 @@ Sources and features are built on first use into ``--cache`` (default
 ``~/.cache/makeway/cross_source``, shared with ``makeway classify cross-source``); each trained
 ``effnet_ft`` delta is kept in ``<cache>/bench_seeds`` and reused when the benchmark runs again
 (same training crops, seed and setting), so only the first run trains (about 3–5 min per fold and
-seed on two idle cores; 3 seeds × 2 variants × 3 folds ≈ 1 h).
+seed on two idle cores; 3 seeds × 2 variants × 3 folds: 1–2 h).
 """
 
 from __future__ import annotations

@@ -3,12 +3,13 @@
 In road photos and video, the emergency vehicle is usually the subject: close, large and sharp,
 while the other vehicles are small, distant and soft. A classifier trained on such sources learns
 "sharp ⇒ EV", and on a source where every crop is sharp (web photos of ordinary cars) it calls
-most of them EVs. Measured on the cross-source protocol (:mod:`makeway.eval.cross_source`): the
-median :func:`effective_side` of `road_clips` crops is 96 px for other vehicles and 224 px for EVs;
-in `ev_crops` both are 224 px.
+most of them EVs. Measured on the sources of the cross-source protocol
+(:mod:`makeway.eval.cross_source`), the median :func:`effective_side` of `road_clips` crops is
+48 px for other vehicles and 128 px for EVs, of `ambulance_yolo` crops 96 and 160 px; in
+`ev_crops` both are 224 px.
 
-* :func:`effective_side` — the smallest side (px) whose Nyquist frequency keeps nearly all of a
-  crop's detail: how much real resolution a crop holds, whatever its stored size.
+* :func:`effective_side` — the smallest side (px) whose Nyquist frequency keeps 98 % of a crop's
+  spectral detail: how much real resolution a crop holds, whatever its stored size.
 * :func:`match_positive_quality` — the de-confounding step: each positive crop of a source is
   shrunk to a side drawn from the effective sides of that source's negatives (only ever made
   softer, never sharper), so that within every source both classes have the same distribution of
@@ -45,8 +46,8 @@ def effective_side(
     leaves less than ``tolerance`` of the crop's detail above it; the largest side when none does.
 
     Detail is the power of the grey crop's spectrum (Hann-windowed, mean removed) above
-    ``floor_cycles`` cycles per image; frequencies are counted along the worse axis (the larger of
-    the two, in cycles per image of that axis). A crop shrunk to ``s`` px and enlarged back reads
+    ``floor_cycles`` cycles per image; a frequency counts by the larger of its two components, each
+    in cycles per image along its own axis. A crop shrunk to ``s`` px and enlarged back reads
     about ``s`` (bilinear enlargement leaks a little above the Nyquist frequency, so 24–32 px read
     48 px); a sharp close-up photo reads the full side. ``image``: ``uint8`` BGR ``(h, w, 3)`` or
     grey ``(h, w)``, at the size the model reads (e.g. 224 × 224).
@@ -99,12 +100,13 @@ def match_positive_quality(
     seed: int = 0,
     sides: Sequence[int] = QUALITY_SIDES,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """``(images, sides)``: a copy of ``images`` (``uint8`` ``(n, h, w, 3)``) in which every
+    """``(images, shrunk_to)``: a copy of ``images`` (``uint8`` ``(n, h, w, 3)``) in which every
     positive crop (label 1) of a source is shrunk to a side drawn at random from the effective
     sides (:func:`effective_side`) of the same source's negatives and enlarged back
     (:func:`~makeway.perceive.vision.ev_classifier.shrink_copies`) — only when
-    that side is below its own effective side. ``sides[i]`` is the side crop ``i`` was shrunk to,
-    0 where it was left as it was. A source without negatives leaves its positives unchanged.
+    that side is below its own effective side. ``shrunk_to[i]`` is the side crop ``i`` was shrunk
+    to, 0 where it was left as it was; ``sides`` are the sides :func:`effective_side` tries. A
+    source without negatives leaves its positives unchanged.
 
     Raises:
         ValueError: lengths differ, or labels other than 0 and 1.
