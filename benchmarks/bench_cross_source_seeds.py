@@ -69,7 +69,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--cache", type=Path, default=Path.home() / ".cache" / "makeway" / "cross_source")
     ap.add_argument("--json", type=Path, default=None, help="also write every figure here")
     args = ap.parse_args(argv)
-    seeds = [int(s) for s in args.seeds.split(",") if s.strip()]
+    try:
+        seeds = [int(s) for s in args.seeds.split(",") if s.strip()]
+    except ValueError:
+        ap.error(f"--seeds: whole numbers separated by commas, got {args.seeds!r}")
     variants = [v.strip() for v in args.variants.split(",") if v.strip()]
     if not seeds or not set(variants) <= {"plain", "matched"} or not variants:
         ap.error("--seeds needs at least one seed; --variants is plain, matched or both")
