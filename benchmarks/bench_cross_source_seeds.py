@@ -46,16 +46,16 @@ def _accuracy(probs: np.ndarray, labels: np.ndarray) -> float:
     return score_crops(probs, labels, 0.5, model="bench", source="held out").accuracy
 
 
-def _trainer(name: str, seed: int, matched: bool, cache: Path, threads: int) -> Any:
+def _trainer(name: str, seed: int, matched: bool, cache: Path, threads: int, features: Any) -> Any:
+    """The recipe's trainer; ``features``: the head's :class:`FeatureCache`, read once per run."""
     if name == "effnet_ft":
         from makeway.train.effnet import effnet_crop_trainer
 
         return effnet_crop_trainer(
             cache / "bench_seeds", threads=threads, seed=seed, match_quality=matched, reuse=True
         )
-    from makeway.train.ev_head import FeatureCache, head_trainer
+    from makeway.train.ev_head import head_trainer
 
-    features = FeatureCache(folder=cache / "features", num_threads=threads, progress=False)
     return head_trainer(seed=seed, cache=features, match_quality=matched)
 
 
@@ -88,12 +88,17 @@ def main(argv: list[str] | None = None) -> int:
     for name, crops in sources.items():
         print(f"  {name}: {len(crops)} crops, {crops.n_positive} EVs")
 
+    features = None
+    if args.trainer == "head":
+        from makeway.train.ev_head import FeatureCache
+
+        features = FeatureCache(folder=args.cache / "features", num_threads=args.threads, progress=False)
     report: dict[str, Any] = {"trainer": args.trainer, "seeds": seeds, "variants": {}}
     for variant in variants:
         matched = variant == "matched"
         probs: dict[int, dict[str, np.ndarray]] = {}
         for seed in seeds:
-            train = _trainer(args.trainer, seed, matched, args.cache, args.threads)
+            train = _trainer(args.trainer, seed, matched, args.cache, args.threads, features)
             probs[seed] = {}
             for held, test in sources.items():
                 print(f"{variant}, seed {seed}: holding out {held}", flush=True)

@@ -440,14 +440,16 @@ def built_cross_sources(
 
     Raises:
         InputError: the data folder, the ambulance_yolo set or a labelled road clip is missing.
+        ValueError: an unknown label set.
     """
     from makeway.sense.crops import CropSet, near_duplicate_groups, read_crop_folder
-    from makeway.sense.label_corrections import CORRECTIONS_FILE
+    from makeway.sense.label_corrections import CORRECTIONS_FILE, check_label_set
 
     def say(line: str) -> None:
         if log is not None:
             log(line)
 
+    labels = check_label_set(labels)
     wanted = [n for n in names if n in CROSS_SOURCES]
     if not wanted:
         return {}
