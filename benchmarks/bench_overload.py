@@ -233,7 +233,7 @@ def _publish(
     from makeway.v2x.transport import AlertPublisher, open_peer
 
     session = open_peer([], [endpoint])
-    pub = AlertPublisher(session, segment)
+    pub = AlertPublisher(session, segment, drop_when_congested=True)  # a flooding sender
     pub.wait_for_subscribers(10.0)
     t0 = time.monotonic()
     k = 0

@@ -12,6 +12,7 @@ import threading
 import time
 
 import pytest
+import zenoh
 from cryptography.hazmat.primitives import hashes
 from cryptography.hazmat.primitives.asymmetric import ec
 from cryptography.hazmat.primitives.asymmetric.utils import decode_dss_signature
@@ -202,6 +203,22 @@ def test_sender_key_reads_the_claimed_signer(units: dict[str, object]) -> None:
     assert sender_key("k", b"x" * SIGNED_SIZE) == ("k", "malformed")
     wrong_station = genuine[:STATION_ID_OFFSET] + bytes(4) + genuine[STATION_ID_OFFSET + 4 :]
     assert sender_key("k", wrong_station) == ("k", "malformed")
+
+
+def test_publisher_waits_rather_than_drops_its_own_alerts() -> None:
+    """A unit's publisher blocks on a full transmit queue (zenoh would drop the put by default), so
+    the floods below lose nothing on the way even on a busy machine; a flooding sender can opt in
+    to dropping."""
+    session = open_peer()
+    try:
+        own = AlertPublisher(session, "own")
+        flooder = AlertPublisher(session, "flood", drop_when_congested=True)
+        assert own.congestion_control == zenoh.CongestionControl.BLOCK
+        assert flooder.congestion_control == zenoh.CongestionControl.DROP
+        own.close()
+        flooder.close()
+    finally:
+        session.close()
 
 
 def _flood(

@@ -91,11 +91,22 @@ def open_peer(listen: Sequence[str] = (), connect: Sequence[str] = ()) -> zenoh.
 
 
 class AlertPublisher:
-    """Publishes signed alerts on one segment."""
+    """Publishes signed alerts on one segment.
 
-    def __init__(self, session: zenoh.Session, segment: str) -> None:
+    By default a put waits when zenoh's transmit queue is full (``CongestionControl.BLOCK``): an
+    alert is a few hundred bytes a few times a second, and a unit must never lose its own alert to
+    a local queue. ``drop_when_congested=True`` restores zenoh's default (drop the put), which the
+    overload benchmarks use to play a flooding sender that does not care what arrives."""
+
+    def __init__(self, session: zenoh.Session, segment: str, drop_when_congested: bool = False) -> None:
         self.key = segment_key(segment)
-        self._pub = session.declare_publisher(self.key)
+        congestion = zenoh.CongestionControl.DROP if drop_when_congested else zenoh.CongestionControl.BLOCK
+        self._pub = session.declare_publisher(self.key, congestion_control=congestion)
+
+    @property
+    def congestion_control(self) -> zenoh.CongestionControl:
+        """What a put does when zenoh's transmit queue is full: ``BLOCK`` (wait) or ``DROP``."""
+        return self._pub.congestion_control
 
     def wait_for_subscribers(self, timeout_s: float = 10.0) -> bool:
         """Wait until a subscriber matches this key (True) or ``timeout_s`` passes (False)."""
