@@ -3,6 +3,7 @@ scenario, and the fused car driving through held-out real street noise with fals
 (SPEC §7; issue 26 item 5).
 
     .venv/bin/python benchmarks/bench_fusion_ablation.py [--seeds 2] [--no-ev-runs 12] [--full]
+        [--far-ranger [PATH]]
     .venv/bin/python benchmarks/bench_fusion_ablation.py --only-no-ev --no-ev-runs 180 --first-no-ev-seed 280
 
 Perceptions (``makeway simulate --perception``):
@@ -46,6 +47,7 @@ from typing import Any
 
 from scipy.stats import chi2
 
+from makeway.perceive.audio.far_range import DEFAULT_FAR_RANGER, FarRanger
 from makeway.perceive.audio.siren_model import SirenModel
 from makeway.pipeline.closed_loop import ClosedLoopResult, PerceptionSpec, run_scenario
 from makeway.pipeline.fused_perception import FusedPerceptionConfig
@@ -63,18 +65,21 @@ TARGETS = {
 }
 
 
-def spec(kind: str, seed: int, model: SirenModel, noise: str = "generated") -> PerceptionSpec:
-    """The perception ``kind`` for one scene seed (the siren networks shared between runs)."""
+def spec(
+    kind: str, seed: int, model: SirenModel, noise: str = "generated", far: FarRanger | None = None
+) -> PerceptionSpec:
+    """The perception ``kind`` for one scene seed (the siren networks and the far ranger, when
+    one is given, shared between runs)."""
     audio = LiveAudioConfig(seed=seed, noise=noise)
     if kind == "audio":
-        return SirenPerceptionConfig(audio=audio, model=model)
+        return SirenPerceptionConfig(audio=audio, model=model, far_ranger=far)
     senses = {
         "vision": ("light",),
         "v2x": ("v2x",),
         "fused": ("siren", "light", "v2x"),
         "onboard": ("siren", "light"),
     }[kind]
-    return FusedPerceptionConfig(senses=senses, audio=audio, seed=seed, model=model)
+    return FusedPerceptionConfig(senses=senses, audio=audio, seed=seed, model=model, far_ranger=far)
 
 
 def row(res: ClosedLoopResult) -> dict[str, Any]:
@@ -119,12 +124,21 @@ def main() -> int:
     ap.add_argument("--full", action="store_true", help="10 seeds and 360 no-EV drives (2 h of driving)")
     ap.add_argument("--only-no-ev", action="store_true", help="skip the scenarios: only the no-EV drives")
     ap.add_argument("--first-no-ev-seed", type=int, default=100, help="scene seed of the first no-EV drive")
+    ap.add_argument(
+        "--far-ranger",
+        nargs="?",
+        const=str(DEFAULT_FAR_RANGER),
+        default=None,
+        help="the siren stack with the far ranger behind it (opt-in; without a value: the shipped one)",
+    )
     args = ap.parse_args()
     seeds = list(range(args.first_seed, args.first_seed + (10 if args.full else args.seeds)))
     no_ev_runs = 360 if args.full else args.no_ev_runs
     names = [] if args.only_no_ev else [s for s in args.scenarios.split(",") if s]
     kinds = [s for s in args.perceptions.split(",") if s]
     model = SirenModel()
+    far = FarRanger(args.far_ranger) if args.far_ranger else None
+    print(f"siren stack: {model!r}" + (f" + {far!r}" if far is not None else ""), flush=True)
     wall0 = time.perf_counter()
     runs: list[dict[str, Any]] = []
     cols = ("action", "action_ok", "collision", "stopped_s", "yield_s", "extra_yields", "peak_decel_mps2")
@@ -136,7 +150,7 @@ def main() -> int:
         extra = ["onboard"] if name == "v2x_corridor" and "fused" in kinds else []
         for kind in kinds + extra:
             for seed in seeds:
-                r = row(run_scenario(sc, perception=spec(kind, seed, model)))
+                r = row(run_scenario(sc, perception=spec(kind, seed, model, far=far)))
                 runs.append({"scenario": name, "perception": kind, "seed": seed, **r})
                 print(
                     f"{name:18s} {kind:10s} {seed:>4d} " + " ".join(f"{_f(r[c]):>18s}" for c in cols),
@@ -202,7 +216,9 @@ def main() -> int:
     false_yields = prepares = 0
     for k in range(no_ev_runs):
         seed = args.first_no_ev_seed + k
-        cfg = FusedPerceptionConfig(audio=LiveAudioConfig(seed=seed, noise="real"), seed=seed, model=model)
+        cfg = FusedPerceptionConfig(
+            audio=LiveAudioConfig(seed=seed, noise="real"), seed=seed, model=model, far_ranger=far
+        )
         res = run_scenario(quiet, perception=cfg)
         fy = res.metrics["yields"]
         pr = sum(1 for _, _, to, _ in res.transitions if to == "ev_confirmed")
@@ -235,7 +251,14 @@ def main() -> int:
     print(f"wall time {wall:.0f} s (scenarios {scenario_wall:.0f} s, no-EV drives {no_ev['wall_s']:.0f} s)")
     print(
         json.dumps(
-            {"summary": summary, "no_ev": no_ev, "targets": TARGETS, "wall_s": round(wall, 1), "runs": runs}
+            {
+                "far_ranger": None if far is None else far.path.name,
+                "summary": summary,
+                "no_ev": no_ev,
+                "targets": TARGETS,
+                "wall_s": round(wall, 1),
+                "runs": runs,
+            }
         )
     )
     return 0

@@ -11,8 +11,10 @@ import numpy as np
 import pytest
 
 from makeway.errors import InputError
+from makeway.fuse import MultiEVFusion
+from makeway.fuse.kalman import range_sigma_m
 from makeway.fuse.siren_track import SirenTrackFusion
-from makeway.messages import SirenObservation, SirenSource
+from makeway.messages import SirenObservation, SirenSource, VehicleState
 from makeway.perceive.audio.far_range import (
     DEFAULT_FAR_RANGER,
     FAR_CALL_PROBABILITY,
@@ -21,7 +23,7 @@ from makeway.perceive.audio.far_range import (
     FarTracker,
     spectrum_row,
 )
-from makeway.perceive.audio.siren_model import DEFAULT_SIREN_MODEL, SirenModel
+from makeway.perceive.audio.siren_model import DEFAULT_SIREN_MODEL, WIDE_SIREN_RANGERS, SirenModel
 from makeway.perceive.audio.stream import SirenListener, listen
 from makeway.sim.acoustics import air_absorption_db_per_m
 from makeway.sim.audio_scenarios import make_tracks, simulate_recording
@@ -154,6 +156,36 @@ def test_track_treats_a_far_fix_as_beyond_ranging() -> None:
     far = SirenObservation(1.0, True, 0.95, 0.95, (SirenSource(0.3, 40.0, True, 0.9, far_probability=0.95),))
     assert math.isfinite(SirenTrackFusion().update(near, 0.0, 0.0, 0.0).distance_m)
     assert math.isnan(SirenTrackFusion().update(far, 0.0, 0.0, 0.0).distance_m)
+
+
+def test_listener_hands_on_the_networks_sigma_without_the_far_ranger() -> None:
+    """Rangers with an uncertainty output (the wide rangers) give the nearest siren a
+    ``distance_sigma`` of their own; the default rangers state none."""
+    rec = simulate_recording("crossing", 3.0, 7, siren="synth", noise="generated")
+    wide = SirenModel(threads=1, ranger=list(WIDE_SIREN_RANGERS))
+    heard = [m["sources"][0] for m in listen(rec, model=wide) if m["sources"]]
+    assert heard and all(s["distance_sigma"] > 0 and "far_probability" not in s for s in heard)
+    plain = [m["sources"][0] for m in listen(rec, model=SirenModel(threads=1)) if m["sources"]]
+    assert plain and all("distance_sigma" not in s for s in plain)
+
+
+@pytest.mark.parametrize(("sigma", "expected_m"), [(None, 10.0), (0.1, 4.0), (0.6, 24.0), (0.01, 2.0)])
+def test_fusion_weighs_a_distance_by_its_stated_sigma(sigma: float | None, expected_m: float) -> None:
+    """A fix 40 m straight ahead: its spread along the line of sight is σ·d when the listener states
+    σ of ln distance, the configured 25 % without, and never under the 2 m floor — in the siren
+    track (its first fix sets the position covariance) and in the multi-EV fusion (a new track's
+    covariance along the line of sight)."""
+    assert range_sigma_m(40.0, sigma, 0.25, 2.0) == pytest.approx(expected_m)
+    src = SirenSource(0.0, 40.0, True, 0.9, distance_sigma=sigma)
+    obs = SirenObservation(1.0, True, 0.95, 0.95, (src,))
+    track = SirenTrackFusion()
+    track.update(obs, 0.0, 0.0, 0.0)
+    assert track.cov_ is not None
+    assert math.sqrt(track.cov_[0, 0]) == pytest.approx(expected_m)
+    fusion = MultiEVFusion()
+    fusion.update(1.0, VehicleState(time_s=1.0, x_m=0.0, y_m=0.0, yaw_rad=0.0, vx_mps=0.0), [obs])
+    assert len(fusion.tracks) == 1
+    assert math.sqrt(fusion.cov_[0][0, 0]) == pytest.approx(expected_m, rel=1e-6)
 
 
 def test_bad_input_gives_clear_errors(tmp_path: Path, siren: SirenModel) -> None:

@@ -300,9 +300,10 @@ class SirenSource:
     ``bearing_rad`` (0 ahead, positive to the left); ``distance_m`` in the ground plane, ``None`` when
     the producer gives none (a classical bearing, or a further source found by time–frequency
     assignment); ``approaching`` ``None`` when undecided, ``approach_probability`` P(approaching)
-    when a trained estimator gave one. With the far ranger (opt-in,
-    :mod:`makeway.perceive.audio.far_range`): ``far_probability`` P(distance > 100 m) and
-    ``distance_sigma`` the σ of ln distance (±1σ is ``distance · e^(±σ)``); ``None`` without it.
+    when a trained estimator gave one. ``distance_sigma``: the σ of ln distance (±1σ is
+    ``distance · e^(±σ)``) when the producer states one (the far ranger, rangers with an
+    uncertainty output), else ``None``. With the far ranger (opt-in,
+    :mod:`makeway.perceive.audio.far_range`): ``far_probability`` P(distance > 100 m), else ``None``.
     """
 
     bearing_rad: float

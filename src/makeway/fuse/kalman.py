@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["cv_predict"]
+__all__ = ["cv_predict", "range_sigma_m"]
 
 
 def cv_predict(
@@ -19,3 +19,11 @@ def cv_predict(
     q[np.ix_([0, 2], [0, 2])] = q1
     q[np.ix_([1, 3], [1, 3])] = q1
     return state @ f.T, f @ cov @ f.T + q
+
+
+def range_sigma_m(distance_m: float, log_sigma: float | None, fraction: float, floor_m: float) -> float:
+    """Standard deviation (m) of a ranged fix at ``distance_m`` along the line of sight: ``d·σ``
+    when the sense states ``log_sigma``, the σ of its ln distance (first order: ±1σ of ``ln d`` is
+    ±``d·σ`` metres), otherwise the configured ``fraction·d``; never below ``floor_m``."""
+    share = fraction if log_sigma is None or not log_sigma > 0 else float(log_sigma)
+    return max(share * distance_m, floor_m)

@@ -7,8 +7,9 @@ into one :class:`~makeway.messages.EVBelief` per confirmed track.
 
 * siren — a :class:`~makeway.messages.SirenObservation`; every source heard is one observation:
   the bearing (vehicle frame) with ``siren_bearing_sigma_deg``, and the distance, when the listener
-  gives one below ``siren_far_m``, with ``max(siren_distance_sigma_frac·d, siren_distance_sigma_min_m)``
-  (the networks' distance saturates beyond ``siren_far_m``: a bearing only there);
+  gives one below ``siren_far_m`` (the networks' distance saturates beyond: a bearing only there),
+  with ``max(s·d, siren_distance_sigma_min_m)``, where ``s`` is the source's ``distance_sigma`` (σ
+  of ln distance) when the listener states one, otherwise ``siren_distance_sigma_frac``;
 * light — a :class:`~makeway.messages.LightObservation`: azimuth (vehicle frame) and optional
   range, each with its own standard deviation;
 * V2X — a :class:`~makeway.messages.V2XObservation` (world frame): position, heading and speed,
@@ -89,7 +90,7 @@ from scipy.optimize import linear_sum_assignment
 from scipy.stats import chi2
 
 from makeway.frames import to_vehicle_frame
-from makeway.fuse.kalman import cv_predict
+from makeway.fuse.kalman import cv_predict, range_sigma_m
 from makeway.fuse.relation import classify_relation
 from makeway.messages import (
     EVBelief,
@@ -296,7 +297,8 @@ class MultiEVFusion:
                 for src in o.sources:
                     d = src.distance_m
                     if d is not None and d < self.siren_far_m:
-                        s_r = max(self.siren_distance_sigma_frac * d, self.siren_distance_sigma_min_m)
+                        frac, floor = self.siren_distance_sigma_frac, self.siren_distance_sigma_min_m
+                        s_r = range_sigma_m(d, src.distance_sigma, frac, floor)
                         z, r = np.array([src.bearing_rad, max(d, 1.0)]), np.diag([sb2, s_r**2])
                     else:
                         z, r = np.array([src.bearing_rad]), np.array([[sb2]])

@@ -7,8 +7,9 @@ decision reads:
 
 * **Track.** The nearest siren's bearing θ and distance d are placed in the world frame
   (``ego + R(yaw)·d·(cos θ, sin θ)``) and filtered by a constant-velocity Kalman filter on
-  ``(x, y, v_x, v_y)``. The measurement noise is polar — ``distance_sigma_frac·d`` (at least
-  ``distance_sigma_min_m``) along the line of sight, ``d·bearing_sigma_deg`` across it — rotated
+  ``(x, y, v_x, v_y)``. The measurement noise is polar — ``distance_sigma_frac·d``, or ``σ·d``
+  when the listener states ``distance_sigma`` σ of ln distance (at least ``distance_sigma_min_m``)
+  along the line of sight, ``d·bearing_sigma_deg`` across it — rotated
   into the world frame, so a far siren's distance counts for little. A fix farther than
   ``gate_chi2`` (Mahalanobis², 2 d.o.f.) from the prediction is set aside; after ``max_misses`` of
   them in a row the track restarts on the new fix (another siren, or a wrong first fix).
@@ -56,7 +57,7 @@ import math
 import numpy as np
 
 from makeway.frames import to_vehicle_frame
-from makeway.fuse.kalman import cv_predict
+from makeway.fuse.kalman import cv_predict, range_sigma_m
 from makeway.fuse.relation import classify_relation
 from makeway.messages import EVBelief, EVRelation, SirenObservation
 from makeway.perceive.audio.far_range import FAR_CALL_PROBABILITY
@@ -143,7 +144,11 @@ class SirenTrackFusion:
         phi = ego_yaw + src.bearing_rad
         z = np.array([ego_x + d * math.cos(phi), ego_y + d * math.sin(phi)])
         rot = np.array([[math.cos(phi), -math.sin(phi)], [math.sin(phi), math.cos(phi)]])
-        s_r = d if d >= self.far_m else max(self.distance_sigma_frac * d, self.distance_sigma_min_m)
+        s_r = (
+            d
+            if d >= self.far_m
+            else range_sigma_m(d, src.distance_sigma, self.distance_sigma_frac, self.distance_sigma_min_m)
+        )
         s_t = d * math.radians(self.bearing_sigma_deg)
         return z, rot @ np.diag([s_r**2, s_t**2]) @ rot.T
 

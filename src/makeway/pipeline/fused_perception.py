@@ -55,6 +55,7 @@ import numpy as np
 
 from makeway.fuse.multi_ev import FusedBeliefSource, MultiEVFusion, Observation
 from makeway.messages import EVBelief, SensorHealth, SirenObservation, V2XObservation, VehicleState
+from makeway.perceive.audio.far_range import FarRanger
 from makeway.perceive.audio.siren_model import SirenModel
 from makeway.pipeline.siren_perception import SirenPerception, SirenPerceptionConfig
 from makeway.roadside.geodesy import LocalFrame
@@ -105,8 +106,8 @@ class FusedPerceptionConfig:
     the cameras' figures, the V2X link, the fusion's settings (``fusion``: keyword arguments of
     :class:`~makeway.fuse.multi_ev.MultiEVFusion`), the siren listener's latency and how many
     windows its call averages (``siren_smooth``, :data:`FUSED_LISTEN_SMOOTH`), ``seed`` for the
-    cameras and the link, and the siren networks (``model``; default the shipped ones, loaded per
-    run)."""
+    cameras and the link, the siren networks (``model``; default the shipped ones, loaded per
+    run) and, opt-in, the far ranger behind them (``far_ranger``, reset at each run's start)."""
 
     senses: tuple[str, ...] = SENSE_NAMES
     audio: LiveAudioConfig = field(default_factory=LiveAudioConfig)
@@ -117,6 +118,7 @@ class FusedPerceptionConfig:
     siren_smooth: int = FUSED_LISTEN_SMOOTH
     seed: int = 0
     model: SirenModel | None = field(default=None, compare=False, repr=False)
+    far_ranger: FarRanger | None = field(default=None, compare=False, repr=False)
 
     def __post_init__(self) -> None:
         bad = [s for s in self.senses if s not in SENSE_NAMES]
@@ -187,7 +189,11 @@ class FusedPerception:
             self.siren = SirenPerception(
                 duration_s,
                 SirenPerceptionConfig(
-                    audio=cfg.audio, latency_s=cfg.siren_latency_s, smooth=cfg.siren_smooth, model=cfg.model
+                    audio=cfg.audio,
+                    latency_s=cfg.siren_latency_s,
+                    smooth=cfg.siren_smooth,
+                    model=cfg.model,
+                    far_ranger=cfg.far_ranger,
                 ),
                 world=self.world,
                 initial_speed_mps=initial_speed_mps,

@@ -29,6 +29,9 @@ With the far ranger (opt-in, ``far_ranger=``; :mod:`~makeway.perceive.audio.far_
 siren also carries ``far_probability`` (P(distance > 100 m)) and ``distance_sigma`` (σ of ln
 distance), its ``distance_m`` is the far ranger's, and a far one (``far_probability ≥``
 :data:`~makeway.perceive.audio.far_range.FAR_CALL_PROBABILITY`) gets no approaching call.
+Without it, the nearest siren carries ``distance_sigma`` when the networks state one (rangers
+trained with ``--distance-sigma``, such as ``siren_ranger_wide.onnx``). The fusion weighs a
+distance by the σ it comes with (:func:`makeway.fuse.kalman.range_sigma_m`).
 
 ``is_siren`` is decided on ``smoothed_probability``, the mean of this window and the ``smooth`` − 1
 before it, taken over their logits unless ``average="probability"``
@@ -218,18 +221,16 @@ class SirenListener:
             )
             for k, src in enumerate(found)
         )
-        if far is not None and sources:
-            near_d = sources[0].distance_m
-            far_d = far.distance_m if far.far_probability >= FAR_DISTANCE_PROBABILITY else near_d
-            sources = (
-                replace(
-                    sources[0],
-                    distance_m=far_d,
-                    far_probability=far.far_probability,
-                    distance_sigma=far.sigma,
-                ),
-                *sources[1:],
-            )
+        if sources and sources[0].distance_m is not None:
+            # the σ of the distance reported: the far ranger's with its distance, else the networks'
+            first = sources[0]
+            if pred is not None and pred.distance_sigma is not None:
+                first = replace(first, distance_sigma=float(pred.distance_sigma[0]))
+            if far is not None:
+                first = replace(first, far_probability=far.far_probability)
+                if far.far_probability >= FAR_DISTANCE_PROBABILITY:
+                    first = replace(first, distance_m=far.distance_m, distance_sigma=far.sigma)
+            sources = (first, *sources[1:])
         return SirenObservation(float(t_end), bool(is_siren), p, float(p_smooth), sources, level, health)
 
 
