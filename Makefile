@@ -8,7 +8,7 @@ OUT    ?= reports/demo
 
 .PHONY: venv demo test lint typecheck bench bench-sort bench-video bench-crops bench-detection bench-pull-over \
 	bench-siren-loop bench-audio bench-rig bench-v2x bench-fusion bench-roadside bench-lights bench-lights-flash bench-active-rule \
-	bench-rsu bench-fusion-ablation bench-mcap bench-engine bench-robust bench-speed bench-crossing bench-crossing-fresh bench-no-ev-2h bench-range-loop bench-approach-pairing bench-seed003-timeline bench-faults bench-overload bench-overload-listener bench-range bench-far-range bench-far-loop bench-clip-fusion bench-framework-ab bench-cross-source-seeds fuzz clean
+	bench-rsu bench-fusion-ablation bench-mcap bench-engine bench-robust bench-speed bench-crossing bench-crossing-fresh bench-no-ev-2h bench-range-loop bench-approach-pairing bench-seed003-timeline bench-faults bench-overload bench-overload-listener bench-range bench-far-range bench-far-loop bench-far-fused bench-clip-fusion bench-framework-ab bench-cross-source-seeds fuzz clean
 
 # `make demo` installs the runtime only; `make test` and the benchmarks add the dev extra (linters,
 # scikit-learn, XGBoost, torch for the training tests).
@@ -181,6 +181,11 @@ bench-far-range: venv
 bench-far-loop: venv
 	$(BIN)/python benchmarks/bench_closed_loop_siren.py --no-anchor --no-ev-runs 0
 	$(BIN)/python benchmarks/bench_closed_loop_siren.py --no-anchor --no-ev-runs 0 --far-ranger
+
+# the fused car (siren, cameras, V2X) without and with the far ranger, same scenes
+bench-far-fused: venv
+	$(BIN)/python benchmarks/bench_fusion_ablation.py --perceptions fused --seeds 2 --no-ev-runs 0
+	$(BIN)/python benchmarks/bench_fusion_ablation.py --perceptions fused --seeds 2 --no-ev-runs 0 --far-ranger
 
 # the heard closed loop with the default and the wide siren rangers, same scenes (loud sirens)
 bench-range-loop: venv

@@ -27,8 +27,9 @@ For each: the median relative distance error ``|d̂ − d| / d`` per band (targe
 and the far/near call — far when ``d̂ > 100 m`` (the far ranger: far probability ≥
 :data:`~makeway.perceive.audio.far_range.FAR_CALL_PROBABILITY`) against ``d > 100 m`` — right in
 what share of the windows at 10–300 m (target ≥ 95 %), over all windows and over the windows the
-listener reports as a siren. For the far ranger's own distance: the share of windows whose
-ln-distance error lies within ±1σ / ±2σ (calibrated: 68 % / 95 %). Then, for choosing on
+listener reports as a siren, and per 20–100 m band of true distance (where the mistakes lie).
+For the far ranger's own distance: the share of windows whose ln-distance error lies within ±1σ /
+±2σ (calibrated: 68 % / 95 %). Then, for choosing on
 validation scenes: far/near accuracy per far-call threshold, and the median relative error per band
 for each switch threshold. Last, the far ranger's cost per window (features + network, one thread)
 beside the whole stack's. The last line is one JSON object.
@@ -68,6 +69,18 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_audio_range_levels import siren_table
 
 BANDS_M = ((10.0, 50.0), (50.0, 100.0), (100.0, 150.0), (150.0, 300.0))
+CALL_BANDS_M = (
+    (10.0, 30.0),
+    (30.0, 50.0),
+    (50.0, 70.0),
+    (70.0, 90.0),
+    (90.0, 110.0),
+    (110.0, 130.0),
+    (130.0, 150.0),
+    (150.0, 200.0),
+    (200.0, 300.0),
+)
+"""Bands of true distance the far/near call is broken down by (where its mistakes lie)."""
 TARGET_RELATIVE = 0.25
 """Median relative error to reach at 50–150 m."""
 TARGET_FAR_NEAR = 0.95
@@ -117,6 +130,17 @@ def far_near(a: dict[str, np.ndarray], far_call: np.ndarray, sel: np.ndarray) ->
         "far_called_near": float((~far_call[sel & truth]).mean()) if (sel & truth).any() else None,
         "near_called_far": float(far_call[sel & ~truth].mean()) if (sel & ~truth).any() else None,
     }
+
+
+def far_near_by_distance(a: dict[str, np.ndarray], far_call: np.ndarray, sel: np.ndarray) -> dict[str, Any]:
+    """Share of windows whose far/near call is right, per band of true distance (:data:`CALL_BANDS_M`)."""
+    d = a["true_distance"]
+    out: dict[str, Any] = {}
+    for lo, hi in CALL_BANDS_M:
+        m = sel & (d >= lo) & (d < hi)
+        right = far_call[m] == (d[m] > FAR_BOUNDARY_M)
+        out[f"{lo:g}-{hi:g}"] = {"n": int(m.sum()), "right": float(right.mean()) if m.any() else None}
+    return out
 
 
 def coverage(a: dict[str, np.ndarray], sel: np.ndarray) -> dict[str, Any]:
@@ -219,6 +243,7 @@ def main() -> int:
         "far_distance_probability": FAR_DISTANCE_PROBABILITY,
         "relative_error": {k: relative_errors(a, v, sel) for k, v in estimators.items()},
         "far_near": {k: far_near(a, v, sel) for k, v in calls.items()},
+        "far_near_by_distance": {k: far_near_by_distance(a, v, sel) for k, v in calls.items()},
         "far_ranger_sigma": coverage(a, sel),
         "far_ranger_alone_relative_error": relative_errors(a, a["far_distance"], sel),
         "call_sweep": {f"{t:g}": far_near(a, a["far_probability"] >= t, sel) for t in CALL_GRID},
@@ -256,6 +281,13 @@ def main() -> int:
             f"({f['n_heard']} windows)   far called near {pct(f['far_called_near'])} %, "
             f"near called far {pct(f['near_called_far'])} %"
         )
+    call_bands = [f"{lo:g}-{hi:g}" for lo, hi in CALL_BANDS_M]
+    print("far/near right (%) per band of true distance (m):")
+    print(f"{'':14s}" + "".join(f"{b:>9s}" for b in call_bands))
+    by = result["far_near_by_distance"]
+    print(f"{'windows':14s}" + "".join(f"{by['far ranger'][b]['n']:>9d}" for b in call_bands))
+    for name in calls:
+        print(f"{name:14s}" + "".join(f"{pct(by[name][b]['right']):>9s}" for b in call_bands))
     cov = result["far_ranger_sigma"]
     print(
         "\nfar ranger σ: ln-distance error within ±1σ / ±2σ (calibrated: 68 / 95 %): all "
