@@ -8,8 +8,8 @@ decision reads:
 * **Track.** The nearest siren's bearing θ and distance d are placed in the world frame
   (``ego + R(yaw)·d·(cos θ, sin θ)``) and filtered by a constant-velocity Kalman filter on
   ``(x, y, v_x, v_y)``. The measurement noise is polar — ``distance_sigma_frac·d``, or ``σ·d``
-  when the listener states ``distance_sigma`` σ of ln distance (at least ``distance_sigma_min_m``)
-  along the line of sight, ``d·bearing_sigma_deg`` across it — rotated
+  when the listener states ``distance_sigma``, the σ of ln distance (at least
+  ``distance_sigma_min_m``), along the line of sight, ``d·bearing_sigma_deg`` across it — rotated
   into the world frame, so a far siren's distance counts for little. A fix farther than
   ``gate_chi2`` (Mahalanobis², 2 d.o.f.) from the prediction is set aside; after ``max_misses`` of
   them in a row the track restarts on the new fix (another siren, or a wrong first fix).
