@@ -8,7 +8,7 @@ OUT    ?= reports/demo
 
 .PHONY: venv demo test lint typecheck bench bench-sort bench-video bench-crops bench-detection bench-pull-over \
 	bench-siren-loop bench-audio bench-rig bench-v2x bench-fusion bench-roadside bench-lights bench-lights-flash bench-active-rule \
-	bench-rsu bench-fusion-ablation bench-mcap bench-engine bench-robust bench-speed bench-crossing bench-crossing-fresh bench-no-ev-2h bench-range-loop bench-approach-pairing bench-seed003-timeline bench-faults bench-overload bench-overload-listener bench-range bench-far-range bench-far-loop bench-far-fused bench-clip-fusion bench-framework-ab bench-cross-source-seeds fuzz clean
+	bench-rsu bench-fusion-ablation bench-mcap bench-engine bench-robust bench-speed bench-crossing bench-crossing-fresh bench-no-ev-2h bench-range-loop bench-approach-pairing bench-seed003-timeline bench-faults bench-overload bench-overload-listener bench-range bench-bearing-range bench-far-range bench-far-loop bench-far-fused bench-clip-fusion bench-framework-ab bench-cross-source-seeds fuzz clean
 
 # `make demo` installs the runtime only; `make test` and the benchmarks add the dev extra (linters,
 # scikit-learn, XGBoost, torch for the training tests).
@@ -171,6 +171,10 @@ bench-clip-fusion: venv
 bench-range: venv
 	$(BIN)/python benchmarks/bench_audio_range_levels.py --n 25 --combo wide=localizer+ranger_wide+ranger_wide2
 	$(BIN)/python benchmarks/bench_audio_range_cues.py --n 25
+
+# siren range from bearings alone against the car's own motion (bearings-only TMA), measured alone
+bench-bearing-range: venv
+	$(BIN)/python benchmarks/bench_audio_bearing_range.py --n 30
 
 # sirens beyond 50 m (issue 25): the far ranger against the shipped networks and the level-only
 # oracle on held-out far scenes (EVs out to ~300 m, 110–135 dB at 1 m), then the heard closed loop
