@@ -115,7 +115,7 @@ def fit_bearings_only(
     dev = e - design @ line
     # a start: the last bearing, the bearings' own rate, the prior's range, no range rate
     unwrapped = b[-1] + _wrap(b - b[-1])
-    omega0 = float(np.polyfit(tau, unwrapped, 1)[0]) if len(t) >= 2 else 0.0
+    omega0 = float(np.polyfit(tau, unwrapped, 1)[0])
     mu = math.log(prior_range_m)
     info_prior = np.diag([1.0 / prior_ln_sigma**2, 0.0, 0.0, 0.0])
 
