@@ -66,10 +66,6 @@ FAR_SEEDS = (2026, 2027)
 VAL_SEEDS = (77, 78)
 
 
-def settings() -> list[float]:
-    return list(WINDOWS_S)
-
-
 def recording_rows(folder: Path, model: SirenModel) -> list[dict[str, Any]]:
     """One row per window of a one-siren recording in which the detector fires: truth, the
     networks' distance, the car's acceleration and turn rate, and each setting's fit."""
@@ -94,7 +90,7 @@ def recording_rows(folder: Path, model: SirenModel) -> list[dict[str, Any]]:
     speed_before = np.hypot(ex - bx, ey - by) / dt
     accel = (speed - speed_before) / dt
     turn = (rec.ego.heading(t + dt) - rec.ego.heading(t - dt)) / (2 * dt)
-    rangers: dict[Any, BearingsOnlyRanger] = {s: BearingsOnlyRanger(window_s=s) for s in settings()}
+    rangers: dict[Any, BearingsOnlyRanger] = {s: BearingsOnlyRanger(window_s=s) for s in WINDOWS_S}
     for deg in ORACLE_SIGMAS_DEG:
         rangers[("oracle", deg)] = BearingsOnlyRanger(window_s=ORACLE_WINDOW_S, sigma_rad=math.radians(deg))
     true_bearing = yaw + np.arctan2(sy, sx)
@@ -109,7 +105,7 @@ def recording_rows(folder: Path, model: SirenModel) -> list[dict[str, Any]]:
             if isinstance(s, tuple):  # the true bearing with the oracle's noise
                 b = float(true_bearing[k] + math.radians(s[1]) * noise[k])
             fit = r.update(float(t[k]), (float(ex[k]), float(ey[k])), b)
-            fits[s] = None if fit is None else (fit.range_m, fit.range_sigma_m, fit.ln_range_sigma)
+            fits[s] = None if fit is None else (fit.range_m, fit.ln_range_sigma)
         out.append(
             {
                 "rec": str(folder),
@@ -143,14 +139,14 @@ def score(rows: list[dict[str, Any]], s: Any, net_sigma: float) -> dict[str, Any
     ln_fit = [abs(math.log(max(r["fits"][s][0], 0.1) / r["d"])) for r in with_fit]
     rel_fit = [abs(r["fits"][s][0] - r["d"]) / r["d"] for r in with_fit]
     rel_net = [abs(r["d_net"] - r["d"]) / r["d"] for r in with_fit]
-    inside = [abs(math.log(max(r["fits"][s][0], 0.1) / r["d"])) <= r["fits"][s][2] for r in with_fit]
-    conf = [r for r in with_fit if r["fits"][s][2] <= CONFIDENT]
+    inside = [abs(math.log(max(r["fits"][s][0], 0.1) / r["d"])) <= r["fits"][s][1] for r in with_fit]
+    conf = [r for r in with_fit if r["fits"][s][1] <= CONFIDENT]
     rel_conf = [abs(r["fits"][s][0] - r["d"]) / r["d"] for r in conf]
     rel_conf_net = [abs(r["d_net"] - r["d"]) / r["d"] for r in conf]
     blend: list[float] = []
     ln_blend: list[float] = []
     for r in with_fit:
-        rng, _, st = r["fits"][s]
+        rng, st = r["fits"][s]
         est = r["d_net"]
         if st <= CONFIDENT:
             wn, wt = 1.0 / net_sigma**2, 1.0 / st**2
@@ -242,7 +238,7 @@ def main() -> int:
         far = held_out_folders(args.far, Path(tmp) / "far", args.n, FAR_SEEDS, far_start=True)
         val_rows = collect(val, model, "validation")
         ns = net_ln_sigma(in_band(val_rows, 10.0, 300.0))
-        choice = {s: score(val_rows, s, ns)["blend_median_abs_ln"] for s in settings()}
+        choice = {s: score(val_rows, s, ns)["blend_median_abs_ln"] for s in WINDOWS_S}
         print(
             "validation (training-split seeds 77, 78), the blend's median |ln(distance / truth)| by window:"
         )

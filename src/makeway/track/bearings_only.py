@@ -32,6 +32,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from makeway.perceive.audio.doa import wrap_angle
+
 __all__ = ["PRIOR_LN_SIGMA", "PRIOR_RANGE_M", "BearingsOnlyFit", "BearingsOnlyRanger", "fit_bearings_only"]
 
 #: The default prior on range: median (m) and σ of ln range (±1σ: 15–110 m).
@@ -56,10 +58,6 @@ class BearingsOnlyFit:
     bearing_rad: float
     rms_rad: float
     n: int
-
-
-def _wrap(a: np.ndarray) -> np.ndarray:
-    return (a + np.pi) % (2.0 * np.pi) - np.pi
 
 
 def _predict(q: np.ndarray, tau: np.ndarray, dev: np.ndarray) -> np.ndarray:
@@ -114,13 +112,13 @@ def fit_bearings_only(
     line, *_ = np.linalg.lstsq(design, e, rcond=None)
     dev = e - design @ line
     # a start: the last bearing, the bearings' own rate, the prior's range, no range rate
-    unwrapped = b[-1] + _wrap(b - b[-1])
+    unwrapped = b[-1] + wrap_angle(b - b[-1])
     omega0 = float(np.polyfit(tau, unwrapped, 1)[0])
     mu = math.log(prior_range_m)
     info_prior = np.diag([1.0 / prior_ln_sigma**2, 0.0, 0.0, 0.0])
 
     def evaluate(q_: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
-        res = _wrap(b - _predict(q_, tau, dev)) / sigma_rad
+        res = wrap_angle(b - _predict(q_, tau, dev)) / sigma_rad
         a = np.abs(res)
         w = np.where(a <= huber, 1.0, huber / np.maximum(a, 1e-12))
         rho = np.where(a <= huber, 0.5 * res * res, huber * a - 0.5 * huber * huber)
@@ -132,10 +130,10 @@ def fit_bearings_only(
         for j, h in enumerate((1e-6, 1e-7, 1e-7, 1e-7)):
             dq = np.zeros(4)
             dq[j] = h
-            cols.append(_wrap(_predict(q_ + dq, tau, dev) - base) / h)
+            cols.append(wrap_angle(_predict(q_ + dq, tau, dev) - base) / h)
         return np.stack(cols, axis=1) / sigma_rad
 
-    best: tuple[np.ndarray, float, np.ndarray] | None = None
+    best: tuple[np.ndarray, float, np.ndarray, np.ndarray] | None = None
     for ln_r in (mu, math.log(10.0), math.log(150.0)):
         q = np.array([ln_r, float(b[-1]), 0.0, omega0])
         res, w, cost = evaluate(q)
@@ -163,9 +161,9 @@ def fit_bearings_only(
             if not accepted or done:
                 break
         if best is None or cost < best[1]:
-            best = (q, cost, w)
+            best = (q, cost, w, res)
     assert best is not None
-    q, _, w = best
+    q, _, w, res = best
     jac = jacobian(q)
     info = jac.T @ (w[:, None] * jac) + info_prior
     r0 = math.exp(q[0])
@@ -183,7 +181,7 @@ def fit_bearings_only(
     except np.linalg.LinAlgError:
         sigma, ln_sigma = math.inf, math.inf
     kept = w >= 1.0
-    resid = _wrap(b - _predict(q, tau, dev))[kept]
+    resid = res[kept] * sigma_rad
     return BearingsOnlyFit(
         time_s=float(t[-1]),
         range_m=rng,
