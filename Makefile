@@ -5,6 +5,9 @@ BIN    := $(VENV)/bin
 RUNTIME := $(VENV)/.runtime
 DEV    := $(VENV)/.dev
 OUT    ?= reports/demo
+# test processes (pytest-xdist); each test file stays on one process, so its module fixtures and
+# caches are built once. TEST_WORKERS=0 runs the suite in this process.
+TEST_WORKERS ?= 2
 
 .PHONY: venv demo test lint typecheck bench bench-sort bench-video bench-crops bench-detection bench-pull-over \
 	bench-siren-loop bench-audio bench-rig bench-v2x bench-fusion bench-roadside bench-lights bench-lights-flash bench-active-rule \
@@ -35,7 +38,7 @@ typecheck: venv
 	$(BIN)/mypy
 
 test: lint typecheck
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist loadfile
 
 # Benchmarks: the reference SORT (GPL, installed only here, never vendored) is the anchor.
 $(VENV)/.bench: $(DEV)

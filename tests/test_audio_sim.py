@@ -34,6 +34,7 @@ from makeway.sim.acoustics import (
     mic_world_positions,
     place_fixed_sources,
     propagation_delays,
+    read_fractional,
     simulate_array,
     wind_noise,
 )
@@ -336,6 +337,31 @@ def test_siren_pitch_variety_uses_its_own_stream(monkeypatch: pytest.MonkeyPatch
 
 
 # ----------------------------------------------------------------------------------------- simulator
+
+
+@pytest.mark.parametrize("kernel", ["sinc", "lagrange"])
+def test_fractional_read_is_the_signal_padded_with_silence(kernel: str) -> None:
+    """A read needs only the stretch its taps reach; outside the signal it reads silence."""
+    rng = np.random.default_rng(3)
+    sig = rng.normal(size=5_000).astype(np.float32)
+    padded = np.concatenate([np.zeros(300, np.float32), sig, np.zeros(300, np.float32)])
+    for pos in (
+        np.linspace(-40.0, 60.0, 777),  # across the start
+        np.linspace(4_950.0, 5_030.0, 333),  # across the end
+        np.linspace(1_000.3, 1_500.9, 2_000),  # inside, a short hop of a long signal
+        rng.uniform(-200.0, 5_200.0, 1_000),  # anywhere, in any order
+    ):
+        got = read_fractional(sig, pos, kernel)
+        assert got.dtype == np.float32 and got.shape == pos.shape
+        np.testing.assert_array_equal(got, read_fractional(padded, pos + 300.0, kernel))
+    whole = np.arange(len(sig), dtype=np.float64)
+    np.testing.assert_array_equal(read_fractional(sig, whole, kernel), sig)  # whole samples: exact
+    assert not read_fractional(sig, np.array([-1e7, -30.0, 5_030.0, 1e9]), kernel).any()
+    assert read_fractional(sig, np.array([]), kernel).shape == (0,)
+    # a slow sine read between its samples
+    tone = np.sin(2 * np.pi * 0.01 * np.arange(4_000)).astype(np.float32)
+    pos = np.linspace(100.25, 3_900.75, 1_500)
+    np.testing.assert_allclose(read_fractional(tone, pos, kernel), np.sin(2 * np.pi * 0.01 * pos), atol=2e-3)
 
 
 def test_static_delays_match_geometry() -> None:

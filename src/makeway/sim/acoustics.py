@@ -171,21 +171,32 @@ def _kernel_table(kernel: str, phases: int = 1024) -> tuple[np.ndarray, np.ndarr
 
 
 def read_fractional(signal: np.ndarray, positions: np.ndarray, kernel: str = "sinc") -> np.ndarray:
-    """Band-limited read of ``signal`` at fractional sample ``positions`` (zero outside the signal)."""
+    """Band-limited read of ``signal`` at fractional sample ``positions`` (zero outside the signal).
+
+    Only the stretch of ``signal`` the kernel's taps reach is copied, so reading a short hop of a
+    long recording costs the hop, not the recording.
+    """
     offsets, table = _kernel_table(kernel)
     phases = table.shape[1] - 1
-    pad = len(offsets) + 2
-    sig = np.concatenate(
-        [np.zeros(pad, np.float32), np.asarray(signal, np.float32), np.zeros(pad, np.float32)]
-    )
+    sig = np.asarray(signal, np.float32)
     pos = np.asarray(positions, dtype=np.float64)
+    out = np.zeros(len(pos), dtype=np.float32)
+    if not len(pos):
+        return out
     i0 = np.floor(pos)
     ph = np.rint((pos - i0) * phases).astype(np.intp)
-    # far outside the signal the taps land in the zero padding, so the read is 0
-    base = np.clip(i0, -pad - offsets.min(), len(signal) + pad - 1 - offsets.max()).astype(np.intp) + pad
-    out = np.zeros(len(pos), dtype=np.float32)
+    # far outside the signal every tap lands in zeros, so the read is 0
+    pad = len(offsets) + 2
+    base = np.clip(i0, -pad - offsets.min(), len(sig) + pad - 1 - offsets.max()).astype(np.intp)
+    lo = int(base.min()) + int(offsets.min())
+    hi = int(base.max()) + int(offsets.max()) + 1
+    window = np.zeros(hi - lo, dtype=np.float32)
+    a, b = max(lo, 0), min(hi, len(sig))
+    if b > a:
+        window[a - lo : b - lo] = sig[a:b]
+    idx = base - lo
     for m, k in enumerate(offsets):
-        out += sig[base + k] * table[m][ph]
+        out += window[idx + k] * table[m][ph]
     return out
 
 
