@@ -17,7 +17,7 @@ from makeway.pipeline.closed_loop import ClosedLoopResult, run_scenario
 from makeway.pipeline.siren_perception import SirenPerceptionConfig
 from makeway.sense.recording import Trajectory
 from makeway.sim.acoustics import SPEED_OF_SOUND, db_spl_to_pa, simulate_array
-from makeway.sim.live_array import LiveArraySimulator, LiveAudioConfig
+from makeway.sim.live_array import LiveArraySimulator, LiveAudioConfig, _draw_scene
 from makeway.sim.scenarios import SCENARIOS
 
 runner = CliRunner()
@@ -58,6 +58,28 @@ def test_live_audio_rendered_hop_by_hop_matches_the_whole_scene() -> None:
     loud = np.sqrt(np.mean(siren[round((arrive + 0.05) * SR) : round((arrive + 0.5) * SR)] ** 2))
     assert quiet < 1e-6 * loud and loud > 0
     assert live.dtype == np.float32 and live.shape[1] == 8
+
+
+def test_runs_with_the_same_draw_share_it_and_sound_the_same() -> None:
+    """A run's scene is drawn once per seed, length, starting speed and array: another run with the
+    same ones reuses the draw (read-only), and one run's siren gating never reaches another's."""
+    cfg = LiveAudioConfig(seed=5)
+    first = LiveArraySimulator(2.0, cfg, initial_speed_mps=13.4)
+    heard = _drive(first, 1.9)
+    second = LiveArraySimulator(2.0, cfg, initial_speed_mps=13.4)
+    assert second._bed is first._bed and second._raw is first._raw
+    assert not first._bed.flags.writeable and not first._raw.flags.writeable
+    assert second._source.signal is not first._source.signal and not second._source.signal.any()
+    np.testing.assert_array_equal(_drive(second, 1.9), heard)
+    _draw_scene.cache_clear()  # drawn afresh: the very same scene
+    fresh = LiveArraySimulator(2.0, cfg, initial_speed_mps=13.4)
+    assert fresh._bed is not first._bed
+    np.testing.assert_array_equal(fresh._bed, first._bed)
+    np.testing.assert_array_equal(_drive(fresh, 1.9), heard)
+    other = LiveArraySimulator(2.0, LiveAudioConfig(seed=6), initial_speed_mps=13.4)
+    assert not np.array_equal(other._bed[:4800], first._bed[:4800])
+    slower = LiveArraySimulator(2.0, cfg, initial_speed_mps=5.0)
+    assert slower._air_ref < first._air_ref and slower._wind is not first._wind
 
 
 def test_live_audio_refuses_to_look_ahead_or_back() -> None:

@@ -23,19 +23,31 @@ attenuation; street noise of 2–4 fixed sources around the car at a level from 
 (generated, or real held-out street recordings with ``noise="real"``); wind noise independent per
 capsule; capsule self-noise. The noise is rendered in advance for the whole run. The wind's level
 follows the ego's air speed as the car slows (40·log10 law, gain per sample); its spectrum keeps the
-shape of the starting speed.
+shape of the starting speed. Runs with the same seed, length, starting speed and array draw the
+same scene, so the last two draws are kept and shared, read-only (a scenario run with other senses
+or another scenario of the same length renders its noise once).
 """
 
 from __future__ import annotations
 
+import copy
+import functools
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
+from typing import Any
 
 import numpy as np
 from scipy.fft import next_fast_len
 
 from makeway.sense.recording import REFERENCE_SAMPLE_RATE, Trajectory, reference_mics
-from makeway.sim.acoustics import FULL_SCALE_DB_SPL, db_spl_to_pa, self_noise, simulate_array, wind_noise
+from makeway.sim.acoustics import (
+    FULL_SCALE_DB_SPL,
+    PointSource,
+    db_spl_to_pa,
+    self_noise,
+    simulate_array,
+    wind_noise,
+)
 from makeway.sim.audio_scenarios import (
     AMBIENT_WIND_MPS,
     PRE_ROLL_S,
@@ -84,6 +96,71 @@ class LiveAudioConfig:
             raise ValueError(f"noise must be generated or real, not {self.noise!r}")
 
 
+@dataclass(frozen=True)
+class _Scene:
+    """What :class:`LiveArraySimulator` draws once per run (arrays read-only, shared between runs)."""
+
+    siren_name: str
+    siren_draws: dict[str, float]
+    source: PointSource  # its signal is ``raw``; each run gates its own copy
+    raw: np.ndarray
+    street_noise: dict[str, Any]
+    wind_level_10_db: float
+    ambient_wind_mps: float
+    air_ref_mps: float
+    wind: np.ndarray
+    bed: np.ndarray
+
+
+@functools.lru_cache(maxsize=2)
+def _draw_scene(
+    duration_s: float,
+    cfg: LiveAudioConfig,
+    mics: tuple[tuple[float, ...], ...],
+    sample_rate: int,
+    initial_speed_mps: float,
+) -> _Scene:
+    """Draw the siren and render the noise bed of a run from ``cfg.seed`` (module docstring).
+
+    A function of its arguments alone, so runs that share them (the same seed, length and starting
+    speed in another scenario or with other senses) share one draw instead of rendering it again.
+    """
+    sr = sample_rate
+    mic_xyz = np.asarray(mics, dtype=np.float64)
+    rng = np.random.default_rng(cfg.seed)
+    sirens, noise = source_pools(cfg.split) if "real" in (cfg.siren, cfg.noise) else ([], [])
+    if cfg.siren == "real" and not sirens:
+        raise ValueError("siren='real' needs the shared data (audio/siren_clips, siren_tones); none found")
+    if cfg.noise == "real" and not noise:
+        raise ValueError("noise='real' needs the shared data (audio/street_recordings); none found")
+
+    # the siren: its raw signal, and the emitted one (gated as the run goes)
+    n_sig = round((duration_s + PRE_ROLL_S) * sr) + 2 * MARGIN_SAMPLES + 64
+    if cfg.siren == "real":
+        src = pick_by_group(sirens, rng)
+        raw = fit_length(src.load(sr), n_sig, rng, crossfade=0 if src.kind == "tone" else 2400)
+        name = src.name
+    else:
+        raw, params = synthesize_siren(None, n_sig / sr, sr, rng=rng)
+        name = f"synth:{params.mode}"
+    source, draws = siren_point_source(
+        raw, Trajectory(np.array([0.0, 1.0]), np.zeros(2), np.zeros(2)), rng, level_db=cfg.siren_level_db
+    )
+
+    # the noise bed for the whole run, at a length the FFT factors well (the noise is shaped in
+    # the frequency domain; an awkward length costs ten times the time)
+    n = next_fast_len(round(duration_s * sr) + 2 * MARGIN_SAMPLES, real=True)
+    street, street_meta = street_noise_field(n, sr, mic_xyz, rng, noise, cfg.street_dba)
+    wind_10 = float(rng.uniform(*WIND_LEVEL_10_DB))
+    ambient = float(rng.uniform(*AMBIENT_WIND_MPS))
+    air_ref = max(initial_speed_mps + ambient, 0.3)
+    wind = wind_noise(n, len(mic_xyz), sr, air_ref, wind_10, rng).astype(np.float32)
+    bed = (street + self_noise(n, len(mic_xyz), rng)).astype(np.float32)
+    for arr in (source.signal, wind, bed):
+        arr.setflags(write=False)
+    return _Scene(name, draws, source, source.signal, street_meta, wind_10, ambient, air_ref, wind, bed)
+
+
 class LiveArraySimulator:
     """Renders the array's audio of one closed-loop run, hop by hop (module docstring).
 
@@ -107,46 +184,22 @@ class LiveArraySimulator:
         self.sample_rate = int(sample_rate)
         self.full_scale_db_spl = float(full_scale_db_spl)
         self.duration_s = float(duration_s)
-        sr = self.sample_rate
-        rng = np.random.default_rng(cfg.seed)
-        sirens, noise = source_pools(cfg.split) if "real" in (cfg.siren, cfg.noise) else ([], [])
-        if cfg.siren == "real" and not sirens:
-            raise ValueError(
-                "siren='real' needs the shared data (audio/siren_clips, siren_tones); none found"
-            )
-        if cfg.noise == "real" and not noise:
-            raise ValueError("noise='real' needs the shared data (audio/street_recordings); none found")
-
-        # the siren: its raw signal, and the emitted one (gated as the run goes)
-        n_sig = round((self.duration_s + PRE_ROLL_S) * sr) + 2 * MARGIN_SAMPLES + 64
-        if cfg.siren == "real":
-            src = pick_by_group(sirens, rng)
-            raw = fit_length(src.load(sr), n_sig, rng, crossfade=0 if src.kind == "tone" else 2400)
-            self.siren_name = src.name
-        else:
-            raw, params = synthesize_siren(None, n_sig / sr, sr, rng=rng)
-            self.siren_name = f"synth:{params.mode}"
-        # the EV's trajectory is set per render; this one is a placeholder
-        self._source, self.siren_draws = siren_point_source(
-            raw,
-            Trajectory(np.array([0.0, 1.0]), np.zeros(2), np.zeros(2)),
-            rng,
-            level_db=self.config.siren_level_db,
+        scene = _draw_scene(
+            self.duration_s,
+            cfg,
+            tuple(map(tuple, self.mics.tolist())),
+            self.sample_rate,
+            float(initial_speed_mps),
         )
-        self._raw = self._source.signal.copy()
-        self._source.signal[:] = 0.0
+        self.siren_name = scene.siren_name
+        self.siren_draws, self.street_noise = copy.deepcopy((scene.siren_draws, scene.street_noise))
+        self.wind_level_10_db = scene.wind_level_10_db
+        self._ambient_wind, self._air_ref = scene.ambient_wind_mps, scene.air_ref_mps
+        self._raw, self._wind, self._bed = scene.raw, scene.wind, scene.bed
+        # the emitted siren starts silent and is gated as the run goes; the EV's trajectory is set
+        # per render
+        self._source = replace(scene.source, signal=np.zeros_like(scene.raw))
         self._gated_until = 0  # emitted samples [0, _gated_until) are final
-
-        # the noise bed for the whole run, at a length the FFT factors well (the noise is shaped in
-        # the frequency domain; an awkward length costs ten times the time)
-        n = next_fast_len(round(self.duration_s * sr) + 2 * MARGIN_SAMPLES, real=True)
-        street, self.street_noise = street_noise_field(n, sr, self.mics, rng, noise, cfg.street_dba)
-        wind_10 = float(rng.uniform(*WIND_LEVEL_10_DB))
-        self._ambient_wind = float(rng.uniform(*AMBIENT_WIND_MPS))
-        self._air_ref = max(initial_speed_mps + self._ambient_wind, 0.3)
-        self._wind = wind_noise(n, len(self.mics), sr, self._air_ref, wind_10, rng).astype(np.float32)
-        self._bed = (street + self_noise(n, len(self.mics), rng)).astype(np.float32)
-        self.wind_level_10_db = wind_10
 
         self._t: list[float] = []
         self._ego: list[tuple[float, float, float]] = []
