@@ -39,6 +39,7 @@ from typing import Any
 import numpy as np
 from scipy.fft import next_fast_len
 
+from makeway.paths import data_dir
 from makeway.sense.recording import REFERENCE_SAMPLE_RATE, Trajectory, reference_mics
 from makeway.sim.acoustics import (
     FULL_SCALE_DB_SPL,
@@ -112,6 +113,13 @@ class _Scene:
     bed: np.ndarray
 
 
+def _real_data_root(cfg: LiveAudioConfig) -> str:
+    """The shared data folder ``cfg`` draws real sirens or streets from, "" when it draws none (or
+    the data is missing)."""
+    root = data_dir() if "real" in (cfg.siren, cfg.noise) else None
+    return str(root) if root is not None else ""
+
+
 @functools.lru_cache(maxsize=2)
 def _draw_scene(
     duration_s: float,
@@ -119,8 +127,10 @@ def _draw_scene(
     mics: tuple[tuple[float, ...], ...],
     sample_rate: int,
     initial_speed_mps: float,
+    data: str,
 ) -> _Scene:
-    """Draw the siren and render the noise bed of a run from ``cfg.seed`` (module docstring).
+    """Draw the siren and render the noise bed of a run from ``cfg.seed`` (module docstring);
+    ``data`` names the shared data folder real sirens and streets come from ("" when none is used).
 
     A function of its arguments alone, so runs that share them (the same seed, length and starting
     speed in another scenario or with other senses) share one draw instead of rendering it again.
@@ -128,7 +138,7 @@ def _draw_scene(
     sr = sample_rate
     mic_xyz = np.asarray(mics, dtype=np.float64)
     rng = np.random.default_rng(cfg.seed)
-    sirens, noise = source_pools(cfg.split) if "real" in (cfg.siren, cfg.noise) else ([], [])
+    sirens, noise = source_pools(cfg.split, data) if data else ([], [])
     if cfg.siren == "real" and not sirens:
         raise ValueError("siren='real' needs the shared data (audio/siren_clips, siren_tones); none found")
     if cfg.noise == "real" and not noise:
@@ -190,6 +200,7 @@ class LiveArraySimulator:
             tuple(map(tuple, self.mics.tolist())),
             self.sample_rate,
             float(initial_speed_mps),
+            _real_data_root(cfg),
         )
         self.siren_name = scene.siren_name
         self.siren_draws, self.street_noise = copy.deepcopy((scene.siren_draws, scene.street_noise))
