@@ -103,8 +103,7 @@ class _Scene:
 
     siren_name: str
     siren_draws: dict[str, float]
-    source: PointSource  # its signal is ``raw``; each run gates its own copy
-    raw: np.ndarray
+    source: PointSource  # its signal is the siren as emitted when on; each run gates its own copy
     street_noise: dict[str, Any]
     wind_level_10_db: float
     ambient_wind_mps: float
@@ -168,7 +167,7 @@ def _draw_scene(
     bed = (street + self_noise(n, len(mic_xyz), rng)).astype(np.float32)
     for arr in (source.signal, wind, bed):
         arr.setflags(write=False)
-    return _Scene(name, draws, source, source.signal, street_meta, wind_10, ambient, air_ref, wind, bed)
+    return _Scene(name, draws, source, street_meta, wind_10, ambient, air_ref, wind, bed)
 
 
 class LiveArraySimulator:
@@ -206,10 +205,10 @@ class LiveArraySimulator:
         self.siren_draws, self.street_noise = copy.deepcopy((scene.siren_draws, scene.street_noise))
         self.wind_level_10_db = scene.wind_level_10_db
         self._ambient_wind, self._air_ref = scene.ambient_wind_mps, scene.air_ref_mps
-        self._raw, self._wind, self._bed = scene.raw, scene.wind, scene.bed
+        self._raw, self._wind, self._bed = scene.source.signal, scene.wind, scene.bed
         # the emitted siren starts silent and is gated as the run goes; the EV's trajectory is set
         # per render
-        self._source = replace(scene.source, signal=np.zeros_like(scene.raw))
+        self._source = replace(scene.source, signal=np.zeros_like(self._raw))
         self._gated_until = 0  # emitted samples [0, _gated_until) are final
 
         self._t: list[float] = []
