@@ -6,6 +6,9 @@ from __future__ import annotations
 
 import json
 import math
+import subprocess
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -244,6 +247,19 @@ def test_vision_and_v2x_alone_on_the_command_line() -> None:
     assert m["action"] == "continue"  # seed 003's EV sends no alerts: V2X alone does not see it
     r = runner.invoke(app, ["simulate", "no_ev", "--duty", "texas"])
     assert r.exit_code == 2 and "audible_and_visual, germany, uk" in r.stderr
+
+
+def test_the_simulated_v2x_keys_are_removed_when_the_process_exits() -> None:
+    """The closed loop's signing keys live in a temporary folder that must not outlive the run."""
+    code = (
+        "from makeway.pipeline.fused_perception import _identity, _keys\n"
+        "_identity('ev1')\n"
+        "print(_keys())\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    folder = Path(out.stdout.strip().splitlines()[-1])
+    assert folder.name.startswith("makeway-v2x-")
+    assert not folder.exists()
 
 
 # ------------------------------------------------------------------ V2X corridor over a real network

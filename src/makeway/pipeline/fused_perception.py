@@ -43,8 +43,10 @@ perception, ``("v2x",)`` the ``v2x`` one, all three ``fused``. Deterministic for
 
 from __future__ import annotations
 
+import atexit
 import functools
 import math
+import shutil
 import tempfile
 import time
 from collections import deque
@@ -146,8 +148,10 @@ class FusedPerceptionConfig:
 
 @functools.lru_cache(maxsize=1)
 def _keys() -> Path:
-    """A local root and its trust store in a temporary folder (once per process)."""
+    """A local root and its trust store in a temporary folder (once per process; the folder, which
+    holds private keys, is removed when the process exits)."""
     folder = Path(tempfile.mkdtemp(prefix="makeway-v2x-"))
+    atexit.register(shutil.rmtree, folder, ignore_errors=True)
     keygen(folder, "rsu")
     return folder
 
