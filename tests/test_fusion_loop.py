@@ -252,9 +252,7 @@ def test_vision_and_v2x_alone_on_the_command_line() -> None:
 def test_the_simulated_v2x_keys_are_removed_when_the_process_exits() -> None:
     """The closed loop's signing keys live in a temporary folder that must not outlive the run."""
     code = (
-        "from makeway.pipeline.fused_perception import _identity, _keys\n"
-        "_identity('ev1')\n"
-        "print(_keys())\n"
+        "from makeway.pipeline.fused_perception import _identity, _keys\n_identity('ev1')\nprint(_keys())\n"
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     folder = Path(out.stdout.strip().splitlines()[-1])
