@@ -11,7 +11,7 @@ TEST_WORKERS ?= 2
 
 .PHONY: venv demo test lint typecheck bench bench-sort bench-video bench-crops bench-detection bench-pull-over \
 	bench-siren-loop bench-audio bench-rig bench-v2x bench-fusion bench-roadside bench-lights bench-lights-flash bench-active-rule \
-	bench-rsu bench-fusion-ablation bench-mcap bench-engine bench-robust bench-speed bench-crossing bench-crossing-fresh bench-no-ev-2h bench-range-loop bench-approach-pairing bench-seed003-timeline bench-faults bench-overload bench-overload-listener bench-range bench-bearing-range bench-far-range bench-far-loop bench-far-fused bench-clip-fusion bench-framework-ab bench-cross-source-seeds fuzz clean
+	bench-rsu bench-fusion-ablation bench-mcap bench-engine bench-robust bench-speed bench-crossing bench-crossing-fresh bench-no-ev-2h bench-no-ev-urban-2h bench-range-loop bench-approach-pairing bench-seed003-timeline bench-faults bench-overload bench-overload-listener bench-range bench-bearing-range bench-far-range bench-far-loop bench-far-fused bench-clip-fusion bench-framework-ab bench-cross-source-seeds fuzz clean
 
 # `make demo` installs the runtime only; `make test` and the benchmarks add the dev extra (linters,
 # scikit-learn, XGBoost, torch for the training tests).
@@ -145,6 +145,11 @@ bench-crossing-fresh: venv
 bench-no-ev-2h: venv
 	$(BIN)/python benchmarks/bench_fusion_ablation.py --only-no-ev --no-ev-runs 180 --first-no-ev-seed 100 & \
 	$(BIN)/python benchmarks/bench_fusion_ablation.py --only-no-ev --no-ev-runs 180 --first-no-ev-seed 280; wait
+
+# the same 2 h on a street with a crossroads every 70 m
+bench-no-ev-urban-2h: venv
+	$(BIN)/python benchmarks/bench_fusion_ablation.py --only-no-ev --no-ev-scenario no_ev_urban --no-ev-runs 180 --first-no-ev-seed 100 & \
+	$(BIN)/python benchmarks/bench_fusion_ablation.py --only-no-ev --no-ev-scenario no_ev_urban --no-ev-runs 180 --first-no-ev-seed 280; wait
 
 # the closed loop's speed on the multi-body plant, against the code before the speed work (same run)
 bench-speed: venv

@@ -32,7 +32,10 @@ slow-downs to prepare (a confirmed EV whose evidence does not yet oblige a yield
 exact 95 % upper bound on the false-yield rate. ``--full`` runs 10 seeds and 360 drives (2 h of
 driving); the default is a quick look. ``--only-no-ev`` runs the no-EV drives alone and
 ``--first-no-ev-seed`` picks their first scene seed (to split the 2 h between processes: seeds 100…279
-and 280…459 are the 360 drives of ``--full``). The wall time is printed.
+and 280…459 are the 360 drives of ``--full``). ``--no-ev-scenario no_ev_urban`` drives a street with a
+crossroads every 70 m instead of the open road: there a siren not yet placed may stop the car before
+the next intersection (the rule a crossing EV needs), so false sirens cost more. The wall time is
+printed.
 The last line is one JSON object with every run.
 """
 
@@ -125,6 +128,12 @@ def main() -> int:
     ap.add_argument("--only-no-ev", action="store_true", help="skip the scenarios: only the no-EV drives")
     ap.add_argument("--first-no-ev-seed", type=int, default=100, help="scene seed of the first no-EV drive")
     ap.add_argument(
+        "--no-ev-scenario",
+        default="no_ev",
+        choices=["no_ev", "no_ev_urban"],
+        help="the no-EV drive: the open road, or a street with a crossroads every 70 m",
+    )
+    ap.add_argument(
         "--far-ranger",
         nargs="?",
         const=str(DEFAULT_FAR_RANGER),
@@ -212,7 +221,7 @@ def main() -> int:
         )
 
     t1 = time.perf_counter()
-    quiet = SCENARIOS["no_ev"]()
+    quiet = SCENARIOS[args.no_ev_scenario]()
     false_yields = prepares = 0
     for k in range(no_ev_runs):
         seed = args.first_no_ev_seed + k
@@ -230,6 +239,7 @@ def main() -> int:
             print(f"  {k + 1}/{no_ev_runs} no-EV drives, {false_yields} false yields so far", flush=True)
     hours = no_ev_runs * quiet.duration_s / 3600.0
     no_ev = {
+        "scenario": quiet.name,
         "drives": no_ev_runs,
         "hours": round(hours, 4),
         "false_yields": false_yields,
@@ -241,7 +251,8 @@ def main() -> int:
     }
     if no_ev_runs:
         print(
-            f"no EV, fused, real held-out street noise and false lights: {false_yields} false yields in "
+            f"no EV ({quiet.name}), fused, real held-out street noise and false lights: {false_yields} "
+            f"false yields in "
             f"{no_ev_runs} drives ({hours:.2f} h) = {no_ev['false_yields_per_hour']} per hour (target ≤ "
             f"{TARGETS['false_yields_per_hour']} over ≥ {TARGETS['no_ev_hours']:g} h; hearing alone, "
             f"old rule: 13.5); 95 % upper bound {no_ev['false_yields_per_hour_upper95']} per hour; "

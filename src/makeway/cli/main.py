@@ -532,7 +532,8 @@ def simulate(
         str,
         typer.Argument(
             help="Scenario: seed003 (the field test: EV behind on a straight road), curve_behind, oncoming, "
-            "crossing, signals_off, no_ev."
+            "crossing, signals_off, no_ev, no_ev_urban (crossroads every 70 m), two_evs, occluded_behind, "
+            "night_lights_only, siren_only, v2x_corridor."
         ),
     ] = "seed003",
     controller: Annotated[

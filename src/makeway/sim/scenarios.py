@@ -19,6 +19,8 @@ name               situation                                                    
 ``signals_off``    EV from behind switches lights and siren off after 4 s and     yield, then resume
                    slows down (it was not called after all)
 ``no_ev``          an ordinary drive                                             continue
+``no_ev_urban``    an ordinary drive on a two-way street through a crossroads     continue
+                   every 70 m (where a siren not yet placed would stop the car)
 ``two_evs``        undivided road: an EV overtakes from behind on the centre      pull over and stop
                    line while another comes the other way; both active at once    until both have passed
 ``occluded_behind`` a truck follows the ego; an EV comes up in the other lane,    pull over and stop
@@ -280,6 +282,28 @@ def no_ev() -> Scenario:
     )
 
 
+def no_ev_urban() -> Scenario:
+    """An ordinary drive through crossroads: nothing to yield to, nowhere to stop.
+
+    The rule that stops the car before an intersection for a siren it cannot yet place
+    (:class:`~makeway.decide.yield_fsm.YieldConfig` ``stop_for_unplaced_siren``) can only act where an
+    intersection lies ahead; this drive measures what it costs when nothing is there."""
+    lane = straight_road(600.0)
+    boxes = tuple((s0, s0 + 14.0) for s0 in np.arange(40.0, 560.0, 70.0).tolist())
+    return _scenario(
+        "no_ev_urban",
+        "ego 13.4 m/s on a two-way street with a crossroads every 70 m (the first 40 m ahead), "
+        "no emergency vehicle",
+        lane,
+        None,
+        duration_s=20.0,
+        expected_action="continue",
+        right_edge_offset_m=-1.3,
+        edge_offsets_m=_TWO_WAY_EDGES,
+        intersections=boxes,
+    )
+
+
 def on_recorded_path(lane: ReferencePath, *, ego_speed_mps: float = 13.4, ev_gap_m: float = 50.0) -> Scenario:
     """seed003's situation on a recorded path (as the seeds replayed one): the ego starts
     ``ev_gap_m + 10`` m along it, the EV ``ev_gap_m`` behind on the same path, switching on at 2 s.
@@ -439,6 +463,7 @@ SCENARIOS: Registry[Callable[[], Scenario]] = Registry(
         "crossing": crossing,
         "signals_off": signals_off,
         "no_ev": no_ev,
+        "no_ev_urban": no_ev_urban,
         "two_evs": two_evs,
         "occluded_behind": occluded_behind,
         "night_lights_only": night_lights_only,
