@@ -1,6 +1,6 @@
 """Every sense in the closed loop (issue 26): the cameras' model in the simulated world, the duty to
-yield and its presets, the yield decision over several EVs, and every scenario driven with the
-siren stack, the cameras and V2X fused."""
+yield and its presets, the yield decision over several EVs, the command line, and the V2X corridor
+over a real network (every scenario driven with all senses fused: test_closed_loop_fused.py)."""
 
 from __future__ import annotations
 
@@ -17,7 +17,7 @@ from typer.testing import CliRunner
 from makeway.cli.main import app
 from makeway.decide import DUTY_PRESETS, DutyToYield, YieldConfig, YieldStateMachine, duty_of
 from makeway.messages import EVBelief, EVRelation, RoadContext, VehicleState, YieldState
-from makeway.pipeline.closed_loop import PERCEPTIONS, ClosedLoopResult, run_scenario
+from makeway.pipeline.closed_loop import run_scenario
 from makeway.pipeline.fused_perception import FusedPerceptionConfig
 from makeway.sim.cameras import CameraFigures, CameraSense, line_of_sight_blocked
 from makeway.sim.scenarios import SCENARIOS
@@ -180,61 +180,6 @@ def test_waits_until_every_ev_that_needs_it_has_passed() -> None:
         fsm.update_all([gone, went], VehicleState(t, 0, 0, 0, 0.0), _road())
         t += 0.05
     assert fsm.state is YieldState.EV_PASSED
-
-
-# ------------------------------------------------------------------------------------ closed loop
-
-FUSED_CACHE: dict[tuple[str, int], ClosedLoopResult] = {}
-
-
-def fused(name: str, seed: int = 0) -> ClosedLoopResult:
-    key = (name, seed)
-    if key not in FUSED_CACHE:
-        FUSED_CACHE[key] = run_scenario(SCENARIOS[name](), perception=PERCEPTIONS["fused"](seed=seed))
-    return FUSED_CACHE[key]
-
-
-@pytest.mark.slow  # the siren stack renders and listens: ~5–25 s per scenario on 2 free cores
-@pytest.mark.parametrize("name", list(SCENARIOS))
-def test_every_scenario_fused_gives_the_expected_action(name: str) -> None:
-    m = fused(name).metrics
-    assert m["action"] == m["expected_action"], (name, fused(name).actions)
-    assert not m["collision"] and m["stopped_clear_of_intersections"]
-    assert m["yields"] <= 1  # no extra yields
-    if m["expected_action"] == "continue":
-        assert m["final_speed_mps"] > 12.0
-
-
-@pytest.mark.slow
-@pytest.mark.parametrize("name", ["crossing", "two_evs", "occluded_behind"])
-def test_second_seed_fused(name: str) -> None:
-    m = fused(name, 1).metrics
-    assert m["action"] == m["expected_action"] and not m["collision"] and m["yields"] == 1
-
-
-@pytest.mark.slow
-def test_two_evs_waits_for_the_second() -> None:
-    res = fused("two_evs")
-    log = res.log
-    passed = next(t for t, _, to, _ in res.transitions if to == YieldState.EV_PASSED.value)
-    sc = SCENARIOS["two_evs"]()
-    oncoming = sc.more_evs[0]
-    # the oncoming EV (12 m/s from 150 m ahead) passes the stopped ego only after ~9 s; the first one
-    # overtook long before
-    ego_x = float(log["x"][int(round(passed / 0.01))])
-    ev2_x = 400.0 - (oncoming.start_s_m + 12.0 * passed)
-    assert ev2_x < ego_x, (passed, ego_x, ev2_x)
-
-
-@pytest.mark.slow
-def test_v2x_corridor_yields_ten_seconds_before_the_onboard_senses() -> None:
-    fused_m = fused("v2x_corridor").metrics
-    onboard = run_scenario(
-        SCENARIOS["v2x_corridor"](), perception=FusedPerceptionConfig(senses=("siren", "light"))
-    ).metrics
-    assert fused_m["time_active_to_yield_s"] is not None and onboard["time_active_to_yield_s"] is not None
-    assert fused_m["time_active_to_yield_s"] + 10.0 <= onboard["time_active_to_yield_s"]
-    assert fused_m["time_active_to_yield_s"] < 2.0 and not onboard["collision"]
 
 
 def test_vision_and_v2x_alone_on_the_command_line() -> None:
