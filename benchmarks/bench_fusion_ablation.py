@@ -50,6 +50,7 @@ from typing import Any
 
 from scipy.stats import chi2
 
+from makeway.decide import YieldConfig
 from makeway.perceive.audio.far_range import DEFAULT_FAR_RANGER, FarRanger
 from makeway.perceive.audio.siren_model import SirenModel
 from makeway.pipeline.closed_loop import ClosedLoopResult, PerceptionSpec, run_scenario
@@ -140,7 +141,15 @@ def main() -> int:
         default=None,
         help="the siren stack with the far ranger behind it (opt-in; without a value: the shipped one)",
     )
+    ap.add_argument(
+        "--unplaced-siren-heard-s",
+        type=float,
+        default=YieldConfig().unplaced_siren_heard_s,
+        help="how long (s) a siren not yet placed must be heard approaching before the car stops before "
+        "an intersection for it (YieldConfig.unplaced_siren_heard_s; default: its confirmation alone)",
+    )
     args = ap.parse_args()
+    decide = YieldConfig(unplaced_siren_heard_s=args.unplaced_siren_heard_s)
     seeds = list(range(args.first_seed, args.first_seed + (10 if args.full else args.seeds)))
     no_ev_runs = 360 if args.full else args.no_ev_runs
     names = [] if args.only_no_ev else [s for s in args.scenarios.split(",") if s]
@@ -148,6 +157,12 @@ def main() -> int:
     model = SirenModel()
     far = FarRanger(args.far_ranger) if args.far_ranger else None
     print(f"siren stack: {model!r}" + (f" + {far!r}" if far is not None else ""), flush=True)
+    if args.unplaced_siren_heard_s > 0.0:
+        print(
+            "the stop before an intersection for a siren not yet placed waits for "
+            f"{args.unplaced_siren_heard_s:g} s of approaching call",
+            flush=True,
+        )
     wall0 = time.perf_counter()
     runs: list[dict[str, Any]] = []
     cols = ("action", "action_ok", "collision", "stopped_s", "yield_s", "extra_yields", "peak_decel_mps2")
@@ -159,7 +174,7 @@ def main() -> int:
         extra = ["onboard"] if name == "v2x_corridor" and "fused" in kinds else []
         for kind in kinds + extra:
             for seed in seeds:
-                r = row(run_scenario(sc, perception=spec(kind, seed, model, far=far)))
+                r = row(run_scenario(sc, perception=spec(kind, seed, model, far=far), yield_config=decide))
                 runs.append({"scenario": name, "perception": kind, "seed": seed, **r})
                 print(
                     f"{name:18s} {kind:10s} {seed:>4d} " + " ".join(f"{_f(r[c]):>18s}" for c in cols),
@@ -228,7 +243,7 @@ def main() -> int:
         cfg = FusedPerceptionConfig(
             audio=LiveAudioConfig(seed=seed, noise="real"), seed=seed, model=model, far_ranger=far
         )
-        res = run_scenario(quiet, perception=cfg)
+        res = run_scenario(quiet, perception=cfg, yield_config=decide)
         fy = res.metrics["yields"]
         pr = sum(1 for _, _, to, _ in res.transitions if to == "ev_confirmed")
         false_yields += fy
@@ -264,6 +279,7 @@ def main() -> int:
         json.dumps(
             {
                 "far_ranger": None if far is None else far.path.name,
+                "unplaced_siren_heard_s": args.unplaced_siren_heard_s,
                 "summary": summary,
                 "no_ev": no_ev,
                 "targets": TARGETS,

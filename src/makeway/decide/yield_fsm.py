@@ -79,9 +79,10 @@ lane at ``prepare_speed_fraction`` of the speed limit until the evidence grows t
 
 **Not into an intersection with a siren coming.** A siren the duty only prepares for (heard, not
 seen), heard approaching (``belief.approaching`` True: the siren stack's call or the track's range
-rate) while its way is unknown (relation UNKNOWN: not placed, or placed where no road relation fits)
-or crosses ours (CROSSING), is a yield once the car reaches its decision point for the intersection
-ahead: ``decide_ahead_s`` of travel before the last point where it can still stop comfortably
+rate; optionally without a break for at least ``unplaced_siren_heard_s``, below) while its way is
+unknown (relation UNKNOWN: not placed, or placed where no road relation fits) or crosses ours
+(CROSSING), is a yield once the car reaches its decision point for the intersection ahead:
+``decide_ahead_s`` of travel before the last point where it can still stop comfortably
 (:func:`firm_stop_distance_m` at ``comfort_decel_mps2``, after ``reaction_time_s``, from the
 deceleration it already has) ``intersection_margin_m`` before it. The car then stops before the
 intersection (firmly if comfort can no longer make it, below), as a driver who hears a siren coming
@@ -255,6 +256,14 @@ class YieldConfig:
         stop_for_unplaced_siren: a siren the duty only prepares for, heard approaching while its way
             is unknown (not placed) or crosses ours, stops the car before the intersection ahead
             once it must decide (module docstring, "Not into an intersection").
+        unplaced_siren_heard_s: how long (s) such a siren must have been heard approaching, without
+            a break (its track absent or its call not "approaching" for one period restarts the
+            clock), before it stops the car; 0 (default): its confirmation alone. Street noise
+            taken for a siren gives approaching calls of 0.85–1.7 s (the six false stops of the
+            no-EV drives through crossroads, docs/results.md), but a siren first heard ~40 m from
+            the car, as in two crossing seeds of forty, leaves no time to wait: 2 s removes those
+            six false stops and lets those two crossings drive into the intersection, 1 s already
+            one. Raise it only where false stops cost more than a late one.
         decide_ahead_s: how many seconds of travel before the last point where a comfortable stop
             before the intersection is still possible the car decides to stop for such a siren.
         arrive_tolerance_m: stopped within this distance of the stop point counts as arrived.
@@ -295,6 +304,7 @@ class YieldConfig:
     firm_min_margin_m: float = 3.0
     pull_over_before_intersection: bool = True
     stop_for_unplaced_siren: bool = True
+    unplaced_siren_heard_s: float = 0.0
     decide_ahead_s: float = 1.0
     arrive_tolerance_m: float = 3.0
     stuck_timeout_s: float = 3.0
@@ -556,6 +566,7 @@ class YieldStateMachine:
         self._others_wanting = False  # another EV than the followed one needs a yield
         self._lights_since: dict[int | None, float] = {}  # per track: lights shown without a break since
         self._lights_seen: dict[int | None, float] = {}  # per track: when it last showed lights
+        self._coming_since: dict[int | None, float] = {}  # per track: siren heard approaching since
         self._road_s = 0.0  # the ego's arc length and the map's intersections, this period
         self._boxes: tuple[tuple[float, float], ...] = ()
         self._ego_v = 0.0  # the ego's speed (m/s) and deceleration (m/s², >= 0), this period
@@ -591,6 +602,9 @@ class YieldStateMachine:
                     self._lights_seen[b.track_id] = b.time_s
             else:
                 self._lights_since.pop(b.track_id, None)
+        coming = {b.track_id: b.time_s for b in beliefs if b.detected and b.siren and b.approaching is True}
+        # a siren heard approaching without a break since: a track absent this period breaks it too
+        self._coming_since = {k: self._coming_since.get(k, t) for k, t in coming.items()}
         if len(self._lights_seen) > 64:  # forget tracks long gone
             memory = self.config.duty.lights_memory_s
             latest = max(self._lights_seen.values())
@@ -637,14 +651,19 @@ class YieldStateMachine:
 
     def _must_decide_before_intersection(self, b: EVBelief) -> bool:
         """Whether a prepared-for siren makes the car stop before the intersection ahead now (module
-        docstring, "Not into an intersection"): heard approaching, its way unknown or crossing ours,
-        and the car ``decide_ahead_s`` of travel from the last point where it can still stop
-        comfortably ``intersection_margin_m`` before the intersection."""
+        docstring, "Not into an intersection"): heard approaching (for ``unplaced_siren_heard_s``
+        without a break), its way unknown or crossing ours, and the car ``decide_ahead_s`` of travel
+        from the last point where it can still stop comfortably ``intersection_margin_m`` before
+        the intersection."""
         cfg = self.config
         if not (cfg.stop_for_unplaced_siren and b.siren and b.approaching is True):
             return False
         if b.relation not in (EVRelation.UNKNOWN, EVRelation.CROSSING):
             return False
+        if cfg.unplaced_siren_heard_s > 0.0:
+            since = self._coming_since.get(b.track_id)
+            if since is None or b.time_s - since < cfg.unplaced_siren_heard_s - _EPS:
+                return False
         s, v = self._road_s, self._ego_v
         start = min((float(a) for a, _ in self._boxes if float(a) > s), default=math.inf)
         if not math.isfinite(start):
