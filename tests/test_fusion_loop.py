@@ -157,6 +157,29 @@ def test_siren_alone_prepares_then_yields_once_close() -> None:
     assert d.action == "prepare"
 
 
+def test_lights_alone_count_from_their_return_after_the_track_dropped_out() -> None:
+    """Lights alone oblige a yield after 2 s of unbroken sight; a track that leaves the beliefs (no
+    longer confirmed) and comes back with the same id starts its 2 s again."""
+    from dataclasses import replace
+
+    def lit(t: float) -> EVBelief:
+        return replace(_b(False, True, d=30.0, t=t), sources=("light",), track_id=7)
+
+    fsm = YieldStateMachine()
+    for k in range(30):  # 1.5 s of lights, then 3 s with the track gone
+        t = k * 0.05
+        fsm.update_all([lit(t)], VehicleState(t, 0, 0, 0, 13.4), _road())
+    for k in range(30, 90):
+        t = k * 0.05
+        fsm.update_all([EVBelief.nothing(t)], VehicleState(t, 0, 0, 0, 13.4), _road())
+    states = []
+    for k in range(90, 140):  # back: NO_EV until it has been lit again for 2 s
+        t = k * 0.05
+        states.append((t, fsm.update_all([lit(t)], VehicleState(t, 0, 0, 0, 13.4), _road()).state))
+    first = next(t for t, st in states if st is not YieldState.NO_EV)
+    assert first >= 4.5 + 2.0 - 1e-6, states[:5]
+
+
 def test_waits_until_every_ev_that_needs_it_has_passed() -> None:
     fsm = YieldStateMachine()
     behind = EVBelief(0.0, True, 0.9, EVRelation.BEHIND, -30.0, 0.0, 30.0, math.pi, True, True, True, "fused",

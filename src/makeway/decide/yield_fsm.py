@@ -595,16 +595,15 @@ class YieldStateMachine:
             raise ValueError("update_all needs at least one belief")
         self._road_s, self._boxes = float(road.s_m), tuple(road.intersections)
         self._ego_v, self._ego_brake = max(float(ego.vx_mps), 0.0), max(-float(ego.ax_mps2), 0.0)
-        for b in beliefs:  # how long each track has shown lights without a break
-            if b.detected and b.lights:
-                self._lights_since.setdefault(b.track_id, b.time_s)
-                if "light" in b.sources:  # seen by the cameras (not a V2X alert's flag)
-                    self._lights_seen[b.track_id] = b.time_s
-            else:
-                self._lights_since.pop(b.track_id, None)
+        # per track, lights shown / a siren heard approaching without a break since (a track absent
+        # this period is a break too), and when the cameras last saw its lights
+        lit = {b.track_id: b.time_s for b in beliefs if b.detected and b.lights}
+        self._lights_since = {k: self._lights_since.get(k, t) for k, t in lit.items()}
         coming = {b.track_id: b.time_s for b in beliefs if b.detected and b.siren and b.approaching is True}
-        # a siren heard approaching without a break since: a track absent this period breaks it too
         self._coming_since = {k: self._coming_since.get(k, t) for k, t in coming.items()}
+        for b in beliefs:
+            if b.detected and b.lights and "light" in b.sources:  # the cameras' (not a V2X flag)
+                self._lights_seen[b.track_id] = b.time_s
         if len(self._lights_seen) > 64:  # forget tracks long gone
             memory = self.config.duty.lights_memory_s
             latest = max(self._lights_seen.values())
