@@ -29,7 +29,8 @@ Then ``--no-ev-runs`` drives of ``no_ev`` (20 s each) with the fused perception 
 street recordings (scene seeds 100, 101, …) with the cameras' false lights: false yields (manoeuvres
 started) per hour (target ≤ 0.1 over ≥ 2 h; hearing alone under the old rule: 13.5), and the
 slow-downs to prepare (a confirmed EV whose evidence does not yet oblige a yield) per hour, with the
-exact 95 % upper bound on the false-yield rate. ``--full`` runs 10 seeds and 360 drives (2 h of
+exact 95 % upper bound on the false-yield rate, and after each confirmation the lowest speed the car
+reached (a stop without a yield would show as 0). ``--full`` runs 10 seeds and 360 drives (2 h of
 driving); the default is a quick look. ``--only-no-ev`` runs the no-EV drives alone and
 ``--first-no-ev-seed`` picks their first scene seed (to split the 2 h between processes: seeds 100…279
 and 280…459 are the 360 drives of ``--full``). ``--no-ev-scenario no_ev_urban`` drives a street with a
@@ -148,8 +149,16 @@ def main() -> int:
         help="how long (s) a siren not yet placed must be heard approaching before the car stops before "
         "an intersection for it (YieldConfig.unplaced_siren_heard_s; default: its confirmation alone)",
     )
+    ap.add_argument(
+        "--no-hold-short",
+        action="store_true",
+        help="while that call has not lasted long enough, drive on instead of braking towards the stop "
+        "(YieldConfig.hold_short_while_heard=False)",
+    )
     args = ap.parse_args()
-    decide = YieldConfig(unplaced_siren_heard_s=args.unplaced_siren_heard_s)
+    decide = YieldConfig(
+        unplaced_siren_heard_s=args.unplaced_siren_heard_s, hold_short_while_heard=not args.no_hold_short
+    )
     seeds = list(range(args.first_seed, args.first_seed + (10 if args.full else args.seeds)))
     no_ev_runs = 360 if args.full else args.no_ev_runs
     names = [] if args.only_no_ev else [s for s in args.scenarios.split(",") if s]
@@ -160,7 +169,8 @@ def main() -> int:
     if args.unplaced_siren_heard_s > 0.0:
         print(
             "the stop before an intersection for a siren not yet placed waits for "
-            f"{args.unplaced_siren_heard_s:g} s of approaching call",
+            f"{args.unplaced_siren_heard_s:g} s of approaching call"
+            + (", driving on meanwhile" if args.no_hold_short else ", braking towards the stop meanwhile"),
             flush=True,
         )
     wall0 = time.perf_counter()
@@ -237,7 +247,8 @@ def main() -> int:
 
     t1 = time.perf_counter()
     quiet = SCENARIOS[args.no_ev_scenario]()
-    false_yields = prepares = 0
+    false_yields = prepares = stopped = 0
+    lowest: list[float] = []  # per drive with a confirmation: the lowest speed after it (m/s)
     for k in range(no_ev_runs):
         seed = args.first_no_ev_seed + k
         cfg = FusedPerceptionConfig(
@@ -248,8 +259,14 @@ def main() -> int:
         pr = sum(1 for _, _, to, _ in res.transitions if to == "ev_confirmed")
         false_yields += fy
         prepares += pr
+        first = next((t for t, _, to, _ in res.transitions if to == "ev_confirmed"), None)
+        if first is not None:
+            low = float(res.log["vx"][res.log["t"] >= first].min())
+            lowest.append(low)
+            stopped += low < 0.2
         if fy or pr:
-            print(f"  no-EV drive seed {seed}: {fy} yields, {pr} confirmations", flush=True)
+            low_s = f", lowest speed after it {lowest[-1]:.1f} m/s" if first is not None else ""
+            print(f"  no-EV drive seed {seed}: {fy} yields, {pr} confirmations{low_s}", flush=True)
         if (k + 1) % 20 == 0:
             print(f"  {k + 1}/{no_ev_runs} no-EV drives, {false_yields} false yields so far", flush=True)
     hours = no_ev_runs * quiet.duration_s / 3600.0
@@ -261,6 +278,8 @@ def main() -> int:
         "false_yields_per_hour": round(false_yields / hours, 3) if hours else None,
         "false_yields_per_hour_upper95": round(poisson_upper95(false_yields) / hours, 3) if hours else None,
         "false_confirmations_per_hour": round(prepares / hours, 3) if hours else None,
+        "drives_stopped_after_a_confirmation": stopped,
+        "lowest_speed_after_a_confirmation_mps": sorted(round(x, 2) for x in lowest),
         "false_lights_per_hour_modelled": FusedPerceptionConfig().cameras.false_rate_per_hour,
         "wall_s": round(time.perf_counter() - t1, 1),
     }
@@ -273,6 +292,12 @@ def main() -> int:
             f"old rule: 13.5); 95 % upper bound {no_ev['false_yields_per_hour_upper95']} per hour; "
             f"EVs confirmed (slow-downs) {no_ev['false_confirmations_per_hour']} per hour"
         )
+        if lowest:
+            print(
+                f"  after a confirmation the car stopped in {stopped} of {len(lowest)} drives; lowest speed "
+                f"median {statistics.median(lowest):.1f} m/s, least {min(lowest):.1f} m/s "
+                f"(speed limit {quiet.speed_limit_mps:.1f} m/s)"
+            )
     wall = time.perf_counter() - wall0
     print(f"wall time {wall:.0f} s (scenarios {scenario_wall:.0f} s, no-EV drives {no_ev['wall_s']:.0f} s)")
     print(
@@ -280,6 +305,7 @@ def main() -> int:
             {
                 "far_ranger": None if far is None else far.path.name,
                 "unplaced_siren_heard_s": args.unplaced_siren_heard_s,
+                "hold_short_while_heard": decide.hold_short_while_heard,
                 "summary": summary,
                 "no_ev": no_ev,
                 "targets": TARGETS,

@@ -130,6 +130,43 @@ def test_an_approaching_call_can_be_made_to_last_before_it_stops_the_car() -> No
     assert any(r[3] is YieldState.MOVING_OVER for r in run)
 
 
+def test_while_the_call_proves_itself_the_car_brakes_for_the_stop_a_short_call_costs_a_slow_down() -> None:
+    """Heard first 30 m before the intersection at 13.4 m/s (later than crossing seed 16): waiting
+    2 s while driving on leaves no room to stop, so the car brakes towards the stop while the call
+    proves itself (``hold_short_while_heard``): a call that lasts stops it before the intersection.
+    Heard 36 m before it (seed 16), a call that stops after 1.5 s leaves the car slowed, never
+    stopped, and it drives on."""
+    start = BOX[0] - 30.0
+    hold = YieldConfig(unplaced_siren_heard_s=2.0)
+    drive_on = YieldConfig(unplaced_siren_heard_s=2.0, hold_short_while_heard=False)
+    assert drive_on.hold_short_while_heard is False and hold.hold_short_while_heard is True
+    run = drive(YieldStateMachine(hold), heard, s0=start, seconds=10.0)
+    assert any(r[3] is YieldState.MOVING_OVER for r in run)
+    assert max(r[1] for r in run) < BOX[0]  # stopped before it
+    late = drive(YieldStateMachine(drive_on), heard, s0=start, seconds=10.0)
+    assert max(r[1] for r in late) > BOX[0]  # waiting at speed: it could not stop before any more
+
+    def short(t: float) -> EVBelief:
+        return heard(t) if t < 1.5 else EVBelief.nothing(t)
+
+    fsm = YieldStateMachine(hold)
+    s, v, speeds, stops = BOX[0] - 36.0, LIMIT, [], []
+    for k in range(int(10.0 / 0.05)):
+        t = k * 0.05
+        d = fsm.update(short(t), VehicleState(t, s, 0.0, 0.0, v), RoadContext(s, intersections=(BOX,)))
+        assert d.state is not YieldState.MOVING_OVER
+        if d.stop_s_m is not None:
+            stops.append(d.stop_s_m)
+            a = -min(v * v / (2.0 * max(d.stop_s_m - s, 0.1)), 4.5)
+        else:
+            a = max(min((d.target_speed_mps - v) / 0.5, 1.5), -4.5)
+        v = max(v + a * 0.05, 0.0)
+        s += v * 0.05
+        speeds.append(v)
+    assert stops and max(stops) < BOX[0] and d.action == "continue"  # braked for a stop, then released
+    assert 3.0 < min(speeds) < LIMIT - 3.0 and s > BOX[1]  # slowed, never stopped, drove through
+
+
 @pytest.mark.parametrize(
     ("relation", "approaching", "config"),
     [

@@ -89,7 +89,10 @@ intersection (firmly if comfort can no longer make it, below), as a driver who h
 but cannot yet tell from where does not drive into the crossing; before that point it only
 prepares, so a siren that is placed or seen by then is yielded to as what it is
 (``stop_for_unplaced_siren=False`` turns this off). A map with no intersection ahead leaves the duty
-as it is.
+as it is. With ``unplaced_siren_heard_s`` above 0 the stop waits for a call that lasted that long;
+until then the car at its decision point brakes towards the stop (``prepare`` carrying the stop
+point, ``hold_short_while_heard``), so a call that stops early costs a slow-down and one that lasts
+finds the car still able to stop.
 
 **Several EVs** (:meth:`YieldStateMachine.update_all`, one belief per EV track): the machine follows
 one EV — one that needs a yield first, the one it followed last time next, then the nearest — and
@@ -264,6 +267,11 @@ class YieldConfig:
             the car, as in two crossing seeds of forty, leaves no time to wait: 2 s removes those
             six false stops and lets those two crossings drive into the intersection, 1 s already
             one. Raise it only where false stops cost more than a late one.
+        hold_short_while_heard: while such a siren's call has not yet lasted
+            ``unplaced_siren_heard_s`` and the car is at its decision point, brake towards a stop
+            before the intersection (``prepare`` with that stop point, comfort limits) instead of
+            driving on: a call that lasts then stops the car as if it had not waited, one that stops
+            costs a slow-down, not a stop. No effect when ``unplaced_siren_heard_s`` is 0.
         decide_ahead_s: how many seconds of travel before the last point where a comfortable stop
             before the intersection is still possible the car decides to stop for such a siren.
         arrive_tolerance_m: stopped within this distance of the stop point counts as arrived.
@@ -305,6 +313,7 @@ class YieldConfig:
     pull_over_before_intersection: bool = True
     stop_for_unplaced_siren: bool = True
     unplaced_siren_heard_s: float = 0.0
+    hold_short_while_heard: bool = True
     decide_ahead_s: float = 1.0
     arrive_tolerance_m: float = 3.0
     stuck_timeout_s: float = 3.0
@@ -654,15 +663,33 @@ class YieldStateMachine:
         without a break), its way unknown or crossing ours, and the car ``decide_ahead_s`` of travel
         from the last point where it can still stop comfortably ``intersection_margin_m`` before
         the intersection."""
+        return self._at_unplaced_decision_point(b) and self._heard_long_enough(b)
+
+    def _heard_long_enough(self, b: EVBelief) -> bool:
+        """Whether ``b``'s siren has been heard approaching without a break for
+        ``unplaced_siren_heard_s`` (always, when that is 0)."""
+        wait = self.config.unplaced_siren_heard_s
+        if wait <= 0.0:
+            return True
+        since = self._coming_since.get(b.track_id)
+        return since is not None and b.time_s - since >= wait - _EPS
+
+    def _holding_short(self, b: EVBelief | None) -> bool:
+        """Whether the car brakes towards a stop before the intersection ahead while ``b``'s call
+        has not yet lasted ``unplaced_siren_heard_s`` (module docstring, "Not into an
+        intersection"): every other condition of the stop holds."""
+        if b is None or self.config.unplaced_siren_heard_s <= 0.0 or not self.config.hold_short_while_heard:
+            return False
+        return self._at_unplaced_decision_point(b) and not self._heard_long_enough(b)
+
+    def _at_unplaced_decision_point(self, b: EVBelief) -> bool:
+        """A siren heard approaching, its way unknown or crossing ours, with the car at or past its
+        decision point for the intersection ahead (the time it has heard it aside)."""
         cfg = self.config
         if not (cfg.stop_for_unplaced_siren and b.siren and b.approaching is True):
             return False
         if b.relation not in (EVRelation.UNKNOWN, EVRelation.CROSSING):
             return False
-        if cfg.unplaced_siren_heard_s > 0.0:
-            since = self._coming_since.get(b.track_id)
-            if since is None or b.time_s - since < cfg.unplaced_siren_heard_s - _EPS:
-                return False
         s, v = self._road_s, self._ego_v
         start = min((float(a) for a, _ in self._boxes if float(a) > s), default=math.inf)
         if not math.isfinite(start):
@@ -1016,6 +1043,40 @@ class YieldStateMachine:
             return _Plan(True, stop, pull, True, unknown_way=unknown_way)
         return _Plan(crossing, stop, True if stop >= desired - _EPS else room, stop < desired - _EPS)
 
+    def _hold_short(self, now: float, b: EVBelief, slow: float, what: str) -> YieldDecision:
+        """``prepare`` with a stop point before the intersection ahead: the car brakes as for the stop
+        it would make there (``intersection_margin_m`` before it within comfort, else a firm stop
+        as the plan's, module docstring "A firm stop") while the call proves itself; when neither
+        can stop short of it, plain ``prepare``."""
+        cfg = self.config
+        s, v, braking = self._road_s, self._ego_v, self._ego_brake
+        start = min(float(a) for a, _ in self._boxes if float(a) > s)
+        since = self._coming_since.get(b.track_id)
+        heard = b.time_s - since if since is not None else 0.0
+        stop = start - cfg.intersection_margin_m
+        comfort = firm_stop_distance_m(
+            v, cfg.comfort_decel_mps2, cfg.comfort_jerk_mps3, cfg.reaction_time_s, braking
+        )
+        firm: tuple[float, float] | None = None
+        if s + comfort > stop + _EPS:
+            reach = s + firm_stop_distance_m(
+                v, cfg.firm_decel_mps2, cfg.firm_jerk_mps3, cfg.reaction_time_s, braking
+            )
+            stop = max(stop, reach)
+            if stop > start - cfg.firm_min_margin_m or cfg.firm_decel_mps2 <= cfg.comfort_decel_mps2:
+                why = f"Heard an {what} for {heard:.1f} s, an intersection too close to stop before: slowing."
+                return YieldDecision(now, self._state, "prepare", False, slow, None, why)
+            firm = (cfg.firm_decel_mps2, cfg.firm_jerk_mps3)
+        how = f", firmly (up to {cfg.firm_decel_mps2:g} m/s²)" if firm else ""
+        why = (
+            f"Heard an {what} for {heard:.1f} s, its way not known, an intersection ahead: braking to "
+            f"stop before it at s={stop:.1f} m{how} unless the call stops within "
+            f"{cfg.unplaced_siren_heard_s:g} s."
+        )
+        if firm is None:
+            return YieldDecision(now, self._state, "prepare", False, slow, stop, why)
+        return YieldDecision(now, self._state, "prepare", False, slow, stop, why, *firm)
+
     def _motion(self, ego: VehicleState, road: RoadContext) -> tuple[str, bool, float, float, str]:
         """This period's manoeuvre under the plan: action, pull_over, target speed, stop point, note."""
         cfg = self.config
@@ -1075,6 +1136,8 @@ class YieldStateMachine:
                 return YieldDecision(now, st, "follow", False, min(v, limit), None, why)
             if self._prepares():
                 slow = self.config.duty.prepare_speed_fraction * limit
+                if b is not None and self._holding_short(b):
+                    return self._hold_short(now, b, slow, what)
                 why = f"Heard an {what} but the law asks for more before a yield: slowing, ready to yield."
                 return YieldDecision(now, st, "prepare", False, slow, None, why)
             s = float(road.s_m)
