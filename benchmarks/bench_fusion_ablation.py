@@ -147,7 +147,8 @@ def main() -> int:
         type=float,
         default=YieldConfig().unplaced_siren_heard_s,
         help="how long (s) a siren not yet placed must be heard approaching before the car stops before "
-        "an intersection for it (YieldConfig.unplaced_siren_heard_s; default: its confirmation alone)",
+        "an intersection for it (YieldConfig.unplaced_siren_heard_s, default %(default)s; 0: its "
+        "confirmation alone)",
     )
     ap.add_argument(
         "--no-hold-short",

@@ -102,10 +102,11 @@ def test_confirmed_late_close_to_the_intersection_stops_firmly_before_it() -> No
 
 def test_an_approaching_call_can_be_made_to_last_before_it_stops_the_car() -> None:
     """Street noise mistaken for a siren gives short approaching calls (the no-EV drives through
-    crossroads: 0.85–1.7 s); with ``unplaced_siren_heard_s`` = 2 s the stop before the intersection
-    waits until the call has lasted that long without a break. The car starts 45 m before the
-    intersection, already inside its decision zone."""
-    wait = YieldConfig(unplaced_siren_heard_s=2.0)
+    crossroads: 0.85–1.7 s); with ``unplaced_siren_heard_s`` = 2 s (default) the stop before the
+    intersection waits until the call has lasted that long without a break. The car starts 45 m
+    before the intersection, already inside its decision zone."""
+    wait = YieldConfig()
+    assert wait.unplaced_siren_heard_s == 2.0  # the default
 
     def call(start: float, end: float, gap: float | None = None):
         def at(t: float) -> EVBelief:
@@ -125,8 +126,13 @@ def test_an_approaching_call_can_be_made_to_last_before_it_stops_the_car() -> No
     run = drive(YieldStateMachine(wait), call(0.0, 8.0), s0=BOX[0] - 45.0, seconds=8.0)
     stop = next(r for r in run if r[3] is YieldState.MOVING_OVER)
     assert 2.0 - 0.06 <= stop[0] < 3.0 and max(r[1] for r in run) < BOX[0]
-    # the default (0 s): the confirmation alone decides, the short call stops the car too
-    run = drive(YieldStateMachine(), call(0.0, 1.5), s0=BOX[0] - 45.0, seconds=8.0)
+    # 0 s: the confirmation alone decides, the short call stops the car too
+    run = drive(
+        YieldStateMachine(YieldConfig(unplaced_siren_heard_s=0.0)),
+        call(0.0, 1.5),
+        s0=BOX[0] - 45.0,
+        seconds=8.0,
+    )
     assert any(r[3] is YieldState.MOVING_OVER for r in run)
 
 

@@ -79,7 +79,7 @@ lane at ``prepare_speed_fraction`` of the speed limit until the evidence grows t
 
 **Not into an intersection with a siren coming.** A siren the duty only prepares for (heard, not
 seen), heard approaching (``belief.approaching`` True: the siren stack's call or the track's range
-rate; optionally without a break for at least ``unplaced_siren_heard_s``, below) while its way is
+rate; without a break for at least ``unplaced_siren_heard_s``, below) while its way is
 unknown (relation UNKNOWN: not placed, or placed where no road relation fits) or crosses ours
 (CROSSING), is a yield once the car reaches its decision point for the intersection ahead:
 ``decide_ahead_s`` of travel before the last point where it can still stop comfortably
@@ -89,10 +89,10 @@ intersection (firmly if comfort can no longer make it, below), as a driver who h
 but cannot yet tell from where does not drive into the crossing; before that point it only
 prepares, so a siren that is placed or seen by then is yielded to as what it is
 (``stop_for_unplaced_siren=False`` turns this off). A map with no intersection ahead leaves the duty
-as it is. With ``unplaced_siren_heard_s`` above 0 the stop waits for a call that lasted that long;
-until then the car at its decision point brakes towards the stop (``prepare`` carrying the stop
-point, ``hold_short_while_heard``), so a call that stops early costs a slow-down and one that lasts
-finds the car still able to stop.
+as it is. The stop waits for a call that has lasted ``unplaced_siren_heard_s`` (default 2 s; 0: the
+confirmation alone); until then the car at its decision point brakes towards the stop
+(``prepare`` carrying the stop point, ``hold_short_while_heard``), so a call that stops early (street
+noise taken for a siren) costs a slow-down and one that lasts finds the car still able to stop.
 
 **Several EVs** (:meth:`YieldStateMachine.update_all`, one belief per EV track): the machine follows
 one EV — one that needs a yield first, the one it followed last time next, then the nearest — and
@@ -261,15 +261,15 @@ class YieldConfig:
             once it must decide (module docstring, "Not into an intersection").
         unplaced_siren_heard_s: how long (s) such a siren must have been heard approaching, without
             a break (its track absent or its call not "approaching" for one period restarts the
-            clock), before it stops the car; 0 (default): its confirmation alone. Street noise
-            taken for a siren gives approaching calls of 0.85–1.7 s (the six false stops of the
-            no-EV drives through crossroads, docs/results.md), but a siren first heard ~40 m from
-            the car, as in two crossing seeds of forty, leaves no time to wait: 2 s removes those
-            six false stops and lets those two crossings drive into the intersection, 1 s already
-            one. Raise it only where false stops cost more than a late one.
+            clock), before it stops the car; 0: its confirmation alone. Street noise taken for a
+            siren gives approaching calls of 0.85–1.7 s (the false stops of the no-EV drives
+            through crossroads, docs/results.md): 2 s (default) removes them, and with
+            ``hold_short_while_heard`` a siren first heard ~40 m from the car still finds it able
+            to stop (without it, 2 s lets two crossing seeds of forty drive into the intersection).
         hold_short_while_heard: while such a siren's call has not yet lasted
             ``unplaced_siren_heard_s`` and the car is at its decision point, brake towards a stop
-            before the intersection (``prepare`` with that stop point, comfort limits) instead of
+            before the intersection (``prepare`` with that stop point; firm limits where comfort
+            can no longer make it) instead of
             driving on: a call that lasts then stops the car as if it had not waited, one that stops
             costs a slow-down, not a stop. No effect when ``unplaced_siren_heard_s`` is 0.
         decide_ahead_s: how many seconds of travel before the last point where a comfortable stop
@@ -312,7 +312,7 @@ class YieldConfig:
     firm_min_margin_m: float = 3.0
     pull_over_before_intersection: bool = True
     stop_for_unplaced_siren: bool = True
-    unplaced_siren_heard_s: float = 0.0
+    unplaced_siren_heard_s: float = 2.0
     hold_short_while_heard: bool = True
     decide_ahead_s: float = 1.0
     arrive_tolerance_m: float = 3.0
