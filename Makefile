@@ -11,7 +11,7 @@ TEST_WORKERS ?= 2
 
 .PHONY: venv demo test lint typecheck bench bench-sort bench-video bench-crops bench-detection bench-pull-over \
 	bench-siren-loop bench-audio bench-rig bench-v2x bench-fusion bench-roadside bench-lights bench-lights-flash bench-active-rule \
-	bench-rsu bench-fusion-ablation bench-mcap bench-engine bench-robust bench-speed bench-crossing bench-crossing-fresh bench-no-ev-2h bench-no-ev-urban-2h bench-range-loop bench-approach-pairing bench-seed003-timeline bench-faults bench-overload bench-overload-listener bench-range bench-bearing-range bench-far-range bench-far-loop bench-far-fused bench-clip-fusion bench-framework-ab bench-cross-source-seeds fuzz clean
+	bench-rsu bench-fusion-ablation bench-mcap bench-engine bench-robust bench-speed bench-crossing bench-crossing-fresh bench-no-ev-2h bench-no-ev-urban-2h bench-range-loop bench-approach-pairing bench-seed003-timeline bench-faults bench-overload bench-overload-listener bench-range bench-bearing-range bench-far-range bench-far-loop bench-far-fused bench-clip-fusion bench-obstacle-links bench-framework-ab bench-cross-source-seeds fuzz clean
 
 # `make demo` installs the runtime only; `make test` and the benchmarks add the dev extra (linters,
 # scikit-learn, XGBoost, torch for the training tests).
@@ -174,6 +174,9 @@ bench-framework-ab: venv
 # lights and siren per second on the real clips with sound (issue 26 item 6)
 bench-clip-fusion: venv
 	$(BIN)/python benchmarks/bench_clip_fusion.py
+
+bench-obstacle-links: venv
+	$(BIN)/python benchmarks/bench_obstacle_links.py
 
 # siren recall and distance per 5 dB band of emitted level; level-independent range cues alone and combined
 bench-range: venv

@@ -387,6 +387,34 @@ class LightObservation:
 
 
 @dataclass(frozen=True, slots=True)
+class VehicleBearing:
+    """One camera's vehicle track (Framework B: detector → SORT) seen as a direction at ``time_s``
+    (s), vehicle frame: the obstacle a fused EV belief can be linked to
+    (:class:`~makeway.fuse.obstacles.ObstacleLinker`).
+
+    ``azimuth_rad`` (0 ahead, positive to the left) of the ray through the box centre, from the
+    camera centre ``camera_xy_m`` (vehicle frame, metres); ``azimuth_sigma_rad`` its standard
+    deviation, widened by the box's angular width (a siren or light bar can sit anywhere on the
+    body); ``half_width_rad`` half that angular width. ``active`` is the crop classifier's smoothed
+    verdict on the track (``None``: none ran or it is still warming up).
+    """
+
+    camera: str
+    track_id: int
+    time_s: float
+    azimuth_rad: float
+    azimuth_sigma_rad: float
+    half_width_rad: float = 0.0
+    camera_xy_m: tuple[float, float] = (0.0, 0.0)
+    active: bool | None = None
+
+    @property
+    def obstacle_id(self) -> str:
+        """``camera/track_id``: the track's name across cameras (ids are per camera)."""
+        return f"{self.camera}/{self.track_id}"
+
+
+@dataclass(frozen=True, slots=True)
 class V2XObservation:
     """One emergency vehicle's alert at ``time_s`` (s), world frame (the car's local plane).
 
@@ -506,6 +534,9 @@ class EVBelief:
     ``sources`` the senses supporting a fused belief (``"siren"``, ``"light"``, ``"v2x"``) and
     ``track_id`` its EV track (``None`` for a single-sense belief). ``sensor_faults`` lists the
     channels the producing stages distrusted (:meth:`SensorHealth.faults`; empty: all healthy).
+    ``obstacle_id`` names the camera vehicle track (``camera/track_id``,
+    :class:`VehicleBearing`) the EV was linked to (:class:`~makeway.fuse.obstacles.ObstacleLinker`);
+    ``None``: not linked.
     """
 
     time_s: float
@@ -523,6 +554,7 @@ class EVBelief:
     sources: tuple[str, ...] = ()
     track_id: int | None = None
     sensor_faults: tuple[str, ...] = ()
+    obstacle_id: str | None = None
 
     @staticmethod
     def nothing(time_s: float, source: str = "simulated") -> EVBelief:
