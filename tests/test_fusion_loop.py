@@ -205,6 +205,34 @@ def test_waits_until_every_ev_that_needs_it_has_passed() -> None:
     assert fsm.state is YieldState.EV_PASSED
 
 
+def test_an_oncoming_ev_seen_ahead_while_another_was_followed_has_gone_by_once_behind() -> None:
+    """Two EVs: the machine follows the one from behind while the oncoming one is seen 60 m ahead;
+    once the first is out of sight, the second, now behind and moving away, is followed for the
+    first time: it was seen ahead, so it has gone by (without that memory the car waited until
+    its siren went out of range, 14–17 s in the closed loop's two_evs)."""
+
+    def belief(t: float, rel: EVRelation, x: float, app: bool, tid: int) -> EVBelief:
+        return EVBelief(t, True, 0.9, rel, x, 3.5 if tid == 2 else 0.0, abs(x), 0.0 if x > 0 else math.pi,
+                        app, True, True, "fused", ("siren", "light"), tid)  # fmt: skip
+
+    fsm = YieldStateMachine()
+    t, v = 0.0, 13.4
+    while fsm.state is not YieldState.STOPPED_WAITING and t < 20.0:
+        beliefs = [
+            belief(t, EVRelation.BEHIND, -30.0, True, 1),
+            belief(t, EVRelation.ONCOMING, 60.0, True, 2),
+        ]
+        fsm.update_all(beliefs, VehicleState(t, 0, 0, 0, v), _road())
+        t, v = round(t + 0.05, 9), max(0.0, v - 0.2)
+    assert fsm.state is YieldState.STOPPED_WAITING
+    for _ in range(10):  # both went by: the first is out of sight, the second behind moving away
+        fsm.update_all(
+            [belief(t, EVRelation.BEHIND, -25.0, False, 2)], VehicleState(t, 0, 0, 0, 0.0), _road()
+        )
+        t = round(t + 0.05, 9)
+    assert fsm.state is YieldState.EV_PASSED, fsm.history[-1]
+
+
 def test_vision_and_v2x_alone_on_the_command_line() -> None:
     r = runner.invoke(app, ["simulate", "night_lights_only", "--perception", "vision", "--json"])
     assert r.exit_code == 0, r.output

@@ -40,14 +40,48 @@ def _drive(sim: LiveArraySimulator, until_s: float, hop: int = 8160) -> np.ndarr
     return np.concatenate(out)
 
 
+def test_every_ev_sounds_its_own_siren() -> None:
+    """Two EVs: the audio is the noise plus each EV's siren as it would sound alone; the second
+    siren is a draw of its own (seeded by the run's seed and the EV's place), and a run with one EV
+    is the same whether it is given as ``ev`` or as ``evs``."""
+    cfg = LiveAudioConfig(seed=3)
+    behind = lambda t: (-50.0 + 20.0 * t, 0.0, t >= 0.2)  # noqa: E731
+    ahead = lambda t: (120.0 - 12.0 * t, 3.5, t >= 0.5)  # noqa: E731
+
+    def run(states, *, as_ev: bool = False) -> tuple[LiveArraySimulator, np.ndarray]:
+        sim = LiveArraySimulator(2.0, cfg, initial_speed_mps=13.4)
+        for i in range(201):
+            t = i * 0.01
+            evs = [f(t) for f in states]
+            if as_ev:
+                sim.observe(t, 13.4 * t, 0.0, 0.0, evs[0] if evs else None)
+            else:
+                sim.observe(t, 13.4 * t, 0.0, 0.0, None, evs=evs)
+        return sim, sim.render(0.0, 1.9).astype(np.float64)
+
+    _, noise = run([])
+    one, first = run([behind])
+    _, first_as_ev = run([behind], as_ev=True)
+    two, both = run([behind, ahead])
+    np.testing.assert_array_equal(first, first_as_ev)
+    alone_second = both - first  # the second siren alone (noise and first siren cancel)
+    assert np.sqrt(np.mean(alone_second**2)) > 0.1 * np.sqrt(np.mean((first - noise) ** 2))
+    assert two.siren_names[0] == one.siren_name and len(two.siren_names) == 2
+    again, both_again = run([behind, ahead])
+    np.testing.assert_array_equal(both, both_again)
+    assert again._sirens[1].draws == two._sirens[1].draws
+    assert two._sirens[1].draws != two._sirens[0].draws
+
+
 def test_live_audio_rendered_hop_by_hop_matches_the_whole_scene() -> None:
     sim = LiveArraySimulator(4.0, LiveAudioConfig(seed=3), initial_speed_mps=13.4)
     live = _drive(sim, 3.9)
     n = len(live)
     t = np.arange(0, 4.0, 0.01)
     ego = Trajectory(t, 13.4 * t, 0 * t, 0 * t)
-    sim._source.trajectory = Trajectory(t, -50.0 + 20.0 * t, 0 * t)
-    whole = simulate_array([sim._source], ego, sim.mics, n, SR) / db_spl_to_pa(sim.full_scale_db_spl)
+    source = sim._sirens[0].source
+    source.trajectory = Trajectory(t, -50.0 + 20.0 * t, 0 * t)
+    whole = simulate_array([source], ego, sim.mics, n, SR) / db_spl_to_pa(sim.full_scale_db_spl)
     siren = live - sim._noise(0, n, t, np.c_[13.4 * t, 0 * t, 0 * t])
     on = slice(round(1.5 * SR), n)
     rel = np.sqrt(np.mean((siren[on] - whole[on]) ** 2) / np.mean(whole[on] ** 2))
@@ -67,9 +101,10 @@ def test_runs_with_the_same_draw_share_it_and_sound_the_same() -> None:
     first = LiveArraySimulator(2.0, cfg, initial_speed_mps=13.4)
     heard = _drive(first, 1.9)
     second = LiveArraySimulator(2.0, cfg, initial_speed_mps=13.4)
-    assert second._bed is first._bed and second._raw is first._raw
-    assert not first._bed.flags.writeable and not first._raw.flags.writeable
-    assert second._source.signal is not first._source.signal and not second._source.signal.any()
+    assert second._bed is first._bed and second._sirens[0].raw is first._sirens[0].raw
+    assert not first._bed.flags.writeable and not first._sirens[0].raw.flags.writeable
+    mine, theirs = second._sirens[0].source.signal, first._sirens[0].source.signal
+    assert mine is not theirs and not mine.any()
     np.testing.assert_array_equal(_drive(second, 1.9), heard)
     _draw_scene.cache_clear()  # drawn afresh: the very same scene
     fresh = LiveArraySimulator(2.0, cfg, initial_speed_mps=13.4)

@@ -150,7 +150,8 @@ never faster than now (except creeping up to the stop point), zero at the stop p
 
 1. the EV has gone by: AHEAD and more than ``passed_margin_m`` ahead and receding (an EV from
    behind overtook us); ONCOMING and receding; BEHIND, receding, more than ``passed_margin_m``
-   behind after having been seen ahead (an oncoming EV went by); CROSSING or UNKNOWN and receding;
+   behind after its track was seen more than ``passed_margin_m`` ahead (an oncoming EV went by; seen
+   while another EV was followed counts too); CROSSING or UNKNOWN and receding;
 2. lost (not seen) for longer than ``dropout_timeout_s`` with its last known distance within
    ``close_distance_m`` (it went past, out of the sensors' view);
 3. no *active* EV for ``siren_off_hold_s``: it switched lights and siren off (it may still pass, so we
@@ -576,6 +577,7 @@ class YieldStateMachine:
         self._lights_since: dict[int | None, float] = {}  # per track: lights shown without a break since
         self._lights_seen: dict[int | None, float] = {}  # per track: when it last showed lights
         self._coming_since: dict[int | None, float] = {}  # per track: siren heard approaching since
+        self._ahead_tracks: set[int] = set()  # tracks seen more than passed_margin_m ahead
         self._road_s = 0.0  # the ego's arc length and the map's intersections, this period
         self._boxes: tuple[tuple[float, float], ...] = ()
         self._ego_v = 0.0  # the ego's speed (m/s) and deceleration (m/s², >= 0), this period
@@ -613,6 +615,10 @@ class YieldStateMachine:
         for b in beliefs:
             if b.detected and b.lights and "light" in b.sources:  # the cameras' (not a V2X flag)
                 self._lights_seen[b.track_id] = b.time_s
+            if b.detected and b.track_id is not None and _rel_x(b) > self.config.passed_margin_m:
+                self._ahead_tracks.add(b.track_id)
+        if len(self._ahead_tracks) > 64:  # forget tracks long gone
+            self._ahead_tracks &= {b.track_id for b in beliefs if b.track_id is not None}
         if len(self._lights_seen) > 64:  # forget tracks long gone
             memory = self.config.duty.lights_memory_s
             latest = max(self._lights_seen.values())
@@ -754,8 +760,9 @@ class YieldStateMachine:
             return
         if self._belief is not None and b.track_id != self._belief.track_id:
             # another EV: what was learnt about the last one's distance and side does not carry over
+            # (but whether this EV's own track was seen ahead, while another was followed, does)
             self._last_distance = math.nan
-            self._ev_was_ahead = False
+            self._ev_was_ahead = b.track_id in self._ahead_tracks
         self._duty = self._duty_for(b)
         dist = _distance(b)
         approach = b.approaching
@@ -858,7 +865,9 @@ class YieldStateMachine:
         if to is YieldState.EV_CONFIRMED:
             b = self._belief
             rel_x = _rel_x(b) if b is not None and self._seen_now else math.nan
-            self._ev_was_ahead = _finite(rel_x) and rel_x > self.config.passed_margin_m
+            self._ev_was_ahead = (_finite(rel_x) and rel_x > self.config.passed_margin_m) or (
+                b is not None and b.track_id in self._ahead_tracks
+            )
         if to is YieldState.MOVING_OVER:
             self._stopped_since = None
             self._passed_note = None

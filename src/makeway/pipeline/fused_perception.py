@@ -16,7 +16,8 @@ collects what the chosen senses published by then and hands it to the multi-EV f
   The fused car does not act on that call alone: a siren-only track needs 7 of 9 windows on one
   bearing to be confirmed and is then only prepared for until it is close, placed and approaching
   (:mod:`makeway.decide.duty`); a yield sooner needs the lights seen on the same bearing.
-  The simulated array renders one siren: the scenario's first EV (a second EV is not heard);
+  The simulated array renders every EV's siren (each its own draw), and the listener's further
+  sirens (:mod:`~makeway.perceive.audio.multisource`) become further siren measurements;
 * ``light`` — the camera rig's lights detector, modelled (:class:`~makeway.sim.cameras.CameraSense`):
   :class:`~makeway.messages.LightObservation` messages per frame, published ``latency_s`` after the
   frame;

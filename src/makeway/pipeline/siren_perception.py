@@ -6,7 +6,7 @@ perception (:class:`~makeway.sim.perception.SimulatedPerception`) is, so
 :func:`~makeway.pipeline.closed_loop.run_scenario` takes either. Per simulation step it
 
 1. tells the array simulator (:class:`~makeway.sim.live_array.LiveArraySimulator`) where the ego
-   and the EV are and whether the siren sounds;
+   and every EV are and whether each one's siren sounds (each EV has a siren of its own);
 2. every ``hop_s`` (0.17 s) renders the audio heard since the last hop and runs the shipped siren
    networks on the latest 0.5 s window (:class:`~makeway.perceive.audio.stream.SirenListener`, the
    ``makeway audio listen`` rule: logit mean of ``smooth`` windows — 8 by default, 4 in the fused
@@ -115,8 +115,9 @@ class SirenPerception:
     def update(self, time_s: float, ego: VehicleState) -> EVBelief:
         """Advance to ``time_s`` (s) with the ego's state (world frame); return the belief published
         by then."""
-        ego_x, ego_y, ego_yaw, ev = ego.x_m, ego.y_m, ego.yaw_rad, self.world.ev
-        self.array.observe(time_s, ego_x, ego_y, ego_yaw, None if ev is None else (ev.x_m, ev.y_m, ev.siren))
+        ego_x, ego_y, ego_yaw = ego.x_m, ego.y_m, ego.yaw_rad
+        evs = [(e.x_m, e.y_m, e.siren) for e in self.world.all_evs()]
+        self.array.observe(time_s, ego_x, ego_y, ego_yaw, None, evs=evs)
         sr = self.array.sample_rate
         while self._next_end / sr <= time_s + 1e-9:
             end = self._next_end

@@ -4,8 +4,8 @@ The recordings of :mod:`makeway.sim.audio_scenarios` are rendered from trajector
 advance. In closed loop the ego's trajectory depends on what the car decides, so
 :class:`LiveArraySimulator` renders the eight capsules hop by hop, from what has happened so far:
 
-* :meth:`LiveArraySimulator.observe` is called every simulation step with the ego pose and the EV's
-  true state (position, siren on or off);
+* :meth:`LiveArraySimulator.observe` is called every simulation step with the ego pose and each
+  EV's true state (position, siren on or off); every EV sounds its own siren;
 * :meth:`LiveArraySimulator.render` returns the audio heard between two instants up to the latest
   observed one, with the physics of :func:`~makeway.sim.acoustics.simulate_array` (per-capsule
   propagation delay with the emission time solved, Doppler, spherical spreading, air absorption, one
@@ -15,6 +15,10 @@ advance. In closed loop the ego's trajectory depends on what the car decides, so
 Everything it renders at a time ``t`` depends only on states observed up to ``t`` (causal). Each
 stretch is rendered with 2,048 samples of margin on both sides, then cut, so the block-wise air
 absorption leaves no seams.
+
+**Several EVs.** The first EV's siren is the scene's (below); each further EV ``k`` (1, 2, …) gets a
+siren of its own, drawn with the same rules from a generator seeded ``(seed, k)``, so a scene with
+one EV is the same whether or not more could have been drawn.
 
 **The scene around the siren** is drawn once per run from ``seed``, with the recordings' ranges
 (:mod:`makeway.sim.audio_scenarios`): the siren (synthesized, or a real held-out siren with
@@ -33,6 +37,7 @@ from __future__ import annotations
 import copy
 import functools
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from typing import Any
 
@@ -144,17 +149,7 @@ def _draw_scene(
         raise ValueError("noise='real' needs the shared data (audio/street_recordings); none found")
 
     # the siren: its raw signal, and the emitted one (gated as the run goes)
-    n_sig = round((duration_s + PRE_ROLL_S) * sr) + 2 * MARGIN_SAMPLES + 64
-    if cfg.siren == "real":
-        src = pick_by_group(sirens, rng)
-        raw = fit_length(src.load(sr), n_sig, rng, crossfade=0 if src.kind == "tone" else 2400)
-        name = src.name
-    else:
-        raw, params = synthesize_siren(None, n_sig / sr, sr, rng=rng)
-        name = f"synth:{params.mode}"
-    source, draws = siren_point_source(
-        raw, Trajectory(np.array([0.0, 1.0]), np.zeros(2), np.zeros(2)), rng, level_db=cfg.siren_level_db
-    )
+    name, draws, source = _siren_source(rng, cfg, _siren_samples(duration_s, sr), sr, sirens)
 
     # the noise bed for the whole run, at a length the FFT factors well (the noise is shaped in
     # the frequency domain; an awkward length costs ten times the time)
@@ -165,9 +160,56 @@ def _draw_scene(
     air_ref = max(initial_speed_mps + ambient, 0.3)
     wind = wind_noise(n, len(mic_xyz), sr, air_ref, wind_10, rng).astype(np.float32)
     bed = (street + self_noise(n, len(mic_xyz), rng)).astype(np.float32)
-    for arr in (source.signal, wind, bed):
+    for arr in (wind, bed):
         arr.setflags(write=False)
     return _Scene(name, draws, source, street_meta, wind_10, ambient, air_ref, wind, bed)
+
+
+def _siren_source(
+    rng: np.random.Generator, cfg: LiveAudioConfig, n_sig: int, sample_rate: int, sirens: list[Any]
+) -> tuple[str, dict[str, float], PointSource]:
+    """Draw one siren (``cfg.siren``: real from ``sirens`` or synthesized) as a point source at rest
+    (the run sets its trajectory); its signal is read-only."""
+    sr = sample_rate
+    if cfg.siren == "real":
+        src = pick_by_group(sirens, rng)
+        raw = fit_length(src.load(sr), n_sig, rng, crossfade=0 if src.kind == "tone" else 2400)
+        name = src.name
+    else:
+        raw, params = synthesize_siren(None, n_sig / sr, sr, rng=rng)
+        name = f"synth:{params.mode}"
+    source, draws = siren_point_source(
+        raw, Trajectory(np.array([0.0, 1.0]), np.zeros(2), np.zeros(2)), rng, level_db=cfg.siren_level_db
+    )
+    source.signal.setflags(write=False)
+    return name, draws, source
+
+
+def _siren_samples(duration_s: float, sample_rate: int) -> int:
+    """Samples of a run's emitted siren signal (pre-roll and render margins included)."""
+    return round((duration_s + PRE_ROLL_S) * sample_rate) + 2 * MARGIN_SAMPLES + 64
+
+
+@functools.lru_cache(maxsize=4)
+def _draw_further_siren(
+    duration_s: float, cfg: LiveAudioConfig, k: int, sample_rate: int, data: str
+) -> tuple[str, dict[str, float], PointSource]:
+    """The siren of the run's EV number ``k`` ≥ 1 (module docstring, "Several EVs")."""
+    sirens, _ = source_pools(cfg.split, data) if data else ([], [])
+    if cfg.siren == "real" and not sirens:
+        raise ValueError("siren='real' needs the shared data (audio/siren_clips, siren_tones); none found")
+    rng = np.random.default_rng((cfg.seed, k))
+    return _siren_source(rng, cfg, _siren_samples(duration_s, sample_rate), sample_rate, sirens)
+
+
+class _Siren:
+    """One EV's siren in a run: the emitted signal, gated as the run goes."""
+
+    def __init__(self, name: str, draws: dict[str, float], source: PointSource) -> None:
+        self.name, self.draws = name, copy.deepcopy(draws)
+        self.raw = source.signal
+        self.source = replace(source, signal=np.zeros_like(self.raw))
+        self.gated_until = 0  # emitted samples [0, gated_until) are final
 
 
 class LiveArraySimulator:
@@ -201,39 +243,65 @@ class LiveArraySimulator:
             float(initial_speed_mps),
             _real_data_root(cfg),
         )
-        self.siren_name = scene.siren_name
-        self.siren_draws, self.street_noise = copy.deepcopy((scene.siren_draws, scene.street_noise))
+        self.street_noise = copy.deepcopy(scene.street_noise)
         self.wind_level_10_db = scene.wind_level_10_db
         self._ambient_wind, self._air_ref = scene.ambient_wind_mps, scene.air_ref_mps
-        self._raw, self._wind, self._bed = scene.source.signal, scene.wind, scene.bed
-        # the emitted siren starts silent and is gated as the run goes; the EV's trajectory is set
+        self._wind, self._bed = scene.wind, scene.bed
+        # each EV's emitted siren starts silent and is gated as the run goes; its trajectory is set
         # per render
-        self._source = replace(scene.source, signal=np.zeros_like(self._raw))
-        self._gated_until = 0  # emitted samples [0, _gated_until) are final
+        self._sirens = [_Siren(scene.siren_name, scene.siren_draws, scene.source)]
+        self._data = _real_data_root(cfg)
 
         self._t: list[float] = []
         self._ego: list[tuple[float, float, float]] = []
-        self._ev: list[tuple[float, float, float]] = []  # x, y, siren on (1/0)
+        self._ev: list[list[tuple[float, float, float]]] = []  # per time, per EV: x, y, siren on (1/0)
+
+    @property
+    def siren_name(self) -> str:
+        """The first EV's siren (a real recording's name, or ``synth:<mode>``)."""
+        return self._sirens[0].name
+
+    @property
+    def siren_draws(self) -> dict[str, float]:
+        """The first EV's siren's drawn level, height, ground reflection and rear attenuation."""
+        return self._sirens[0].draws
+
+    @property
+    def siren_names(self) -> list[str]:
+        """Every EV's siren so far, in EV order."""
+        return [s.name for s in self._sirens]
 
     # ------------------------------------------------------------------------------------ inputs
 
     def observe(
-        self, time_s: float, ego_x: float, ego_y: float, ego_yaw: float, ev: tuple[float, float, bool] | None
+        self,
+        time_s: float,
+        ego_x: float,
+        ego_y: float,
+        ego_yaw: float,
+        ev: tuple[float, float, bool] | None,
+        *,
+        evs: Sequence[tuple[float, float, bool]] | None = None,
     ) -> None:
         """Record the state at ``time_s`` (not decreasing; the same time again replaces the state):
         the ego pose (world frame; its position is the vehicle frame's origin) and the EV's
-        ``(x, y, siren on)``, ``None`` without an EV."""
+        ``(x, y, siren on)``, ``None`` without an EV; or, with ``evs``, every EV's (``ev`` is then
+        ignored; an EV keeps its place in the sequence from one call to the next)."""
         if self._t and time_s < self._t[-1]:
             raise ValueError(f"observe: time {time_s} is before the last one ({self._t[-1]})")
         if time_s > self.duration_s + 1e-9:
             raise ValueError(f"observe: time {time_s} is past the run's duration ({self.duration_s} s)")
         if self._t and time_s == self._t[-1]:
             self._t.pop(), self._ego.pop(), self._ev.pop()
+        states = list(evs) if evs is not None else ([] if ev is None else [ev])
+        while len(self._sirens) < len(states):
+            k = len(self._sirens)
+            self._sirens.append(
+                _Siren(*_draw_further_siren(self.duration_s, self.config, k, self.sample_rate, self._data))
+            )
         self._t.append(float(time_s))
         self._ego.append((float(ego_x), float(ego_y), float(ego_yaw)))
-        self._ev.append(
-            (math.nan, math.nan, 0.0) if ev is None else (float(ev[0]), float(ev[1]), float(ev[2]))
-        )
+        self._ev.append([(float(x), float(y), float(on)) for x, y, on in states])
 
     @property
     def time_s(self) -> float:
@@ -255,21 +323,29 @@ class LiveArraySimulator:
             return np.zeros((0, len(self.mics)), dtype=np.float32)
         t = np.asarray(self._t)
         ego = np.asarray(self._ego)
-        ev = np.asarray(self._ev)
+        n_ev = len(self._sirens)
+        ev = np.full((len(t), n_ev, 3), np.nan)
+        ev[..., 2] = 0.0
+        for j, states in enumerate(self._ev):
+            if states:
+                ev[j, : len(states)] = states
         keep = t >= t_from - HISTORY_S
         t, ego, ev = t[keep], ego[keep], ev[keep]
         if len(t) == 1:  # a one-point trajectory: hold it
-            t, ego, ev = np.r_[t, t + 1.0], np.vstack([ego, ego]), np.vstack([ev, ev])
+            t, ego, ev = np.r_[t, t + 1.0], np.vstack([ego, ego]), np.concatenate([ev, ev])
         out = self._noise(i0, n, t, ego)
-        has_ev = np.isfinite(ev[:, 0])
-        if has_ev.any():
-            self._gate_until(t_to, t, ev[:, 2])
-            self._source.trajectory = Trajectory(t[has_ev], ev[has_ev, 0], ev[has_ev, 1])
+        sources = []
+        for k, siren in enumerate(self._sirens):
+            has_ev = np.isfinite(ev[:, k, 0])
+            if not has_ev.any():
+                continue
+            self._gate_until(siren, t_to, t, ev[:, k, 2])
+            siren.source.trajectory = Trajectory(t[has_ev], ev[has_ev, k, 0], ev[has_ev, k, 1])
+            sources.append(siren.source)
+        if sources:
             ego_traj = Trajectory(t, ego[:, 0], ego[:, 1], ego[:, 2])
             m = MARGIN_SAMPLES
-            pa = simulate_array([self._source], ego_traj, self.mics, n + 2 * m, sr, start_s=(i0 - m) / sr)[
-                m : m + n
-            ]
+            pa = simulate_array(sources, ego_traj, self.mics, n + 2 * m, sr, start_s=(i0 - m) / sr)[m : m + n]
             out += pa / db_spl_to_pa(self.full_scale_db_spl)
         return out.astype(np.float32)
 
@@ -289,21 +365,21 @@ class LiveArraySimulator:
         pa = self._bed[a:b].astype(np.float64) + self._wind[a:b] * gain[:, None]
         return pa / db_spl_to_pa(self.full_scale_db_spl)
 
-    def _gate_until(self, t_to: float, t: np.ndarray, on: np.ndarray) -> None:
-        """Fix the emitted siren signal up to the emission time ``t_to`` from the siren states ``on``
+    def _gate_until(self, siren: _Siren, t_to: float, t: np.ndarray, on: np.ndarray) -> None:
+        """Fix ``siren``'s emitted signal up to the emission time ``t_to`` from its states ``on``
         observed at times ``t`` (the render's history; later samples stay silent until then, only
         the cut margin of a render reads them)."""
         sr = self.sample_rate
-        sig = self._source.signal
-        j1 = min(len(sig), round((t_to - self._source.t0) * sr))
-        j0 = self._gated_until
+        sig = siren.source.signal
+        j1 = min(len(sig), round((t_to - siren.source.t0) * sr))
+        j0 = siren.gated_until
         if j1 <= j0:
             return
-        te = self._source.t0 + np.arange(j0, j1) / sr
+        te = siren.source.t0 + np.arange(j0, j1) / sr
         # a step per observation, ramped over GATE_RAMP_S
         grid = np.arange(t[0] - GATE_RAMP_S, t[-1] + GATE_RAMP_S, GATE_RAMP_S)
         steps = on[np.clip(np.searchsorted(t, grid, side="right") - 1, 0, len(t) - 1)]
         steps[grid < t[0]] = on[0]
         gate = np.interp(te, grid, steps, left=on[0], right=on[-1]).astype(np.float32)
-        sig[j0:j1] = self._raw[j0:j1] * gate
-        self._gated_until = j1
+        sig[j0:j1] = siren.raw[j0:j1] * gate
+        siren.gated_until = j1
