@@ -18,7 +18,8 @@ def test_live_array_siren_level_range() -> None:
     assert lo <= l0 <= hi and 125.0 <= l1 <= 135.0
     # the same scene otherwise: the same siren signal, louder by exactly the level difference
     ratio = np.sqrt(
-        np.mean(np.square(loud._raw, dtype=np.float64)) / np.mean(np.square(base._raw, dtype=np.float64))
+        np.mean(np.square(loud._sirens[0].raw, dtype=np.float64))
+        / np.mean(np.square(base._sirens[0].raw, dtype=np.float64))
     )
     assert 20 * np.log10(ratio) == pytest.approx(l1 - l0, abs=0.02)
     assert loud.siren_draws["height_m"] == base.siren_draws["height_m"]
