@@ -45,8 +45,12 @@ def test_every_ev_sounds_its_own_siren() -> None:
     siren is a draw of its own (seeded by the run's seed and the EV's place), and a run with one EV
     is the same whether it is given as ``ev`` or as ``evs``."""
     cfg = LiveAudioConfig(seed=3)
-    behind = lambda t: (-50.0 + 20.0 * t, 0.0, t >= 0.2)  # noqa: E731
-    ahead = lambda t: (120.0 - 12.0 * t, 3.5, t >= 0.5)  # noqa: E731
+
+    def behind(t: float) -> tuple[float, float, bool]:
+        return (-50.0 + 20.0 * t, 0.0, t >= 0.2)
+
+    def ahead(t: float) -> tuple[float, float, bool]:
+        return (120.0 - 12.0 * t, 3.5, t >= 0.5)
 
     def run(states, *, as_ev: bool = False) -> tuple[LiveArraySimulator, np.ndarray]:
         sim = LiveArraySimulator(2.0, cfg, initial_speed_mps=13.4)
