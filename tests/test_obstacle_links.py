@@ -179,3 +179,70 @@ def test_a_placed_belief_is_compared_from_the_camera() -> None:
         ObstacleLinkerConfig(gate_sigmas=0.0)
     with pytest.raises(ValueError, match="ObstacleLinkerConfig"):
         ObstacleLinkerConfig(keep_bonus=float("nan"))
+
+
+def test_any_beliefs_and_vehicles_give_one_vehicle_per_ev_inside_the_gate() -> None:
+    """Whatever the beliefs (placed or not, NaN parts, repeated track ids) and the vehicles, every
+    vehicle is linked to at most one EV, every link lies inside the gate, and a belief keeps all
+    its fields but ``obstacle_id``."""
+    from dataclasses import replace
+
+    from hypothesis import given, settings
+    from hypothesis import strategies as st
+
+    angle = st.floats(-4.0, 4.0) | st.just(float("nan"))
+    beliefs = st.lists(
+        st.builds(
+            lambda t, det, brg, x, y, tid: EVBelief(
+                t, det, 0.9, rel_x_m=x, rel_y_m=y, bearing_rad=brg, track_id=tid
+            ),
+            st.floats(0.0, 10.0),
+            st.booleans(),
+            angle,
+            st.floats(-80.0, 80.0) | st.just(float("nan")),
+            st.floats(-80.0, 80.0) | st.just(float("nan")),
+            st.none() | st.integers(0, 3),
+        ),
+        max_size=5,
+    )
+    vehicles = st.lists(
+        st.builds(
+            lambda tid, az, sig, active: VehicleBearing("front", tid, 0.0, az, sig, active=active),
+            st.integers(0, 6),
+            st.floats(-3.2, 3.2),
+            st.floats(0.0, 0.5),
+            st.none() | st.booleans(),
+        ),
+        max_size=5,
+        unique_by=lambda v: v.track_id,
+    )
+    cfg = ObstacleLinkerConfig()
+
+    @settings(max_examples=300, deadline=None)
+    @given(steps=st.lists(st.tuples(beliefs, vehicles), min_size=1, max_size=4))
+    def run(steps: list[tuple[list[EVBelief], list[VehicleBearing]]]) -> None:
+        linker = ObstacleLinker(cfg)
+        for bs, vs in steps:
+            out = linker.update(bs, vs)
+            assert len(out) == len(bs)
+            links = [b.obstacle_id for b in out if b.obstacle_id is not None]
+            assert len(links) == len(set(links))
+            by_id = {v.obstacle_id: v for v in vs}
+            for b, o in zip(bs, out, strict=True):
+                assert replace(o, obstacle_id=None) == replace(b, obstacle_id=None)
+                if o.obstacle_id is None:
+                    continue
+                assert b.detected
+                v = by_id[o.obstacle_id]
+                seen = (
+                    math.atan2(b.rel_y_m - v.camera_xy_m[1], b.rel_x_m - v.camera_xy_m[0])
+                    if math.isfinite(b.rel_x_m) and math.isfinite(b.rel_y_m)
+                    else b.bearing_rad
+                )
+                d = abs(math.remainder(seen - v.azimuth_rad, math.tau))
+                assert (
+                    d
+                    <= cfg.gate_sigmas * math.hypot(cfg.belief_bearing_sigma_rad, v.azimuth_sigma_rad) + 1e-9
+                )
+
+    run()
