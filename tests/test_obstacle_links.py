@@ -175,6 +175,10 @@ def test_a_placed_belief_is_compared_from_the_camera() -> None:
     placed = siren(45.0, rel_x_m=10.0, rel_y_m=10.0, distance_m=math.hypot(10.0, 10.0))
     narrow = ObstacleLinker(ObstacleLinkerConfig(belief_bearing_sigma_rad=math.radians(2.0)))
     assert narrow.update([placed], [seen_45, seen_59])[0].obstacle_id == "front/1"
+    exact = ObstacleLinker(ObstacleLinkerConfig(belief_bearing_sigma_rad=0.0))  # no σ at all: still defined
+    on_it = VehicleBearing("front", 3, 0.0, math.radians(10.0), 0.0)
+    assert exact.update([siren(10.0)], [on_it])[0].obstacle_id == "front/3"
+    assert exact.update([siren(10.5)], [on_it])[0].obstacle_id is None
     with pytest.raises(ValueError, match="ObstacleLinkerConfig"):
         ObstacleLinkerConfig(gate_sigmas=0.0)
     with pytest.raises(ValueError, match="ObstacleLinkerConfig"):

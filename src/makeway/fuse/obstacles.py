@@ -106,7 +106,7 @@ class ObstacleLinker:
                 if not math.isfinite(seen):
                     continue
                 d = math.remainder(seen - v.azimuth_rad, math.tau)
-                d2 = d * d / (cfg.belief_bearing_sigma_rad**2 + v.azimuth_sigma_rad**2)
+                d2 = d * d / max(cfg.belief_bearing_sigma_rad**2 + v.azimuth_sigma_rad**2, 1e-12)
                 if d2 > gate2:
                     continue
                 if v.active is True:
