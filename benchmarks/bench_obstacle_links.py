@@ -30,6 +30,7 @@ import argparse
 import json
 import math
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import av
@@ -98,16 +99,7 @@ def run_clip(
         )
         prob = {int(rec.track_id[i]): float(rec.probability[i]) for i in rows}
         cropped = [
-            VehicleBearing(
-                b.camera,
-                b.track_id,
-                b.time_s,
-                b.azimuth_rad,
-                b.azimuth_sigma_rad,
-                b.half_width_rad,
-                b.camera_xy_m,
-                None if math.isnan(prob[b.track_id]) else prob[b.track_id] >= 0.5,
-            )
+            replace(b, active=None if math.isnan(prob[b.track_id]) else prob[b.track_id] >= 0.5)
             for b in bearings
         ]
         links = {

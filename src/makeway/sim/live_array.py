@@ -323,14 +323,13 @@ class LiveArraySimulator:
             return np.zeros((0, len(self.mics)), dtype=np.float32)
         t = np.asarray(self._t)
         ego = np.asarray(self._ego)
-        n_ev = len(self._sirens)
-        ev = np.full((len(t), n_ev, 3), np.nan)
+        first = int(np.searchsorted(t, t_from - HISTORY_S, side="left"))  # the render's history only
+        t, ego = t[first:], ego[first:]
+        ev = np.full((len(t), len(self._sirens), 3), np.nan)
         ev[..., 2] = 0.0
-        for j, states in enumerate(self._ev):
+        for j, states in enumerate(self._ev[first:]):
             if states:
                 ev[j, : len(states)] = states
-        keep = t >= t_from - HISTORY_S
-        t, ego, ev = t[keep], ego[keep], ev[keep]
         if len(t) == 1:  # a one-point trajectory: hold it
             t, ego, ev = np.r_[t, t + 1.0], np.vstack([ego, ego]), np.concatenate([ev, ev])
         out = self._noise(i0, n, t, ego)
