@@ -18,7 +18,8 @@ Perceptions (``makeway simulate --perception``):
   the corridor's "yield ≥ 10 s earlier" target.
 
 Every scenario × perception × seed: the action (the expected one?), collision, EV on → stopped,
-extra yields (manoeuvres after the first), the peak deceleration; per perception the expected-action
+how long the car then stood before deciding the EVs had passed (``waited_s``), extra yields
+(manoeuvres after the first), the peak deceleration; per perception the expected-action
 rate, collisions and the median EV on → stopped; crossing: how often the car stopped before the
 intersection (target ≥ 95 %), the peak deceleration (a firm stop before an intersection may use up to
 4.5 m/s², comfort is 3 m/s²) and the closest approach to the EV; corridor: when the yield started,
@@ -97,6 +98,7 @@ def row(res: ClosedLoopResult) -> dict[str, Any]:
         "stopped_s": m["time_active_to_stopped_s"],
         "yield_s": m["time_active_to_yield_s"],
         "extra_yields": max(0, m["yields"] - 1),
+        "waited_s": m["time_stopped_waiting_s"],
         "clear_of_intersections": m["stopped_clear_of_intersections"],
         "min_gap_m": m["min_distance_to_ev_m"],
         "peak_decel_mps2": round(max(-float(res.log["ax"].min()), 0.0), 2),
@@ -176,7 +178,16 @@ def main() -> int:
         )
     wall0 = time.perf_counter()
     runs: list[dict[str, Any]] = []
-    cols = ("action", "action_ok", "collision", "stopped_s", "yield_s", "extra_yields", "peak_decel_mps2")
+    cols = (
+        "action",
+        "action_ok",
+        "collision",
+        "stopped_s",
+        "yield_s",
+        "waited_s",
+        "extra_yields",
+        "peak_decel_mps2",
+    )
     print(
         f"{'scenario':18s} {'perception':10s} {'seed':>4s} " + " ".join(f"{c:>18s}" for c in cols), flush=True
     )
@@ -207,12 +218,13 @@ def main() -> int:
             "collisions": sum(r["collision"] for r in mine),
             "extra_yields": sum(r["extra_yields"] for r in mine),
             "median_on_to_stopped_s": round(statistics.median(stops), 2) if stops else None,
+            "max_waited_s": max((r["waited_s"] for r in mine if r["waited_s"] is not None), default=None),
         }
         summary[kind] = s
         print(
             f"  {kind:8s} expected action {s['action_ok']}/{s['runs']} ({100 * s['action_ok_rate']:.0f} %), "
             f"collisions {s['collisions']}, extra yields {s['extra_yields']}, median EV on → stopped "
-            f"{_f(s['median_on_to_stopped_s'])} s"
+            f"{_f(s['median_on_to_stopped_s'])} s, longest wait once stopped {_f(s['max_waited_s'])} s"
         )
     print("\nper scenario, expected action (runs ok / runs):")
     print(f"  {'scenario':18s} " + " ".join(f"{k:>8s}" for k in kinds))

@@ -46,6 +46,18 @@ def test_second_seed_fused_at_the_crossing() -> None:
 
 
 @pytest.mark.slow
+def test_two_evs_seed_8_resumes_once_both_have_gone_by() -> None:
+    """The oncoming EV passes close beside the stopped car, where its bearing sweeps fast. The car
+    decides it has gone by within a second of stopping (it waited 13.5 s when the fusion lost that
+    EV there and the state machine knew the new track only from behind), and the far receding
+    sirens, read at 30–50 m, start no second yield."""
+    m = fused("two_evs", 8).metrics
+    assert m["action"] == m["expected_action"] and not m["collision"]
+    assert m["time_stopped_waiting_s"] is not None and m["time_stopped_waiting_s"] < 1.0
+    assert m["yields"] == 1
+
+
+@pytest.mark.slow
 def test_two_evs_waits_for_the_second() -> None:
     res = fused("two_evs")
     log = res.log

@@ -233,6 +233,40 @@ def test_an_oncoming_ev_seen_ahead_while_another_was_followed_has_gone_by_once_b
     assert fsm.state is YieldState.EV_PASSED, fsm.history[-1]
 
 
+def test_a_track_first_placed_beside_the_car_then_behind_and_receding_has_gone_by() -> None:
+    """The fusion may lose an oncoming EV's track as it passes close beside the car (its bearing
+    sweeps faster than the old track follows) and start a new one there; that track, never seen
+    ahead, is first placed level with the car (less than ``abeam_m`` behind), then behind and moving
+    away: it has gone by. A track first placed well behind the car that falls back has not (in
+    two_evs seed 8 the car waited 13.5 s for the first case)."""
+
+    def belief(t: float, rel: EVRelation, x: float, app: bool | None, tid: int) -> EVBelief:
+        return EVBelief(t, True, 0.9, rel, x, 3.0, math.hypot(x, 3.0), math.atan2(3.0, x), app, True, True,
+                        "fused", ("siren", "light"), tid)  # fmt: skip
+
+    def stop(fsm: YieldStateMachine) -> float:
+        t, v = 0.0, 13.4
+        while fsm.state is not YieldState.STOPPED_WAITING and t < 20.0:
+            fsm.update_all(
+                [belief(t, EVRelation.BEHIND, -30.0, True, 1)], VehicleState(t, 0, 0, 0, v), _road()
+            )
+            t, v = round(t + 0.05, 9), max(0.0, v - 0.2)
+        assert fsm.state is YieldState.STOPPED_WAITING
+        return t
+
+    for first_x, passed in ((2.0, True), (-3.0, True), (-20.0, False)):
+        fsm = YieldStateMachine()
+        t = stop(fsm)
+        x = first_x
+        for _ in range(40):  # a new track, then moving away behind the stopped car at 10 m/s
+            rel, app = (EVRelation.BEHIND, False) if x < 0 else (EVRelation.UNKNOWN, None)
+            fsm.update_all([belief(t, rel, x, app, 2)], VehicleState(t, 0, 0, 0, 0.0), _road())
+            t, x = round(t + 0.05, 9), x - 0.5
+        assert (fsm.state is YieldState.EV_PASSED) is passed, (first_x, fsm.history[-1])
+        if passed:
+            assert "went by" in fsm.history[-1][3]
+
+
 def test_vision_and_v2x_alone_on_the_command_line() -> None:
     r = runner.invoke(app, ["simulate", "night_lights_only", "--perception", "vision", "--json"])
     assert r.exit_code == 0, r.output

@@ -169,14 +169,14 @@ def test_listener_hands_on_the_networks_sigma_without_the_far_ranger() -> None:
     assert plain and all("distance_sigma" not in s for s in plain)
 
 
-@pytest.mark.parametrize(("sigma", "expected_m"), [(None, 10.0), (0.1, 4.0), (0.6, 24.0), (0.01, 2.0)])
+@pytest.mark.parametrize(("sigma", "expected_m"), [(None, 6.25), (0.1, 2.5), (0.6, 15.0), (0.01, 2.0)])
 def test_fusion_weighs_a_distance_by_its_stated_sigma(sigma: float | None, expected_m: float) -> None:
-    """A fix 40 m straight ahead: its spread along the line of sight is σ·d when the listener states
+    """A fix 25 m straight ahead: its spread along the line of sight is σ·d when the listener states
     σ of ln distance, the configured 25 % without, and never under the 2 m floor — in the siren
     track (its first fix sets the position covariance) and in the multi-EV fusion (a new track's
     covariance along the line of sight)."""
-    assert range_sigma_m(40.0, sigma, 0.25, 2.0) == pytest.approx(expected_m)
-    src = SirenSource(0.0, 40.0, True, 0.9, distance_sigma=sigma)
+    assert range_sigma_m(25.0, sigma, 0.25, 2.0) == pytest.approx(expected_m)
+    src = SirenSource(0.0, 25.0, True, 0.9, distance_sigma=sigma)
     obs = SirenObservation(1.0, True, 0.95, 0.95, (src,))
     track = SirenTrackFusion()
     track.update(obs, 0.0, 0.0, 0.0)
@@ -186,6 +186,19 @@ def test_fusion_weighs_a_distance_by_its_stated_sigma(sigma: float | None, expec
     fusion.update(1.0, VehicleState(time_s=1.0, x_m=0.0, y_m=0.0, yaw_rad=0.0, vx_mps=0.0), [obs])
     assert len(fusion.tracks) == 1
     assert math.sqrt(fusion.cov_[0][0, 0]) == pytest.approx(expected_m, rel=1e-6)
+
+
+@pytest.mark.parametrize(("distance_m", "frac"), [(30.0, 0.25), (40.0, 0.525), (49.0, 0.7725)])
+def test_the_fusion_widens_a_siren_distance_read_in_the_saturated_zone(
+    distance_m: float, frac: float
+) -> None:
+    """Without a stated σ, a siren distance of 30–50 m (where the networks read sirens that may be
+    100–300 m away) gets a σ of ln distance growing from 25 % at 30 m to 80 % at 50 m."""
+    src = SirenSource(0.0, distance_m, True, 0.9)
+    fusion = MultiEVFusion()
+    fusion.update(1.0, VehicleState(time_s=1.0, x_m=0.0, y_m=0.0, yaw_rad=0.0, vx_mps=0.0),
+                  [SirenObservation(1.0, True, 0.95, 0.95, (src,))])  # fmt: skip
+    assert math.sqrt(fusion.cov_[0][0, 0]) == pytest.approx(frac * distance_m, rel=1e-6)
 
 
 def test_bad_input_gives_clear_errors(tmp_path: Path, siren: SirenModel) -> None:

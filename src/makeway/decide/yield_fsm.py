@@ -151,7 +151,9 @@ never faster than now (except creeping up to the stop point), zero at the stop p
 1. the EV has gone by: AHEAD and more than ``passed_margin_m`` ahead and receding (an EV from
    behind overtook us); ONCOMING and receding; BEHIND, receding, more than ``passed_margin_m``
    behind after its track was seen more than ``passed_margin_m`` ahead (an oncoming EV went by; seen
-   while another EV was followed counts too); CROSSING or UNKNOWN and receding;
+   while another EV was followed counts too), or was first placed less than ``abeam_m`` behind
+   the car (a track that fusion starts anew as the EV passes close beside the car, where its
+   bearing sweeps too fast for the old track to follow); CROSSING or UNKNOWN and receding;
 2. lost (not seen) for longer than ``dropout_timeout_s`` with its last known distance within
    ``close_distance_m`` (it went past, out of the sensors' view);
 3. no *active* EV for ``siren_off_hold_s``: it switched lights and siren off (it may still pass, so we
@@ -225,6 +227,8 @@ class YieldConfig:
         close_distance_m: an EV lost for longer than ``dropout_timeout_s`` within this distance is
             taken to have passed.
         passed_margin_m: an EV that went by must be this far ahead (or behind) and receding.
+        abeam_m: a track first placed less than this far behind the car (level with it, or ahead)
+            counts as one that came from level or ahead: once behind and receding it has gone by.
         resume_speed_mps: the speed to get back to (default ``None``: the road's speed limit).
         resumed_speed_fraction: RESUMING ends at this fraction of the resume speed.
         resume_timeout_s: RESUMING ends at the latest after this long.
@@ -297,6 +301,7 @@ class YieldConfig:
     yield_to_oncoming: bool = True
     close_distance_m: float = 30.0
     passed_margin_m: float = 10.0
+    abeam_m: float = 5.0
     resumed_speed_fraction: float = 0.9
     resume_timeout_s: float = 20.0
     comfort_decel_mps2: float = 3.0
@@ -577,7 +582,9 @@ class YieldStateMachine:
         self._lights_since: dict[int | None, float] = {}  # per track: lights shown without a break since
         self._lights_seen: dict[int | None, float] = {}  # per track: when it last showed lights
         self._coming_since: dict[int | None, float] = {}  # per track: siren heard approaching since
-        self._ahead_tracks: set[int] = set()  # tracks seen more than passed_margin_m ahead
+        self._ahead_tracks: set[int] = set()  # tracks seen more than passed_margin_m ahead, or first
+        # placed less than abeam_m behind the car
+        self._placed_tracks: set[int] = set()  # tracks placed (a finite rel_x) at least once
         self._road_s = 0.0  # the ego's arc length and the map's intersections, this period
         self._boxes: tuple[tuple[float, float], ...] = ()
         self._ego_v = 0.0  # the ego's speed (m/s) and deceleration (m/s², >= 0), this period
@@ -615,10 +622,15 @@ class YieldStateMachine:
         for b in beliefs:
             if b.detected and b.lights and "light" in b.sources:  # the cameras' (not a V2X flag)
                 self._lights_seen[b.track_id] = b.time_s
-            if b.detected and b.track_id is not None and _rel_x(b) > self.config.passed_margin_m:
-                self._ahead_tracks.add(b.track_id)
-        if len(self._ahead_tracks) > 64:  # forget tracks long gone
-            self._ahead_tracks &= {b.track_id for b in beliefs if b.track_id is not None}
+            if b.detected and b.track_id is not None and _finite(_rel_x(b)):
+                first = b.track_id not in self._placed_tracks
+                self._placed_tracks.add(b.track_id)
+                if _rel_x(b) > self.config.passed_margin_m or (first and _rel_x(b) > -self.config.abeam_m):
+                    self._ahead_tracks.add(b.track_id)
+        if len(self._placed_tracks) > 64:  # forget tracks long gone
+            live = {b.track_id for b in beliefs if b.track_id is not None}
+            self._ahead_tracks &= live
+            self._placed_tracks &= live
         if len(self._lights_seen) > 64:  # forget tracks long gone
             memory = self.config.duty.lights_memory_s
             latest = max(self._lights_seen.values())

@@ -21,6 +21,18 @@ def first_transition_time(transitions: list[tuple[float, str, str, str]], state:
     return None
 
 
+def _time_in_first(
+    transitions: list[tuple[float, str, str, str]], state: YieldState, end_s: float
+) -> float | None:
+    """How long (s) the machine stayed in ``state`` the first time it entered it (until ``end_s`` if
+    it never left); ``None`` if it never entered it."""
+    entered = first_transition_time(transitions, state)
+    if entered is None:
+        return None
+    left = next((t for t, fr, _, _ in transitions if fr == state.value and t >= entered), end_s)
+    return left - entered
+
+
 def compute_metrics(
     scenario: Scenario,
     log: dict[str, np.ndarray],
@@ -40,6 +52,8 @@ def compute_metrics(
     * ``max_lat_accel_mps2`` = max |v_x·ψ̇|, ``max_jerk_mps3`` = max |d a_x / dt| (0.1 s smoothing);
     * times from the first EV's signals switching on to EV_CONFIRMED, to the first MOVING_OVER (the
       yield starts) and to STOPPED_WAITING; ``yields``: how many manoeuvres were started;
+    * ``time_stopped_waiting_s``: how long the car stood in its first STOPPED_WAITING before deciding
+      that the EVs had passed (to the end of the run if it never did; ``None`` without a stop);
     * ``min_distance_to_ev_m``: the smallest gap between the ego's rectangle and any EV's;
       ``collision``: a gap ≤ 0 to an EV or to any other vehicle of the scenario.
 
@@ -89,6 +103,7 @@ def compute_metrics(
         "time_active_to_stopped_s": (t_stop - t_on) if (t_stop is not None and t_on is not None) else None,
         "time_active_to_yield_s": (t_yield - t_on) if (t_yield is not None and t_on is not None) else None,
         "yields": sum(1 for _, _, to, _ in transitions if to == YieldState.MOVING_OVER.value),
+        "time_stopped_waiting_s": _time_in_first(transitions, YieldState.STOPPED_WAITING, float(t[-1])),
         "min_distance_to_ev_m": float(np.nanmin(gap)) if np.isfinite(gap).any() else None,
         "collision": bool(
             (np.isfinite(gap).any() and np.nanmin(gap) <= 0.0)

@@ -9,7 +9,13 @@ into one :class:`~makeway.messages.EVBelief` per confirmed track.
   the bearing (vehicle frame) with ``siren_bearing_sigma_deg``, and the distance, when the listener
   gives one below ``siren_far_m`` (the networks' distance saturates beyond: a bearing only there),
   with ``max(s·d, siren_distance_sigma_min_m)``, where ``s`` is the source's ``distance_sigma`` (σ
-  of ln distance) when the listener states one, otherwise ``siren_distance_sigma_frac``;
+  of ln distance) when the listener states one. Otherwise ``s`` is ``siren_distance_sigma_frac``
+  up to ``siren_compressed_from_m`` and grows linearly to ``siren_distance_sigma_far`` at
+  ``siren_far_m``: the siren networks read a siren 100–300 m away as 30–50 m, so a distance read
+  there says little of where the siren is. A fixed 25 % there would let a run of such readings
+  pin an approaching EV's track at 40 m with a confident, near-zero closing speed, so that the
+  cameras' fixes of the real EV fall outside its gate as it arrives (and a new track is born
+  behind the car as it passes), and pull a receding EV's track back to 40 m, approaching;
 * light — a :class:`~makeway.messages.LightObservation`: azimuth (vehicle frame) and optional
   range, each with its own standard deviation;
 * V2X — a :class:`~makeway.messages.V2XObservation` (world frame): position, heading and speed,
@@ -200,6 +206,8 @@ class MultiEVFusion:
         siren_distance_sigma_frac: float = 0.25,
         siren_distance_sigma_min_m: float = 2.0,
         siren_far_m: float = 50.0,
+        siren_compressed_from_m: float = 30.0,
+        siren_distance_sigma_far: float = 0.8,
         initial_speed_sigma_mps: float = 15.0,
         prior_range_m: float = 50.0,
         prior_range_sigma_m: float = 40.0,
@@ -217,7 +225,13 @@ class MultiEVFusion:
         max_speed_sigma_mps: float = 4.0,
         v2x_confidence: float = 0.99,
     ) -> None:
-        noises = (accel_noise_mps2, siren_bearing_sigma_deg, siren_distance_sigma_frac, prior_range_sigma_m)
+        noises = (
+            accel_noise_mps2,
+            siren_bearing_sigma_deg,
+            siren_distance_sigma_frac,
+            siren_distance_sigma_far,
+            prior_range_sigma_m,
+        )
         if min(noises) <= 0:
             raise ValueError("noise levels must be > 0")
         if (
@@ -235,6 +249,8 @@ class MultiEVFusion:
         self.siren_distance_sigma_frac = siren_distance_sigma_frac
         self.siren_distance_sigma_min_m = siren_distance_sigma_min_m
         self.siren_far_m = siren_far_m
+        self.siren_compressed_from_m = siren_compressed_from_m
+        self.siren_distance_sigma_far = siren_distance_sigma_far
         self.initial_speed_sigma_mps = initial_speed_sigma_mps
         self.prior_range_m = prior_range_m
         self.prior_range_sigma_m = prior_range_sigma_m
@@ -297,7 +313,7 @@ class MultiEVFusion:
                 for src in o.sources:
                     d = src.distance_m
                     if d is not None and d < self.siren_far_m:
-                        frac, floor = self.siren_distance_sigma_frac, self.siren_distance_sigma_min_m
+                        frac, floor = self._siren_sigma_frac(d), self.siren_distance_sigma_min_m
                         s_r = range_sigma_m(d, src.distance_sigma, frac, floor)
                         z, r = np.array([src.bearing_rad, max(d, 1.0)]), np.diag([sb2, s_r**2])
                     else:
@@ -320,6 +336,18 @@ class MultiEVFusion:
             else:
                 raise TypeError(f"not an observation: {type(o).__name__}")
         return out
+
+    def _siren_sigma_frac(self, d: float) -> float:
+        """σ of ln distance for a siren distance ``d`` (m) read without one: ``siren_distance_sigma_frac``
+        up to ``siren_compressed_from_m``, rising linearly to ``siren_distance_sigma_far`` at
+        ``siren_far_m`` (module docstring)."""
+        lo, hi = self.siren_compressed_from_m, self.siren_far_m
+        if d <= lo or hi <= lo:
+            return self.siren_distance_sigma_frac
+        share = min((d - lo) / (hi - lo), 1.0)
+        return self.siren_distance_sigma_frac + share * (
+            self.siren_distance_sigma_far - self.siren_distance_sigma_frac
+        )
 
     def _v2x_meas(self, time_s: float, o: V2XObservation) -> _Meas:
         c, s = math.cos(o.heading_rad), math.sin(o.heading_rad)
