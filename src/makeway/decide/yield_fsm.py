@@ -622,10 +622,11 @@ class YieldStateMachine:
         for b in beliefs:
             if b.detected and b.lights and "light" in b.sources:  # the cameras' (not a V2X flag)
                 self._lights_seen[b.track_id] = b.time_s
-            if b.detected and b.track_id is not None and _finite(_rel_x(b)):
+            rel_x = _rel_x(b)
+            if b.detected and b.track_id is not None and _finite(rel_x):
                 first = b.track_id not in self._placed_tracks
                 self._placed_tracks.add(b.track_id)
-                if _rel_x(b) > self.config.passed_margin_m or (first and _rel_x(b) > -self.config.abeam_m):
+                if rel_x > self.config.passed_margin_m or (first and rel_x > -self.config.abeam_m):
                     self._ahead_tracks.add(b.track_id)
         if len(self._placed_tracks) > 64:  # forget tracks long gone
             live = {b.track_id for b in beliefs if b.track_id is not None}

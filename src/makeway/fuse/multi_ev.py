@@ -342,12 +342,9 @@ class MultiEVFusion:
         up to ``siren_compressed_from_m``, rising linearly to ``siren_distance_sigma_far`` at
         ``siren_far_m`` (module docstring)."""
         lo, hi = self.siren_compressed_from_m, self.siren_far_m
-        if d <= lo or hi <= lo:
+        if hi <= lo:
             return self.siren_distance_sigma_frac
-        share = min((d - lo) / (hi - lo), 1.0)
-        return self.siren_distance_sigma_frac + share * (
-            self.siren_distance_sigma_far - self.siren_distance_sigma_frac
-        )
+        return float(np.interp(d, (lo, hi), (self.siren_distance_sigma_frac, self.siren_distance_sigma_far)))
 
     def _v2x_meas(self, time_s: float, o: V2XObservation) -> _Meas:
         c, s = math.cos(o.heading_rad), math.sin(o.heading_rad)
