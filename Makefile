@@ -11,7 +11,7 @@ TEST_WORKERS ?= 2
 
 .PHONY: venv demo test lint typecheck bench bench-sort bench-video bench-crops bench-detection bench-pull-over \
 	bench-siren-loop bench-audio bench-rig bench-v2x bench-fusion bench-roadside bench-lights bench-lights-flash bench-active-rule \
-	bench-rsu bench-fusion-ablation bench-mcap bench-engine bench-robust bench-speed bench-crossing bench-crossing-fresh bench-no-ev-2h bench-no-ev-urban-2h bench-range-loop bench-approach-pairing bench-seed003-timeline bench-faults bench-overload bench-overload-listener bench-range bench-bearing-range bench-far-range bench-far-loop bench-far-fused bench-clip-fusion bench-obstacle-links bench-framework-ab bench-cross-source-seeds fuzz clean
+	bench-rsu bench-fusion-ablation bench-mcap bench-engine bench-robust bench-speed bench-crossing bench-crossing-fresh bench-no-ev-2h bench-no-ev-urban-2h bench-range-loop bench-approach-pairing bench-seed003-timeline bench-faults bench-overload bench-overload-listener bench-range bench-bearing-range bench-far-range bench-far-loop bench-far-fused bench-clip-fusion bench-obstacle-links bench-framework-ab bench-cross-source-seeds bench-camera-figures bench-cameras-loop fuzz clean
 
 # `make demo` installs the runtime only; `make test` and the benchmarks add the dev extra (linters,
 # scikit-learn, XGBoost, torch for the training tests).
@@ -108,6 +108,14 @@ bench-roadside: venv
 # lit-light detection on the held-out sources: rule baseline, CNN with and without colour attention
 bench-lights: venv
 	$(BIN)/python benchmarks/bench_lights.py --breakdown
+
+# how far the lights detectors see by day, carried over to the rig's fisheyes (the simulated cameras' figures)
+bench-camera-figures: venv
+	$(BIN)/python benchmarks/bench_camera_figures.py
+
+# the fused car with today's lights detector by day against seed 004's camera figures (seeds 0-3)
+bench-cameras-loop: venv
+	$(BIN)/python benchmarks/bench_fusion_ablation.py --perceptions fused --seeds 4 --no-ev-runs 0 --cameras makeway --scenarios seed003,curve_behind,oncoming,signals_off,no_ev,two_evs,occluded_behind,night_lights_only,siren_only,crossing
 
 # the flash cue as a filter on the light detector's boxes (every frame of the night and validation clips)
 bench-lights-flash: venv

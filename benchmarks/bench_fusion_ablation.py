@@ -58,6 +58,7 @@ from makeway.perceive.audio.siren_model import SirenModel
 from makeway.pipeline.closed_loop import ClosedLoopResult, PerceptionSpec, run_scenario
 from makeway.pipeline.fused_perception import FusedPerceptionConfig
 from makeway.pipeline.siren_perception import SirenPerceptionConfig
+from makeway.sim.cameras import CAMERA_FIGURES
 from makeway.sim.live_array import LiveAudioConfig
 from makeway.sim.scenarios import SCENARIOS
 
@@ -72,10 +73,16 @@ TARGETS = {
 
 
 def spec(
-    kind: str, seed: int, model: SirenModel, noise: str = "generated", far: FarRanger | None = None
+    kind: str,
+    seed: int,
+    model: SirenModel,
+    noise: str = "generated",
+    far: FarRanger | None = None,
+    cameras: str = "seed004",
 ) -> PerceptionSpec:
     """The perception ``kind`` for one scene seed (the siren networks and the far ranger, when
-    one is given, shared between runs)."""
+    one is given, shared between runs; ``cameras`` names the simulated cameras' figures,
+    :data:`~makeway.sim.cameras.CAMERA_FIGURES`)."""
     audio = LiveAudioConfig(seed=seed, noise=noise)
     if kind == "audio":
         return SirenPerceptionConfig(audio=audio, model=model, far_ranger=far)
@@ -85,7 +92,9 @@ def spec(
         "fused": ("siren", "light", "v2x"),
         "onboard": ("siren", "light"),
     }[kind]
-    return FusedPerceptionConfig(senses=senses, audio=audio, seed=seed, model=model, far_ranger=far)
+    return FusedPerceptionConfig(
+        senses=senses, audio=audio, seed=seed, model=model, far_ranger=far, cameras=CAMERA_FIGURES[cameras]()
+    )
 
 
 def row(res: ClosedLoopResult) -> dict[str, Any]:
@@ -145,6 +154,13 @@ def main() -> int:
         help="the siren stack with the far ranger behind it (opt-in; without a value: the shipped one)",
     )
     ap.add_argument(
+        "--cameras",
+        default="seed004",
+        choices=list(CAMERA_FIGURES),
+        help="the simulated cameras' figures: seed004 (seed 004's field test, the default) or makeway "
+        "(today's lights detector by day, measured by bench_camera_figures.py)",
+    )
+    ap.add_argument(
         "--unplaced-siren-heard-s",
         type=float,
         default=YieldConfig().unplaced_siren_heard_s,
@@ -169,6 +185,7 @@ def main() -> int:
     model = SirenModel()
     far = FarRanger(args.far_ranger) if args.far_ranger else None
     print(f"siren stack: {model!r}" + (f" + {far!r}" if far is not None else ""), flush=True)
+    print(f"cameras: {args.cameras} ({CAMERA_FIGURES[args.cameras]().recall_source})", flush=True)
     if args.unplaced_siren_heard_s > 0.0:
         print(
             "the stop before an intersection for a siren not yet placed waits for "
@@ -196,7 +213,13 @@ def main() -> int:
         extra = ["onboard"] if name == "v2x_corridor" and "fused" in kinds else []
         for kind in kinds + extra:
             for seed in seeds:
-                r = row(run_scenario(sc, perception=spec(kind, seed, model, far=far), yield_config=decide))
+                r = row(
+                    run_scenario(
+                        sc,
+                        perception=spec(kind, seed, model, far=far, cameras=args.cameras),
+                        yield_config=decide,
+                    )
+                )
                 runs.append({"scenario": name, "perception": kind, "seed": seed, **r})
                 print(
                     f"{name:18s} {kind:10s} {seed:>4d} " + " ".join(f"{_f(r[c]):>18s}" for c in cols),
@@ -265,7 +288,11 @@ def main() -> int:
     for k in range(no_ev_runs):
         seed = args.first_no_ev_seed + k
         cfg = FusedPerceptionConfig(
-            audio=LiveAudioConfig(seed=seed, noise="real"), seed=seed, model=model, far_ranger=far
+            audio=LiveAudioConfig(seed=seed, noise="real"),
+            seed=seed,
+            model=model,
+            far_ranger=far,
+            cameras=CAMERA_FIGURES[args.cameras](),
         )
         res = run_scenario(quiet, perception=cfg, yield_config=decide)
         fy = res.metrics["yields"]

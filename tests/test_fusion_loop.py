@@ -279,6 +279,26 @@ def test_vision_and_v2x_alone_on_the_command_line() -> None:
     assert r.exit_code == 2 and "audible_and_visual, germany, uk" in r.stderr
 
 
+def test_cameras_with_todays_lights_detector_do_not_see_seed003s_ev_by_day() -> None:
+    """``--cameras makeway`` (the lights detector measured on real day frames: nothing beyond 16 m)
+    leaves the cameras alone blind to an EV coming from 50 m behind by day, where seed 004's
+    figures see it; at night its table is seed 004's, so the night scenario is still seen."""
+    seen = {}
+    for cameras in ("seed004", "makeway"):
+        r = runner.invoke(
+            app, ["simulate", "seed003", "--perception", "vision", "--cameras", cameras, "--json"]
+        )
+        assert r.exit_code == 0, r.output
+        seen[cameras] = json.loads(r.stdout.strip().splitlines()[-1])["action"]
+    assert seen == {"seed004": "pull_over_and_stop", "makeway": "continue"}
+    r = runner.invoke(
+        app, ["simulate", "night_lights_only", "--perception", "vision", "--cameras", "makeway", "--json"]
+    )
+    assert json.loads(r.stdout.strip().splitlines()[-1])["action"] == "pull_over_and_stop"
+    r = runner.invoke(app, ["simulate", "seed003", "--cameras", "field"])
+    assert r.exit_code == 2 and "seed004, makeway" in r.stderr
+
+
 def test_the_simulated_v2x_keys_are_removed_when_the_process_exits() -> None:
     """The closed loop's signing keys live in a temporary folder that must not outlive the run."""
     code = (

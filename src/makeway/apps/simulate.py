@@ -10,6 +10,7 @@ from makeway.decide import DUTY_PRESETS, YieldConfig
 from makeway.errors import InputError
 from makeway.pipeline.closed_loop import PERCEPTIONS, ClosedLoopResult, run_scenario
 from makeway.plan.path import load_path_csv
+from makeway.sim.cameras import CAMERA_FIGURES
 from makeway.sim.localization import LOCALIZATIONS
 from makeway.sim.plants import PlantSpec
 from makeway.sim.scenarios import SCENARIOS, Scenario, on_recorded_path
@@ -29,6 +30,7 @@ def simulate(
     seed: int = 0,
     siren: str = "synth",
     noise: str = "generated",
+    cameras: str = "seed004",
     duty: str = "audible_and_visual",
     path: str | Path | None = None,
     out: str | Path | None = None,
@@ -45,7 +47,9 @@ def simulate(
 
     ``perception`` names a kind of :data:`~makeway.pipeline.closed_loop.PERCEPTIONS` (``simulated``,
     ``siren``, ``vision``, ``v2x`` or ``fused``); ``seed`` seeds its noise (the siren's scene too);
-    ``siren`` and ``noise`` choose the siren stack's sources; ``duty`` names the duty to yield
+    ``siren`` and ``noise`` choose the siren stack's sources; ``cameras`` names the simulated
+    cameras' figures (:data:`~makeway.sim.cameras.CAMERA_FIGURES`: ``seed004`` or ``makeway``, the
+    vision and fused perceptions only); ``duty`` names the duty to yield
     (:data:`~makeway.decide.duty.DUTY_PRESETS`). ``plant``, ``vehicle``, ``road`` and
     ``steer_delay_s`` pick the simulated car (:class:`~makeway.sim.plants.PlantSpec`; the default
     is today's linear model); with a steering delay and ``delay_compensation`` the controllers
@@ -58,8 +62,8 @@ def simulate(
     Raises:
         InputError: the recorded path cannot be read, or ``out`` or ``mcap`` cannot be written
             (checked first).
-        UnknownNameError: an unknown scenario, controller, perception, duty preset, plant, vehicle,
-            road or localization (lists the known ones).
+        UnknownNameError: an unknown scenario, controller, perception, camera figures, duty preset,
+            plant, vehicle, road or localization (lists the known ones).
         ValueError: a plant option that does not apply to the plant (e.g. a vehicle on ``linear``).
     """
     spec = PlantSpec(plant=plant, vehicle=vehicle, road=road, steer_delay_s=steer_delay_s)
@@ -71,7 +75,8 @@ def simulate(
         check_writable(out, folder=True)
     if mcap is not None:
         check_writable(mcap, folder=False)
-    sensing = PERCEPTIONS[perception](seed=seed, siren=siren, noise=noise)
+    CAMERA_FIGURES[cameras]  # an unknown name fails here, whichever the perception
+    sensing = PERCEPTIONS[perception](seed=seed, siren=siren, noise=noise, cameras=cameras)
     law = DUTY_PRESETS[duty]
     if path is not None:
         try:

@@ -54,6 +54,7 @@ __all__ = [
     "run_detector",
     "summarise",
     "vehicle_counts",
+    "vehicle_regions",
 ]
 
 
@@ -103,7 +104,10 @@ def match_frame(boxes: Any, scores: Any, gt_boxes: Any, iou_threshold: float = 0
     return out
 
 
-def _vehicle_regions(gt: np.ndarray, vehicles: Sequence[int]) -> dict[int, np.ndarray]:
+def vehicle_regions(gt: np.ndarray, vehicles: Sequence[int]) -> dict[int, np.ndarray]:
+    """Each ground-truth vehicle's region (module docstring, vehicle level): the bounding box of its
+    boxes ``gt`` (``(n, 4)`` pixels) grown by half its width and height on each side, at least
+    10 px; keyed by vehicle id."""
     out = {}
     for v in sorted(set(vehicles)):
         sel = gt[np.asarray(vehicles) == v]
@@ -145,7 +149,7 @@ def vehicle_counts(
     match = match_frame(b, scores, g, iou_threshold)
     vehicles = list(gt_vehicles)
     found = {vehicles[j] for j in match if j >= 0}
-    regions = _vehicle_regions(g, vehicles) if len(g) else {}
+    regions = vehicle_regions(g, vehicles) if len(g) else {}
     loose = []
     for d in np.flatnonzero(match < 0):
         cx, cy = (b[d, 0] + b[d, 2]) / 2, (b[d, 1] + b[d, 3]) / 2
@@ -338,7 +342,7 @@ def false_positive_breakdown(
         gt = _boxes(r.gt_boxes)
         match = match_frame(boxes, scores, gt, iou_threshold)
         matched = set(match[match >= 0].tolist())
-        regions = _vehicle_regions(gt, list(r.gt_vehicles)) if len(gt) else {}
+        regions = vehicle_regions(gt, list(r.gt_vehicles)) if len(gt) else {}
         iou = box_iou_matrix(boxes, gt) if len(gt) and len(boxes) else np.zeros((len(boxes), 0))
         for d in np.flatnonzero(match < 0):
             b = boxes[d]

@@ -53,6 +53,7 @@ from makeway.pipeline.siren_perception import SirenPerceptionConfig
 from makeway.plan.path import nearest_index, point_at
 from makeway.plan.planner import YieldPlanner
 from makeway.registry import Registry
+from makeway.sim.cameras import CAMERA_FIGURES
 from makeway.sim.ev_actor import EVActor
 from makeway.sim.live_array import LiveAudioConfig
 from makeway.sim.localization import Localization, LocalizationConfig
@@ -137,9 +138,10 @@ def siren_perception(
     return SirenPerceptionConfig(audio=LiveAudioConfig(seed=seed, siren=siren, noise=noise))
 
 
-def vision_perception(seed: int = 0, **_: Any) -> PerceptionSpec:
-    """The camera rig's lights detector (modelled) into the multi-EV fusion, seeded."""
-    return FusedPerceptionConfig(senses=("light",), seed=seed)
+def vision_perception(seed: int = 0, cameras: str = "seed004", **_: Any) -> PerceptionSpec:
+    """The camera rig's lights detector (modelled with the figures named ``cameras``,
+    :data:`~makeway.sim.cameras.CAMERA_FIGURES`) into the multi-EV fusion, seeded."""
+    return FusedPerceptionConfig(senses=("light",), seed=seed, cameras=CAMERA_FIGURES[cameras]())
 
 
 def v2x_perception(seed: int = 0, **_: Any) -> PerceptionSpec:
@@ -148,10 +150,15 @@ def v2x_perception(seed: int = 0, **_: Any) -> PerceptionSpec:
 
 
 def fused_perception(
-    seed: int = 0, siren: str = "synth", noise: str = "generated", **_: Any
+    seed: int = 0, siren: str = "synth", noise: str = "generated", cameras: str = "seed004", **_: Any
 ) -> PerceptionSpec:
-    """Siren stack + cameras + V2X into the multi-EV fusion; ``siren``/``noise`` as for ``siren``."""
-    return FusedPerceptionConfig(audio=LiveAudioConfig(seed=seed, siren=siren, noise=noise), seed=seed)
+    """Siren stack + cameras + V2X into the multi-EV fusion; ``siren``/``noise`` as for ``siren``,
+    ``cameras`` as for ``vision``."""
+    return FusedPerceptionConfig(
+        audio=LiveAudioConfig(seed=seed, siren=siren, noise=noise),
+        seed=seed,
+        cameras=CAMERA_FIGURES[cameras](),
+    )
 
 
 PERCEPTIONS: Registry[Callable[..., PerceptionSpec]] = Registry(
