@@ -17,7 +17,7 @@ The clip is the lights verifier's validation source (its settings were chosen on
 trained on). One ambulance, one clip: a coarse figure.
 
     .venv/bin/python benchmarks/bench_camera_figures.py [--detectors verified,cnn,colour]
-        [--lamp-height 2.4] [--json out.json] [--threads 1]
+        [--lamp-height 2.4] [--json out.json] [--threads 1] [--verifier OTHER.onnx]
 """
 
 from __future__ import annotations
@@ -55,6 +55,14 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--lamp-height", type=float, default=2.4, help="lamps' height above the road (m)")
     ap.add_argument("--rig", default="default", help="the car's camera rig (a rig file or 'default')")
     ap.add_argument("--threads", type=int, default=1, help="ONNX Runtime threads")
+    ap.add_argument(
+        "--verifier",
+        type=Path,
+        action="append",
+        default=[],
+        help="another verifier model for the 'verified' detector, scored as an extra row named by its "
+        "file stem (repeatable)",
+    )
     ap.add_argument("--json", type=Path, default=None, help="also write the figures and rows as JSON")
     args = ap.parse_args(argv)
     root = data_dir()
@@ -90,11 +98,13 @@ def main(argv: list[str] | None = None) -> int:
     )
     print(head)
     print("-" * len(head))
+    rows_to_run: list[tuple[str, str, dict[str, Any]]] = []
     for name in [d.strip() for d in args.detectors.split(",") if d.strip()]:
-        kwargs: dict[str, Any] = {"colours": "all"}
-        if name != "colour":
-            kwargs["num_threads"] = args.threads
-        detector = LIGHT_DETECTORS[name](**kwargs)
+        rows_to_run.append((name, name, {} if name == "colour" else {"num_threads": args.threads}))
+    for path in args.verifier:
+        rows_to_run.append((path.stem[:10], "verified", {"num_threads": args.threads, "model": path}))
+    for name, kind, extra in rows_to_run:
+        detector = LIGHT_DETECTORS[kind](colours="all", **extra)
         t0 = time.perf_counter()
         rows = lit_vehicle_frames(items, detector, camera, lamp_height_m=args.lamp_height)
         wall = time.perf_counter() - t0

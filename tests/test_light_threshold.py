@@ -9,6 +9,7 @@ import pytest
 
 from conftest import require_module
 from makeway.eval.lights import FrameResult
+from makeway.train.light_split import LightFrame
 from makeway.train.light_verifier import (
     THRESHOLDS,
     choose_threshold,
@@ -16,6 +17,8 @@ from makeway.train.light_verifier import (
     frame_group,
     grouped_folds,
     out_of_fold,
+    shrunk_frame,
+    verifier_rows,
 )
 
 
@@ -25,6 +28,36 @@ def test_frame_groups_keep_photo_copies_and_clips_together() -> None:
     c = frame_group("ambulance_yolo", "0003_jpg.rf.c61edce7.jpg")
     assert a == b != c
     assert frame_group("fire_trucks_red_lights", "12") == frame_group("fire_trucks_red_lights", "300")
+
+
+def test_shrunk_copies_scale_their_boxes_and_stay_in_their_frames_group() -> None:
+    """The training frames' shrunk copies (``makeway lights-train --verifier --scales``): the image
+    and every box shrink by the factor, a bright lamp stays where its box says, and the copy's key
+    keeps it in the cross-validation group of the frame it came from."""
+    img = np.zeros((100, 200, 3), np.uint8)
+    img[40:48, 120:136] = (255, 60, 0)  # a blue lamp, 16 × 8 px
+    f = LightFrame(
+        "ambulance_yolo",
+        "0002_jpg.rf.c61edce7.jpg",
+        img,
+        1.0,
+        np.array([[120.0, 40.0, 136.0, 48.0]]),
+        np.array([[0.0, 0.0, 10.0, 10.0]]),
+        ["blue"],
+        [1],
+    )
+    half = shrunk_frame(f, 0.5)
+    assert half.image.shape == (50, 100, 3) and half.key == "0002_jpg.rf.c61edce7.jpg@0.5"
+    assert np.allclose(half.boxes, [[60, 20, 68, 24]]) and np.allclose(half.negatives, [[0, 0, 5, 5]])
+    x1, y1, x2, y2 = half.boxes[0].astype(int)
+    assert half.image[y1:y2, x1:x2, 0].min() == 255 and half.image[:, :50].max() == 0
+    assert frame_group(half.source, half.key) == frame_group(f.source, f.key)
+    clip = LightFrame("fire_trucks_red_lights", "12", img, 1.0, np.zeros((0, 4)), np.zeros((0, 4)))
+    assert frame_group("fire_trucks_red_lights", shrunk_frame(clip, 0.35).key) == "fire_trucks_red_lights"
+    with pytest.raises(ValueError, match="shrink factor"):
+        shrunk_frame(f, 1.5)
+    with pytest.raises(ValueError, match="scales"):
+        verifier_rows("train", ".", scales=(1.0, 0.0))
 
 
 def test_grouped_folds_are_balanced_and_never_split_a_group() -> None:

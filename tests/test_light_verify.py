@@ -13,6 +13,7 @@ from makeway.eval.detection import box_iou_matrix
 from makeway.perceive.vision.light_cnn import default_lights_model
 from makeway.perceive.vision.light_verify import (
     CONTEXT_FEATURE_NAMES,
+    DEFAULT_SMALL_VERIFIER_MODEL,
     DEFAULT_VERIFIER_MODEL,
     FEATURE_NAMES,
     LightVerifier,
@@ -128,3 +129,34 @@ def test_bad_input(tmp_path: Path) -> None:
         det.detect(np.zeros((10, 10), np.uint8))
     with pytest.raises(ValueError, match="unknown colour set"):
         LIGHT_DETECTORS["verified"](colours="purple")
+    with pytest.raises(InputError, match="not a small-lamp verifier"):
+        LIGHT_DETECTORS["verified"](small_model=DEFAULT_VERIFIER_MODEL)
+    with pytest.raises(InputError, match="not found"):
+        LIGHT_DETECTORS["verified"](small_model=tmp_path / "missing.onnx")
+
+
+def test_small_lamps_go_to_the_small_lamp_verifier(frames, tmp_path: Path) -> None:
+    """Beside the shipped main verifier the shipped small-lamp verifier scores every proposal
+    under its size (6 px); proposals of that size are the only ones whose scores change, and
+    another main verifier gets no small one."""
+    small = LightVerifier(DEFAULT_SMALL_VERIFIER_MODEL)
+    assert small.applies_below_px == 6.0 and LightVerifier().applies_below_px is None
+    pair = LIGHT_DETECTORS["verified"](colours="all", threshold=0.0)
+    alone = LIGHT_DETECTORS["verified"](colours="all", threshold=0.0, small_model=False)
+    assert pair.small is not None and alone.small is None
+    assert LIGHT_DETECTORS["verified"](model=DEFAULT_VERIFIER_MODEL).small is not None
+    other = tmp_path / "main.onnx"
+    other.write_bytes(DEFAULT_VERIFIER_MODEL.read_bytes())
+    assert LIGHT_DETECTORS["verified"](model=other).small is None
+    changed = kept = 0
+    for img, _, _ in frames[:3]:
+        a = {(d.box.x1, d.box.y1, d.box.x2, d.box.y2): d.score for d in pair.detect(img)}
+        b = {(d.box.x1, d.box.y1, d.box.x2, d.box.y2): d.score for d in alone.detect(img)}
+        for box in set(a) & set(b):
+            side = max(box[2] - box[0], box[3] - box[1])
+            if side >= 6.0:
+                assert a[box] == pytest.approx(b[box], abs=1e-6)
+                kept += 1
+            elif abs(a[box] - b[box]) > 1e-6:
+                changed += 1
+    assert kept > 0 and changed > 0

@@ -65,7 +65,7 @@ def lights_train(
             "--verifier",
             help="Train the 'verified' detector's proposal verifier (boosted trees; the shipped one: "
             "src/makeway/models/lights_verifier.onnx) instead of the CNN; uses --seed, --data, "
-            "--appearance and --bag only.",
+            "--appearance, --bag, --scales and --small-below only.",
         ),
     ] = False,
     appearance: Annotated[
@@ -83,6 +83,21 @@ def lights_train(
             help="With --verifier: boosters averaged (fitted with seeds --seed … --seed + BAG − 1).",
         ),
     ] = 3,
+    scales: Annotated[
+        str,
+        typer.Option(
+            help="With --verifier: comma-separated factors in (0, 1] at which each training frame is "
+            "also shown, shrunk (farther lamps, wider lenses); 1 alone trains on the frames as they are.",
+        ),
+    ] = "1",
+    small_below: Annotated[
+        float | None,
+        typer.Option(
+            help="With --verifier: write a small-lamp verifier, used by the 'verified' detector beside "
+            "the main one for proposals under this many pixels on their longer side (the shipped one: "
+            "src/makeway/models/lights_verifier_small.onnx, --scales 1,0.5,0.35,0.25 --small-below 6).",
+        ),
+    ] = None,
 ) -> None:
     """Train a lit-light model (CNN or verifier) as ONNX.
 
@@ -94,7 +109,21 @@ def lights_train(
     if verifier:
         from makeway.train.light_verifier import train_light_verifier
 
-        v = train_light_verifier(out, data_root=data, seed=seed, appearance=appearance, bag=bag)
+        try:
+            factors = tuple(float(t) for t in scales.split(",") if t.strip())
+        except ValueError:
+            raise typer.BadParameter(
+                f"--scales must be numbers separated by commas, not {scales!r}"
+            ) from None
+        v = train_light_verifier(
+            out,
+            data_root=data,
+            seed=seed,
+            appearance=appearance,
+            bag=bag,
+            scales=factors,
+            applies_below_px=small_below,
+        )
         val = v["validation"]
         console.print(
             f"wrote {v['model']} ({v['size_bytes'] / 1e6:.2f} MB): {v['train_rows']} train proposals "

@@ -42,6 +42,7 @@ from makeway.perceive.vision.light_verify import (
     proposals,
     verifier_features,
 )
+from makeway.train.light_split import LightFrame
 
 __all__ = [
     "CV_FOLDS",
@@ -56,6 +57,7 @@ __all__ = [
     "frame_group",
     "grouped_folds",
     "out_of_fold",
+    "shrunk_frame",
     "train_light_verifier",
     "verifier_rows",
 ]
@@ -135,6 +137,29 @@ def feature_names_for(width: int) -> tuple[str, ...]:
     raise ValueError(f"feature rows of {width} columns match no feature set")
 
 
+def shrunk_frame(frame: LightFrame, factor: float) -> LightFrame:
+    """``frame`` shrunk by ``factor`` (0–1; area interpolation), its boxes scaled with it and its key
+    marked ``KEY@factor`` (:func:`frame_group` keeps it with the frame it came from)."""
+    import cv2
+
+    if not 0.0 < factor <= 1.0:
+        raise ValueError(f"a shrink factor must lie in (0, 1], got {factor}")
+    h, w = frame.image.shape[:2]
+    size = (max(1, round(w * factor)), max(1, round(h * factor)))
+    sx, sy = size[0] / w, size[1] / h
+    shrink = np.array([sx, sy, sx, sy])
+    return LightFrame(
+        source=frame.source,
+        key=f"{frame.key}@{factor:g}",
+        image=cv2.resize(frame.image, size, interpolation=cv2.INTER_AREA),
+        scale=frame.scale * factor,
+        boxes=frame.boxes * shrink,
+        negatives=frame.negatives * shrink,
+        colours=list(frame.colours),
+        vehicles=list(frame.vehicles),
+    )
+
+
 def verifier_rows(
     split: str,
     data_root: str | Path,
@@ -142,6 +167,7 @@ def verifier_rows(
     label_positives: bool = False,
     vehicles: Callable[[np.ndarray], Vehicles] | None = None,
     extra_features: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None,
+    scales: Sequence[float] = (1.0,),
     advance: Callable[[int], Any] | None = None,
 ) -> dict[str, Any]:
     """Feature rows of one split: ``x`` (n, F), ``y`` (n,) bool, ``frame`` (n,) frame index, and per
@@ -151,10 +177,18 @@ def verifier_rows(
     (a frame's BGR pixels → its vehicle boxes, e.g. the vehicle detector's ``detect_arrays``) every
     row also gets the vehicle-context columns (:func:`context_features`; an extra label positive is
     described among its frame's proposals). ``extra_features`` (a frame's BGR pixels and boxes ``(n, 4)`` →
-    feature rows ``(n, k)``) appends ``k`` more columns to every row, after the context."""
+    feature rows ``(n, k)``) appends ``k`` more columns to every row, after the context.
+
+    ``scales`` other than 1 add a copy of every frame shrunk by that factor (area interpolation,
+    boxes scaled with it; the frame key gains ``@scale``, so the copy stays in its frame's
+    cross-validation group): the lamps of a vehicle farther away, or seen by a lens of shorter
+    focal length (the rig's fisheyes see a lamp at about half the size a road camera does)."""
     from makeway.train.light_split import load_split
 
-    frames, _ = load_split(split, data_root, input_size=None)
+    if not scales or any(not 0.0 < s <= 1.0 for s in scales):
+        raise ValueError(f"scales must lie in (0, 1], got {list(scales)}")
+    loaded, _ = load_split(split, data_root, input_size=None)
+    frames = [f if s == 1.0 else shrunk_frame(f, s) for f in loaded for s in scales]
     xs: list[np.ndarray] = []
     ys: list[np.ndarray] = []
     fi: list[np.ndarray] = []
@@ -589,7 +623,12 @@ def fit_from_rows(
         lambda t: detector_results(tr_eval, oof, t) + detector_results(va_eval, prob, t)
     )
     keys = ("array_precision", "array_recall", "vehicle_precision", "vehicle_recall")
-    cv_summ = summarise(detector_results(tr_eval, oof, threshold))["all"]
+    cv_res = detector_results(tr_eval, oof, threshold)
+    cv_summ = summarise(cv_res)["all"]
+    # the same over the frames as recorded (no shrunk copies): comparable with a verifier trained
+    # without ``scales``
+    cv_orig = summarise([r for r in cv_res if "@" not in r.key])["all"]
+    cv_orig_ap = metrics([r for r in detector_results(tr_eval, oof, THRESHOLDS[0]) if "@" not in r.key]).map50
     va_summ = summarise(detector_results(va_eval, prob, threshold))["all"]
     # the ranking over every proposal the lowest threshold keeps (AP50), out of fold and on validation
     cv_ap = metrics(detector_results(tr_eval, oof, THRESHOLDS[0])).map50
@@ -604,6 +643,7 @@ def fit_from_rows(
         "threshold_from": f"train {CV_FOLDS}-fold grouped CV (out-of-fold) + validation, max min(P, R)",
         "validation": {**{k: va_summ[k] for k in keys}, "ap50": _finite(va_ap)},
         "train_cv": {**{k: cv_summ[k] for k in keys}, "ap50": _finite(cv_ap)},
+        "train_cv_recorded_frames": {**{k: cv_orig[k] for k in keys}, "ap50": _finite(cv_orig_ap)},
         "features": len(feature_names_for(tr["x"].shape[1])),
         "vehicle_context": tr["x"].shape[1] > len(FEATURE_NAMES),
         "appearance_components": max(0, tr["x"].shape[1] - len(FEATURE_NAMES + CONTEXT_FEATURE_NAMES)),
@@ -627,6 +667,8 @@ def train_light_verifier(
     vehicle_context: bool = True,
     appearance: int = 8,
     bag: int = 3,
+    scales: Sequence[float] = (1.0,),
+    applies_below_px: float | None = None,
     progress: bool = True,
 ) -> dict[str, Any]:
     """Train the verifier on the train split, pick its threshold on the train split's grouped
@@ -637,7 +679,11 @@ def train_light_verifier(
     (vehicle context needed) they end with that many appearance columns
     (:class:`~makeway.perceive.vision.light_verify.ProposalAppearance`, its standardisation and
     principal axes fitted on the train rows and stored in the model's metadata); the verifier
-    averages ``bag`` boosters (:func:`fit_from_rows`). Returns the
+    averages ``bag`` boosters (:func:`fit_from_rows`); ``scales`` adds shrunk copies of the train
+    frames (:func:`verifier_rows`; validation stays as it is). ``applies_below_px`` marks the model
+    as the small-lamp verifier: the detector then scores with it only the proposals whose longer
+    side is under that many pixels (metadata ``applies_below_px``;
+    :class:`~makeway.perceive.vision.light_verify.VerifiedLightDetector`). Returns the
     counts, the threshold, the validation and train cross-validation figures and the seconds taken.
 
     Raises:
@@ -658,6 +704,8 @@ def train_light_verifier(
         raise InputError(str(data_root), "shared data folder not found (set MAKEWAY_DATA)")
     if appearance < 0 or (appearance and not vehicle_context):
         raise ValueError("appearance columns need the vehicle context and a count >= 0")
+    if applies_below_px is not None and not applies_below_px > 0:
+        raise ValueError(f"applies_below_px must be a positive size in pixels, got {applies_below_px}")
     t0 = time.perf_counter()
     vehicles = None
     if vehicle_context:
@@ -666,16 +714,20 @@ def train_light_verifier(
     rows = {}
     for split in ("train", "val"):
         n = len(load_split(split, root, keep_images=False)[0])
-        with progress_bar(f"{split} proposals", n, enabled=progress, unit="frame") as advance:
+        copies = tuple(scales) if split == "train" else (1.0,)
+        with progress_bar(f"{split} proposals", n * len(copies), enabled=progress, unit="frame") as advance:
             rows[split] = verifier_rows(
                 split,
                 root,
                 label_positives=label_positives and split == "train",
                 vehicles=vehicles,
                 extra_features=app.vectors if app is not None else None,
+                scales=copies,
                 advance=advance,
             )
     meta: dict[str, Any] = {}
+    if applies_below_px is not None:
+        meta["applies_below_px"] = repr(float(applies_below_px))
     if app is not None:  # the backbone's vectors → their coordinates on the train rows' principal axes
         width = len(FEATURE_NAMES + CONTEXT_FEATURE_NAMES)
         app.fit(rows["train"]["x"][:, width:], seed=0)
@@ -686,7 +738,12 @@ def train_light_verifier(
     fitted = fit_from_rows(
         rows["train"], rows["val"], seed=seed, bag=bag, refine=refine, ignored=ignored, progress=progress
     )
-    result = {"model": str(target), **fitted["summary"], "label_positives": label_positives}
+    result = {
+        "model": str(target),
+        **fitted["summary"],
+        "label_positives": label_positives,
+        "train_scales": [float(v) for v in scales],
+    }
     _export(
         fitted["classifier"],
         target,

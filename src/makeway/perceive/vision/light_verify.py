@@ -23,6 +23,12 @@ the lit part a person would box — the rules often box a lamp with its glow, or
 which misses IoU 0.5 on a lamp of a few pixels). Kept boxes
 (probability ≥ the model's threshold, refined) pass a greedy non-maximum suppression (IoU > 0.3, or
 one box at least 80 % inside a higher-scoring one).
+**Small lamps.** A second verifier trained with shrunk copies of the training frames
+(:data:`DEFAULT_SMALL_VERIFIER_MODEL`; metadata ``applies_below_px``) scores the proposals whose
+longer side is under that size (6 px shipped): lamps of a few pixels — a vehicle 10–20 m from the
+rig's fisheyes, or far from a road camera — which the main verifier, trained on lamps of about
+12 px, all but rejects. Its appearance columns use its own projection; the main model's threshold
+applies to both.
 Boxes are pixels of the input frame, ``x2``/``y2`` exclusive. Trained by
 :mod:`makeway.train.light_verifier` (``makeway lights-train --verifier``).
 """
@@ -51,6 +57,7 @@ __all__ = [
     "APPEARANCE_PREFIX",
     "BOX_OUTPUT",
     "CONTEXT_FEATURE_NAMES",
+    "DEFAULT_SMALL_VERIFIER_MODEL",
     "DEFAULT_VERIFIER_MODEL",
     "FEATURE_NAMES",
     "PROPOSAL_CONFIGS",
@@ -69,6 +76,7 @@ __all__ = [
 ]
 
 DEFAULT_VERIFIER_MODEL = Path(__file__).resolve().parents[2] / "models" / "lights_verifier.onnx"
+DEFAULT_SMALL_VERIFIER_MODEL = Path(__file__).resolve().parents[2] / "models" / "lights_verifier_small.onnx"
 
 #: Proposal settings pooled by :func:`proposals` (colours are set per call).
 PROPOSAL_CONFIGS: tuple[dict[str, Any], ...] = (
@@ -634,6 +642,19 @@ class LightVerifier:
             self.appearance = None  # settings in the metadata that no column reads
         if not 0.0 <= threshold <= 1.0:
             raise InputError(path, f"malformed light verifier metadata (threshold {threshold} not in [0, 1])")
+        #: For a small-lamp verifier, the size (px, a proposal's longer side) under which it scores
+        #: proposals (metadata ``applies_below_px``); None for a main verifier.
+        self.applies_below_px: float | None = None
+        if "applies_below_px" in meta:
+            try:
+                below = float(meta["applies_below_px"])
+            except ValueError:
+                below = float("nan")
+            if not below > 0:
+                raise InputError(
+                    path, f"malformed light verifier metadata (applies_below_px {meta['applies_below_px']!r})"
+                )
+            self.applies_below_px = below
         self.path = path
         self.threshold = threshold
         self.metadata = dict(meta)
@@ -688,6 +709,11 @@ class VerifiedLightDetector:
     detector runs its own YOLOX-nano (:func:`vehicle_detector`, created on first use). A verifier
     that also reads the proposals' appearance runs YOLOX-nano's backbone on a 64-px patch per
     proposal (:class:`ProposalAppearance`).
+
+    ``small_model`` is the small-lamp verifier (module docstring): by default the shipped one
+    beside the shipped main verifier, none beside another main verifier given as ``model``;
+    ``False`` turns it off. It must read the same columns as the main verifier but for its appearance
+    projection, and carry ``applies_below_px``.
     """
 
     def __init__(
@@ -695,6 +721,7 @@ class VerifiedLightDetector:
         colours: str | Sequence[str] = "eu",
         *,
         model: str | Path | None = None,
+        small_model: str | Path | bool | None = None,
         threshold: float | None = None,
         num_threads: int = 1,
     ) -> None:
@@ -702,6 +729,23 @@ class VerifiedLightDetector:
 
         self.colours = colour_set(colours)
         self.verifier = LightVerifier(model, num_threads=num_threads)
+        if small_model is None:  # the shipped pair, or a main verifier alone
+            shipped = model is None or Path(model).resolve() == DEFAULT_VERIFIER_MODEL.resolve()
+            small_model = DEFAULT_SMALL_VERIFIER_MODEL if shipped else False
+        #: The small-lamp verifier, or None.
+        self.small: LightVerifier | None = None
+        if small_model is not False and small_model is not True:
+            self.small = LightVerifier(small_model, num_threads=num_threads)
+            if self.small.applies_below_px is None:
+                raise InputError(
+                    self.small.path, "not a small-lamp verifier (metadata applies_below_px missing)"
+                )
+            if len(self.small.feature_names) != len(self.verifier.feature_names) or (
+                self.small.uses_appearance != self.verifier.uses_appearance
+            ):
+                raise InputError(self.small.path, "its feature columns do not match the main verifier's")
+        elif small_model is True:
+            raise ValueError("small_model must be a model path, None (the default) or False")
         self.threshold = self.verifier.threshold if threshold is None else float(threshold)
         self.num_threads = num_threads
         #: Whether :meth:`detect` uses vehicle boxes (given, or found by its own vehicle detector).
@@ -746,9 +790,23 @@ class VerifiedLightDetector:
                 peer_colours=[p["colour"] for p in pool],
             )
             x = np.concatenate([x, ctx], axis=1)
+        small = np.zeros(len(props), bool)
+        if self.small is not None and self.small.applies_below_px is not None:
+            side = np.maximum(prop_boxes[:, 2] - prop_boxes[:, 0], prop_boxes[:, 3] - prop_boxes[:, 1])
+            small = side < self.small.applies_below_px
+        x_small = x[small]
         if self.verifier.appearance is not None:
             x = np.concatenate([x, self.verifier.appearance.transform(frame_bgr, prop_boxes)], axis=1)
         prob, offsets = self.verifier.score_and_offsets(x)
+        if self.small is not None and small.any():
+            if self.small.appearance is not None:
+                extra = self.small.appearance.transform(frame_bgr, prop_boxes[small])
+                x_small = np.concatenate([x_small, extra], axis=1)
+            prob = prob.copy()
+            prob[small] = self.small.score(x_small)
+            if offsets is not None:  # the small verifier's boxes stay as proposed
+                offsets = offsets.copy()
+                offsets[small] = 0.0
         sel = np.flatnonzero(prob >= self.threshold)
         if len(sel) == 0:
             return []
