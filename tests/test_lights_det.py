@@ -236,3 +236,20 @@ def test_cli_refuses_a_non_onnx_output_in_one_line(tmp_path: Path) -> None:
     assert result.exit_code == 2
     lines = [line for line in result.output.splitlines() if line.strip()]
     assert len(lines) == 1 and ".onnx" in lines[0]
+
+
+def test_cli_refuses_bad_verifier_scales_in_one_line(tmp_path: Path) -> None:
+    """``--scales`` and ``--small-below`` are checked before any work: one line, exit 2, no file."""
+    from typer.testing import CliRunner
+
+    from makeway.cli.main import app
+
+    out = tmp_path / "v.onnx"
+    for extra, words in (
+        (["--scales", "0,1"], "scales must lie in (0, 1]"),
+        (["--scales", "1,x"], "--scales must be numbers"),
+        (["--small-below", "-1"], "positive size"),
+    ):
+        r = CliRunner().invoke(app, ["lights-train", str(out), "--verifier", *extra], terminal_width=200)
+        assert r.exit_code == 2, r.output
+        assert words in r.output and not out.exists()

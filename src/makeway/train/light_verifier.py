@@ -706,6 +706,8 @@ def train_light_verifier(
         raise ValueError("appearance columns need the vehicle context and a count >= 0")
     if applies_below_px is not None and not applies_below_px > 0:
         raise ValueError(f"applies_below_px must be a positive size in pixels, got {applies_below_px}")
+    if not scales or any(not 0.0 < v <= 1.0 for v in scales):
+        raise ValueError(f"scales must lie in (0, 1], got {list(scales)}")
     t0 = time.perf_counter()
     vehicles = None
     if vehicle_context:
