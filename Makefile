@@ -11,7 +11,7 @@ TEST_WORKERS ?= 2
 
 .PHONY: venv demo test lint typecheck bench bench-sort bench-video bench-crops bench-detection bench-pull-over \
 	bench-siren-loop bench-audio bench-rig bench-v2x bench-fusion bench-roadside bench-lights bench-lights-flash bench-active-rule \
-	bench-rsu bench-fusion-ablation bench-mcap bench-engine bench-robust bench-speed bench-crossing bench-crossing-fresh bench-no-ev-2h bench-no-ev-urban-2h bench-range-loop bench-approach-pairing bench-seed003-timeline bench-faults bench-overload bench-overload-listener bench-range bench-bearing-range bench-far-range bench-far-loop bench-far-fused bench-clip-fusion bench-obstacle-links bench-framework-ab bench-cross-source-seeds bench-camera-figures bench-cameras-loop fuzz clean
+	bench-rsu bench-fusion-ablation bench-mcap bench-engine bench-robust bench-speed bench-crossing bench-crossing-fresh bench-no-ev-2h bench-no-ev-urban-2h bench-range-loop bench-approach-pairing bench-seed003-timeline bench-faults bench-overload bench-overload-listener bench-range bench-bearing-range bench-far-range bench-far-loop bench-far-fused bench-clip-fusion bench-obstacle-links bench-framework-ab bench-cross-source-seeds bench-camera-figures bench-cameras-loop bench-verifier-gate fuzz clean
 
 # `make demo` installs the runtime only; `make test` and the benchmarks add the dev extra (linters,
 # scikit-learn, XGBoost, torch for the training tests).
@@ -112,6 +112,10 @@ bench-lights: venv
 # how far the lights detectors see by day, carried over to the rig's fisheyes (the simulated cameras' figures)
 bench-camera-figures: venv
 	$(BIN)/python benchmarks/bench_camera_figures.py
+
+# how the small-lamp verifier's size gate was chosen (grouped CV and validation per gate; ~8 min)
+bench-verifier-gate: venv
+	$(BIN)/python benchmarks/bench_verifier_gate.py
 
 # the fused car with today's lights detector by day against seed 004's camera figures (seeds 0-3)
 bench-cameras-loop: venv
