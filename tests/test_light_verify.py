@@ -133,6 +133,17 @@ def test_bad_input(tmp_path: Path) -> None:
         LIGHT_DETECTORS["verified"](small_model=DEFAULT_VERIFIER_MODEL)
     with pytest.raises(InputError, match="not found"):
         LIGHT_DETECTORS["verified"](small_model=tmp_path / "missing.onnx")
+    import onnx
+
+    for bad in ("abc", "-3", "nan"):
+        m = onnx.load(str(DEFAULT_SMALL_VERIFIER_MODEL))
+        for prop in m.metadata_props:
+            if prop.key == "applies_below_px":
+                prop.value = bad
+        path = tmp_path / f"small_{bad}.onnx"
+        onnx.save(m, str(path))
+        with pytest.raises(InputError, match="applies_below_px"):
+            LightVerifier(path)
 
 
 def test_small_lamps_go_to_the_small_lamp_verifier(frames, tmp_path: Path) -> None:
