@@ -33,20 +33,16 @@ left out. Resolution, blur, compression and exposure of the two cameras are take
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import asdict, dataclass
 from itertools import pairwise
 from typing import Any, Protocol
 
 import numpy as np
 
-from makeway.eval.lights import match_frame, vehicle_regions
+from makeway.eval.lights import match_frame, run_detector, vehicle_regions
 
 __all__ = ["LitVehicleFrame", "lit_vehicle_frames", "recall_by_distance", "rig_equivalent_m"]
-
-
-class _Detector(Protocol):
-    def detect(self, frame_bgr: np.ndarray, frame: int = 0) -> list[Any]: ...
 
 
 class _Ray(Protocol):
@@ -91,41 +87,45 @@ def _lamp_distance(camera: _Ray, boxes: np.ndarray, lamp_height_m: float) -> flo
 
 def lit_vehicle_frames(
     frames: Iterable[tuple[str, str, np.ndarray, np.ndarray, Sequence[int]]],
-    detector: _Detector,
+    detector: Any,
     camera: _Ray,
     *,
     lamp_height_m: float = 2.4,
 ) -> list[LitVehicleFrame]:
     """Run ``detector`` once on each ``(source, key, BGR image, lamp boxes (n, 4) px, vehicle id per
-    box)`` frame and return one row per lit vehicle (module docstring); frames without a lamp box are
-    skipped. ``camera`` is the calibrated camera that took the frames (a ``RoadCamera``)."""
+    box)`` frame (:func:`makeway.eval.lights.run_detector`) and return one row per lit vehicle (module
+    docstring); frames without a lamp box are skipped. ``camera`` is the calibrated camera that took
+    the frames (a ``RoadCamera``)."""
     if not 0.0 < lamp_height_m < float(camera.position_m[2]):
         raise ValueError(
             "lamp_height_m must lie between the road and the camera "
             f"(0–{float(camera.position_m[2]):.2f} m), not {lamp_height_m:g}"
         )
+
+    def lit(
+        items: Iterable[tuple[str, str, np.ndarray, np.ndarray, Sequence[int]]],
+    ) -> Iterator[tuple[str, str, np.ndarray, np.ndarray, Sequence[int]]]:
+        for source, key, image, gt, vehicles in items:
+            g = np.asarray(gt, np.float64).reshape(-1, 4)
+            if len(g) and len(vehicles) != len(g):
+                raise ValueError(f"{source} frame {key}: {len(g)} lamp boxes but {len(vehicles)} vehicle ids")
+            if len(g):
+                yield source, key, image, g, vehicles
+
     out: list[LitVehicleFrame] = []
-    for source, key, image, gt, vehicles in frames:
-        g = np.asarray(gt, np.float64).reshape(-1, 4)
-        if len(g) == 0:
-            continue
-        if len(vehicles) != len(g):
-            raise ValueError(f"{source} frame {key}: {len(g)} lamp boxes but {len(vehicles)} vehicle ids")
-        dets = detector.detect(image, 0)
-        boxes = np.array([[d.box.x1, d.box.y1, d.box.x2, d.box.y2] for d in dets], np.float64).reshape(-1, 4)
-        scores = np.array([d.score for d in dets], np.float64)
-        match = match_frame(boxes, scores, g)
-        ids = np.asarray(list(vehicles))
-        regions = vehicle_regions(g, list(vehicles))
+    for res in run_detector(detector, lit(frames)):
+        source, key, g, boxes = res.source, res.key, res.gt_boxes, res.boxes
+        vehicles = list(res.gt_vehicles)
+        match = match_frame(boxes, res.scores, g)
+        ids = np.asarray(vehicles)
+        regions = vehicle_regions(g, vehicles)
         cx, cy = 0.5 * (boxes[:, 0] + boxes[:, 2]), 0.5 * (boxes[:, 1] + boxes[:, 3])
-        inside = np.zeros(len(boxes), bool)
-        for r in regions.values():
-            inside |= (cx >= r[0]) & (cx <= r[2]) & (cy >= r[1]) & (cy <= r[3])
-        others = int((~inside).sum())
-        for v, r in regions.items():
+        on = {v: (cx >= r[0]) & (cx <= r[2]) & (cy >= r[1]) & (cy <= r[3]) for v, r in regions.items()}
+        others = int((~np.logical_or.reduce([np.zeros(len(boxes), bool), *on.values()])).sum())
+        for v, hits in on.items():
             own = g[ids == v]
             strict = bool(np.any(np.isin(match[match >= 0], np.flatnonzero(ids == v))))
-            loose = bool(np.any((cx >= r[0]) & (cx <= r[2]) & (cy >= r[1]) & (cy <= r[3])))
+            loose = bool(hits.any())
             out.append(
                 LitVehicleFrame(
                     source=source,

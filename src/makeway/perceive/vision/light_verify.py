@@ -587,6 +587,13 @@ def nms(boxes: np.ndarray, scores: np.ndarray, iou: float = 0.3, inside: float =
     return np.array(keep, np.int64)
 
 
+def _same_patches(a: ProposalAppearance, b: ProposalAppearance) -> bool:
+    """Whether two appearance extractors feed the same patches through the same backbone layers
+    (their vectors are then interchangeable; only the fitted projections differ)."""
+    keys = ("backbone", "layers", "input_size", "context", "min_side_px")
+    return all(getattr(a, k) == getattr(b, k) for k in keys)
+
+
 class LightVerifier:
     """The stage-2 model: ONNX gradient-boosted trees scoring feature rows of
     :func:`verifier_features` as P(lit emergency light); ``threshold`` is the model's operating point
@@ -795,12 +802,20 @@ class VerifiedLightDetector:
             side = np.maximum(prop_boxes[:, 2] - prop_boxes[:, 0], prop_boxes[:, 3] - prop_boxes[:, 1])
             small = side < self.small.applies_below_px
         x_small = x[small]
-        if self.verifier.appearance is not None:
-            x = np.concatenate([x, self.verifier.appearance.transform(frame_bgr, prop_boxes)], axis=1)
+        main_app = self.verifier.appearance
+        raw = None
+        if main_app is not None:
+            raw = main_app.vectors(frame_bgr, prop_boxes)
+            x = np.concatenate([x, main_app.project(raw)], axis=1)
         prob, offsets = self.verifier.score_and_offsets(x)
         if self.small is not None and small.any():
-            if self.small.appearance is not None:
-                extra = self.small.appearance.transform(frame_bgr, prop_boxes[small])
+            small_app = self.small.appearance
+            if small_app is not None:
+                # the backbone's vectors are shared when both models cut the same patches
+                if raw is not None and main_app is not None and _same_patches(main_app, small_app):
+                    extra = small_app.project(raw[small])
+                else:
+                    extra = small_app.transform(frame_bgr, prop_boxes[small])
                 x_small = np.concatenate([x_small, extra], axis=1)
             prob = prob.copy()
             prob[small] = self.small.score(x_small)
