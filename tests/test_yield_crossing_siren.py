@@ -224,6 +224,72 @@ def test_collision_course_siren_with_compressed_distances_keeps_the_listeners_ca
     assert bel.approaching is True
 
 
+@pytest.mark.parametrize("veto", [True, False])
+def test_a_receding_siren_placed_by_compressed_distances_stays_receding_as_the_ego_speeds_up(
+    veto: bool,
+) -> None:
+    """An EV that overtook the car drives on ahead at 25 m/s, from 15 m to 265 m, while the car
+    starts again from a stop (0.8 m/s²). Beyond their reach the rangers report ~55 m falling to
+    ~45 m, so the track sits ahead at about that distance, slower than the car, and its range rate
+    reads "closing"; the listener calls the siren receding throughout. Placed by those distances
+    alone, the track must keep the listener's call (curve_behind, seed 4: the car yielded a second
+    time to the EV it had watched pass); with the veto turned off it reads approaching."""
+    rng = np.random.default_rng(5)
+    fusion = MultiEVFusion(keep_call_beyond_ranging=veto)
+    beliefs = []
+    for k in range(60):  # 10 s at 6 windows a second
+        t = k / 6.0
+        ego = VehicleState(t, 0.4 * t * t, 0.0, 0.0, 0.8 * t)
+        heard_m = 55.0 - 1.0 * t + 3.0 * rng.normal()
+        src = SirenSource(math.radians(2.0) * rng.normal(), heard_m, approaching=False)
+        beliefs = fusion.update(t, ego, [SirenObservation(t, True, 0.95, 0.95, (src,))])
+    assert len(beliefs) == 1
+    bel = beliefs[0]
+    assert bel.relation is EVRelation.AHEAD and bel.distance_m > 30.0
+    assert bel.approaching is (not veto)
+    # a light on the track (a range the cameras measured) gives the track's own range rate back
+    t = 10.0
+    lit = LightObservation(t, 0.0, math.radians(1.5), range_m=bel.distance_m - 0.5, range_sigma_m=5.0,
+                           probability=0.9)  # fmt: skip
+    src = SirenSource(0.0, 45.0, approaching=False)
+    beliefs = fusion.update(
+        t, VehicleState(t, 40.0, 0.0, 0.0, 8.0), [lit, SirenObservation(t, True, 0.95, 0.95, (src,))]
+    )
+    assert beliefs[0].sources == ("light", "siren") and beliefs[0].approaching is True
+
+
+@pytest.mark.parametrize("keep", [True, False])
+def test_an_ev_seen_driving_off_stays_receding_once_only_compressed_distances_place_it(keep: bool) -> None:
+    """An EV overtakes the stopped car at 20 m/s; siren and lights (with a range) place it well up
+    to 25 m ahead, receding. From there only the siren places it: its distances saturate near 50 m
+    and fall as the car starts again (0.8 m/s² from 4 s), and from 8 s the listener's distance
+    trend, fooled by the same readings, calls it approaching (curve_behind, seed 8). The call made
+    while the track was last placed well (receding) must stand over 12 s; without that rule the
+    track reads approaching."""
+    rng = np.random.default_rng(11)
+    fusion = MultiEVFusion(keep_call_beyond_ranging=keep)
+    calls = set()
+    for k in range(73):  # 12 s at 6 windows a second
+        t = k / 6.0
+        ego_v = 0.0 if t < 4.0 else 0.8 * (t - 4.0)
+        ego_x = 0.0 if t < 4.0 else 0.4 * (t - 4.0) ** 2
+        true_d = -15.0 + 20.0 * t - ego_x  # the EV ahead (> 0) or behind (< 0) of the car, m
+        bearing = (0.0 if true_d > 0 else math.pi) + math.radians(2.0) * rng.normal()
+        obs: list = []
+        if abs(true_d) < 25.0:
+            ranged = abs(true_d) * (1 + 0.1 * rng.normal())
+            sigma = 0.1 * abs(true_d) + 1.0
+            obs.append(LightObservation(t, bearing, math.radians(1.5), ranged, sigma, probability=0.9))
+        heard_m = min(abs(true_d), 50.0 - 1.5 * ego_v) * (1 + 0.05 * rng.normal())
+        src = SirenSource(bearing, heard_m, approaching=true_d < 0 or t > 8.0)
+        obs.append(SirenObservation(t, True, 0.95, 0.95, (src,)))
+        beliefs = fusion.update(t, VehicleState(t, ego_x, 0.0, 0.0, ego_v), obs)
+        if t >= 3.0:
+            assert len(beliefs) == 1 and beliefs[0].sources == ("siren",)
+            calls.add(beliefs[0].approaching)
+    assert calls == ({False} if keep else {False, True})
+
+
 def test_siren_and_light_on_one_bearing_confirm_in_three_scans_clutter_does_not() -> None:
     """A siren heard and its lights seen on one bearing, 45 m behind, confirm a track in 4 scans in a
     row (one sense alone needs 7); a false light per second (60 times the closed loop's rate) and a

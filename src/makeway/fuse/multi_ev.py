@@ -63,25 +63,33 @@ Mahalanobis test alone would merge into it the track of an EV whose lights were 
 behind (seed003, seed 7: the EV's track was lost that way and confirmed 0.8 s late).
 
 **Belief** per confirmed track, in the ego's vehicle frame: position, distance and bearing (position
-and distance NaN while the range is unknown: radial standard deviation above ``placed_sigma_frac`` of
-the distance); relation (:func:`~makeway.fuse.relation.classify_relation`) once the speed is known to
-``max_speed_sigma_mps`` and above ``min_speed_mps``, else ``UNKNOWN``; approaching from the range rate
-when that relation is a road's (behind, ahead, oncoming, crossing), else the listener's last call (a
-track placed where no road relation fits moves as no vehicle on a road does — typically a siren
-whose distances beyond the rangers' reach were compressed, which makes a crossing EV on a collision
-course look like one pacing the ego — so its range rate is not trusted either); ``sources`` — the
-senses that supported the track within
-``sense_hold_s``; ``confidence`` the noisy-OR ``1 − Π(1 − p_s)`` over those senses, ``p_s`` the last
-detector probability of sense ``s`` (the listener's smoothed probability, the light detector's,
-``v2x_confidence`` for a verified alert), each scaled by the share of its sensor's channels the
-perception stage trusted. **Sensor health**: the latest :class:`~makeway.messages.SensorHealth` of
-each sensor — a siren observation's ``health`` (the microphone array), or one handed in on its
-own, such as a vision frame's ``PerceptionFrame.health`` (a frozen or blacked-out camera) — scales
-its sense (:data:`SENSE_OF_SENSOR`) and is named in every belief's ``sensor_faults``
+and distance NaN while the range is unknown: radial standard deviation above ``placed_sigma_frac``
+of the distance); relation (:func:`~makeway.fuse.relation.classify_relation`) once the speed is
+known to ``max_speed_sigma_mps`` and above ``min_speed_mps``, else ``UNKNOWN``; approaching from the
+range rate when that relation is a road's (behind, ahead, oncoming, crossing), else the listener's
+last call (a track placed where no road relation fits moves as no vehicle on a road does — typically
+a siren whose distances beyond the rangers' reach were compressed, which makes a crossing EV on a
+collision course look like one pacing the ego — so its range rate is not trusted either). **Beyond
+the rangers' reach** (``keep_call_beyond_ranging``, on by default): while the siren alone supports a
+track placed ``siren_compressed_from_m`` or more away, it is receding if its range rate called it
+receding when it was last placed well (a light, V2X, or a siren nearer than that), or if the
+listener calls it receding, whatever its range rate says now. Placed by compressed distances, an EV
+driving away sits too near with too low a speed, so the ego's own speed reads as closing, and the
+listener's distance trend, fed the same readings, may call it approaching too (``curve_behind``,
+seeds 4 and 8: the car, starting again after the EV had overtaken it, yielded a second time to it).
+An approaching call is not kept: an EV seen approaching may pass the car and drive off. ``sources``
+— the senses that supported the track within ``sense_hold_s``; ``confidence`` the noisy-OR
+``1 − Π(1 − p_s)`` over those senses, ``p_s`` the last detector probability of sense ``s`` (the
+listener's smoothed probability, the light detector's, ``v2x_confidence`` for a verified alert),
+each scaled by the share of its sensor's channels the perception stage trusted. **Sensor health**:
+the latest :class:`~makeway.messages.SensorHealth` of each sensor — a siren observation's ``health``
+(the microphone array), or one handed in on its own, such as a vision frame's
+``PerceptionFrame.health`` (a frozen or blacked-out camera) — scales its sense
+(:data:`SENSE_OF_SENSOR`) and is named in every belief's ``sensor_faults``
 (:meth:`~makeway.messages.SensorHealth.faults`) until the sensor reports itself healthy again.
-:meth:`MultiEVFusion.most_urgent` picks the most urgent
-belief (what :meth:`~makeway.fuse.source.BeliefSource.update` publishes); the yield decision reads
-every track's (:meth:`FusedBeliefSource.beliefs`).
+:meth:`MultiEVFusion.most_urgent` picks the most urgent belief (what
+:meth:`~makeway.fuse.source.BeliefSource.update` publishes); the yield decision reads every track's
+(:meth:`FusedBeliefSource.beliefs`).
 """
 
 from __future__ import annotations
@@ -185,6 +193,7 @@ class EVTrack:
     sense_time_s: dict[str, float] = field(default_factory=dict)  # last support per sense
     sense_probability: dict[str, float] = field(default_factory=dict)
     siren_approaching: bool | None = None
+    placed_receding: bool = False  # the range rate called it receding while last placed well
     v2x_siren: bool = False
     v2x_lights: bool = False
     streak: int = 0  # scans in a row that supported the track
@@ -224,6 +233,7 @@ class MultiEVFusion:
         min_speed_mps: float = 3.0,
         max_speed_sigma_mps: float = 4.0,
         v2x_confidence: float = 0.99,
+        keep_call_beyond_ranging: bool = True,
     ) -> None:
         noises = (
             accel_noise_mps2,
@@ -267,6 +277,7 @@ class MultiEVFusion:
         self.min_speed_mps = min_speed_mps
         self.max_speed_sigma_mps = max_speed_sigma_mps
         self.v2x_confidence = v2x_confidence
+        self.keep_call_beyond_ranging = keep_call_beyond_ranging
         self.reset()
 
     def reset(self) -> MultiEVFusion:
@@ -534,6 +545,7 @@ class MultiEVFusion:
         moving = math.hypot(vx, vy) >= self.min_speed_mps and speed_sigma <= self.max_speed_sigma_mps
         relation = EVRelation.UNKNOWN
         approaching = t.siren_approaching
+        by_motion = False
         if placed and moving:
             relation = classify_relation(rel_x, rel_y, math.atan2(vy, vx) - ego.yaw_rad)
             # placed where no road relation fits, the track's motion is not to be trusted (a
@@ -542,7 +554,23 @@ class MultiEVFusion:
                 c, s = math.cos(ego.yaw_rad), math.sin(ego.yaw_rad)
                 evx, evy = ego.vx_mps * c - ego.vy_mps * s, ego.vx_mps * s + ego.vy_mps * c
                 approaching = float(los @ np.array([vx - evx, vy - evy])) < 0.0
+                by_motion = True
         senses = t.senses(time_s, self.sense_hold_s)
+        compressed = senses == (SIREN,) and dist >= self.siren_compressed_from_m
+        if senses and not compressed:
+            if by_motion:
+                t.placed_receding = approaching is False
+        elif (
+            compressed
+            and self.keep_call_beyond_ranging
+            and approaching is not False
+            and (t.placed_receding or (approaching is True and t.siren_approaching is False))
+        ):
+            # placed by compressed siren distances alone, an EV that drove off sits too near with
+            # too low a speed, and the ego's own speed then reads as closing (so may the listener's
+            # distance trend): a receding call made while the track was last placed well, or the
+            # listener's considered receding call, outweighs the range rate
+            approaching = False
         miss = 1.0
         for s_ in senses:
             miss *= 1.0 - min(max(t.sense_probability.get(s_, 0.0), 0.0), 1.0) * self._trust(s_)
