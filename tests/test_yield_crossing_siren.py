@@ -224,18 +224,18 @@ def test_collision_course_siren_with_compressed_distances_keeps_the_listeners_ca
     assert bel.approaching is True
 
 
-@pytest.mark.parametrize("veto", [True, False])
+@pytest.mark.parametrize("rule", [True, False])
 def test_a_receding_siren_placed_by_compressed_distances_stays_receding_as_the_ego_speeds_up(
-    veto: bool,
+    rule: bool,
 ) -> None:
     """An EV that overtook the car drives on ahead at 25 m/s, from 15 m to 265 m, while the car
     starts again from a stop (0.8 m/s²). Beyond their reach the rangers report ~55 m falling to
     ~45 m, so the track sits ahead at about that distance, slower than the car, and its range rate
     reads "closing"; the listener calls the siren receding throughout. Placed by those distances
     alone, the track must keep the listener's call (curve_behind, seed 4: the car yielded a second
-    time to the EV it had watched pass); with the veto turned off it reads approaching."""
+    time to the EV it had watched pass); with the rule turned off it reads approaching."""
     rng = np.random.default_rng(5)
-    fusion = MultiEVFusion(keep_call_beyond_ranging=veto)
+    fusion = MultiEVFusion(keep_call_beyond_ranging=rule)
     beliefs = []
     for k in range(60):  # 10 s at 6 windows a second
         t = k / 6.0
@@ -246,7 +246,7 @@ def test_a_receding_siren_placed_by_compressed_distances_stays_receding_as_the_e
     assert len(beliefs) == 1
     bel = beliefs[0]
     assert bel.relation is EVRelation.AHEAD and bel.distance_m > 30.0
-    assert bel.approaching is (not veto)
+    assert bel.approaching is (not rule)
     # a light on the track (a range the cameras measured) gives the track's own range rate back
     t = 10.0
     lit = LightObservation(t, 0.0, math.radians(1.5), range_m=bel.distance_m - 0.5, range_sigma_m=5.0,
