@@ -238,6 +238,34 @@ def test_gate_rejects_an_observation_5_sigma_away(n_sigma: float, accepted: bool
     assert len(fusion.tracks) == (1 if accepted else 2)
 
 
+@pytest.mark.parametrize("max_sigma_deg", [60.0, 180.0])
+def test_a_bearing_alone_does_not_join_a_track_whose_bearing_is_unknown(max_sigma_deg: float) -> None:
+    """A confirmed siren track placed 7 m behind the car with a 9 m spread (its bearing from the car
+    is unknown: σ ≈ 73°) and a light with no range 150° away from it, ahead (a brake light passing the
+    flash check, say). The linearised gate's innovation variance is so wide that the light would fall
+    inside it and drag the track ahead of the car; with the bearing test (default 60°) the light
+    starts a track of its own instead. Off (180°), the old behaviour: the light joins the track."""
+    ev = EV(-40.0, 0.0, 0.0, 15.0)
+    rng = np.random.default_rng(31)
+    fusion = MultiEVFusion(bearing_only_max_sigma_deg=max_sigma_deg)
+    for k in range(20):
+        t = k * DT
+        fusion.update(t, ego_at(t), [siren(ev, t, rng)])
+    assert len(fusion.tracks) == 1 and fusion.tracks[0].confirmed
+    t = 20 * DT
+    e = ego_at(t)
+    fusion.state_[0] = [e.x_m - 7.0, 1.0, 15.0, 0.0]
+    fusion.cov_[0] = np.diag([81.0, 81.0, 4.0, 4.0])
+    fusion.update(t, e, [LightObservation(t, math.radians(20.0), azimuth_sigma_rad=LIGHT_SIGMA)])
+    joined = "light" in fusion.tracks[0].sense_time_s
+    assert joined is (max_sigma_deg >= 180.0)
+    assert len(fusion.tracks) == (1 if joined else 2)
+    if joined:  # pulled to the light's side of the car
+        assert fusion.state_[0, 0] > e.x_m - 7.0 + 0.5 * 15.0 * DT
+    with pytest.raises(ValueError, match="bearing_only_max_sigma_deg"):
+        MultiEVFusion(bearing_only_max_sigma_deg=0.0)
+
+
 def test_five_tracks_three_senses_each_found_once() -> None:
     """Five EVs around the car (behind, ahead, oncoming, two on crossing roads), each heard, seen
     and announced, 10 Hz for 3 s: five confirmed tracks, one per EV, each within 3 m, each

@@ -290,6 +290,35 @@ def test_ahead_ev_that_pulls_away_after_overtaking_is_passed() -> None:
     drive.until(S.EV_PASSED, lambda t: ev(t, R.AHEAD, 15.0, False), limit_s=0.2)
 
 
+def test_an_ev_never_near_reading_ahead_and_pulling_away_is_not_passed_at_once() -> None:
+    # an oncoming EV's siren beyond the rangers' reach: placed ~50 m ahead whatever its true distance,
+    # so while the car closes on it the track reads "ahead, pulling away" (oncoming seed 12)
+    hold, gain = YieldConfig().far_passed_hold_s, YieldConfig().far_passed_gain_m
+    drive = Drive()
+    drive.until(S.STOPPED_WAITING, lambda t: ev(t, R.UNKNOWN, 50.0, True, rel_x=50.0))
+    far = lambda t: ev(t, R.AHEAD, 50.0, False)  # noqa: E731
+    drive.run(hold - 1.0, far)
+    assert drive.fsm.state is S.STOPPED_WAITING  # never near: not taken for an EV that overtook us
+    # the compressed distances wander by less than the gain: still not passed
+    drive.run(0.5, lambda t: ev(t, R.AHEAD, 50.0 + 0.8 * gain, False))
+    assert drive.fsm.state is S.STOPPED_WAITING
+    # it comes on, goes by, and is passed by the oncoming rule
+    drive.run(1.0, lambda t: ev(t, R.ONCOMING, 20.0, True))
+    drive.until(S.EV_PASSED, lambda t: ev(t, R.ONCOMING, 15.0, False), limit_s=0.2)
+    # an EV ahead that really drives off is let go after the hold, if it never came near
+    drive = Drive()
+    drive.until(S.STOPPED_WAITING, lambda t: ev(t, R.UNKNOWN, 50.0, True, rel_x=50.0))
+    start = drive.t
+    drive.until(S.EV_PASSED, far, limit_s=hold + 0.2)
+    assert drive.t - start >= hold - DT and "pulling away for" in drive.fsm.history[-1][3]
+    # … or at once when it is seen to drive off: its distance grows by the gain
+    drive = Drive()
+    drive.until(S.STOPPED_WAITING, lambda t: ev(t, R.UNKNOWN, 35.0, True, rel_x=35.0))
+    start = drive.t
+    drive.until(S.EV_PASSED, lambda t: ev(t, R.AHEAD, 35.0 + 20.0 * (t - start), False), limit_s=2.0)
+    assert drive.t - start <= gain / 20.0 + 2 * DT and "m farther than" in drive.fsm.history[-1][3]
+
+
 def test_ev_passing_before_we_stop_still_completes_the_stop() -> None:
     drive = Drive()
     drive.until(S.MOVING_OVER, lambda t: ev(t, R.BEHIND, 20.0, True))

@@ -149,7 +149,12 @@ never faster than now (except creeping up to the stop point), zero at the stop p
 **Leaving the yield** (STOPPED_WAITING → EV_PASSED), first rule that holds:
 
 1. the EV has gone by: AHEAD and more than ``passed_margin_m`` ahead and receding (an EV from
-   behind overtook us); ONCOMING and receding; BEHIND, receding, more than ``passed_margin_m``
+   behind overtook us; a track never placed behind the car nor within ``close_distance_m`` of it
+   must also have got ``far_passed_gain_m`` farther since it first read so, or read so for
+   ``far_passed_hold_s`` in a row: a siren beyond the rangers' reach is placed 45–60 m away
+   whatever its distance, so an oncoming EV still far ahead reads as pulling away while the car
+   closes on it);
+   ONCOMING and receding; BEHIND, receding, more than ``passed_margin_m``
    behind after its track was seen more than ``passed_margin_m`` ahead (an oncoming EV went by; seen
    while another EV was followed counts too), or was first placed less than ``abeam_m`` behind
    the car (a track that fusion starts anew as the EV passes close beside the car, where its
@@ -229,6 +234,11 @@ class YieldConfig:
         passed_margin_m: an EV that went by must be this far ahead (or behind) and receding.
         abeam_m: a track first placed less than this far behind the car (level with it, or ahead)
             counts as one that came from level or ahead: once behind and receding it has gone by.
+        far_passed_gain_m: an EV ahead and receding whose track was never placed behind the car
+            nor within ``close_distance_m`` of it counts as passed only once its distance has
+            grown by this much since it first read so (it may be an oncoming EV whose siren is
+            placed too near: such a track stays within the siren rangers' 45–60 m) …
+        far_passed_hold_s: … or after reading so for this long without a break.
         resume_speed_mps: the speed to get back to (default ``None``: the road's speed limit).
         resumed_speed_fraction: RESUMING ends at this fraction of the resume speed.
         resume_timeout_s: RESUMING ends at the latest after this long.
@@ -302,6 +312,8 @@ class YieldConfig:
     close_distance_m: float = 30.0
     passed_margin_m: float = 10.0
     abeam_m: float = 5.0
+    far_passed_gain_m: float = 20.0
+    far_passed_hold_s: float = 6.0
     resumed_speed_fraction: float = 0.9
     resume_timeout_s: float = 20.0
     comfort_decel_mps2: float = 3.0
@@ -585,6 +597,11 @@ class YieldStateMachine:
         self._ahead_tracks: set[int] = set()  # tracks seen more than passed_margin_m ahead, or first
         # placed less than abeam_m behind the car
         self._placed_tracks: set[int] = set()  # tracks placed (a finite rel_x) at least once
+        # tracks placed behind the car or within close_distance_m at least once (``None``: beliefs
+        # without a track id, forgotten when the car is back to NO_EV)
+        self._near_tracks: set[int | None] = set()
+        self._far_receding_since: float | None = None  # followed EV ahead and receding since …
+        self._far_receding_min_m = math.inf  # … and its least distance since (m)
         self._road_s = 0.0  # the ego's arc length and the map's intersections, this period
         self._boxes: tuple[tuple[float, float], ...] = ()
         self._ego_v = 0.0  # the ego's speed (m/s) and deceleration (m/s², >= 0), this period
@@ -628,10 +645,16 @@ class YieldStateMachine:
                 self._placed_tracks.add(b.track_id)
                 if rel_x > self.config.passed_margin_m or (first and rel_x > -self.config.abeam_m):
                     self._ahead_tracks.add(b.track_id)
+            near = _finite(rel_x) and (
+                rel_x < -self.config.passed_margin_m or _distance(b) <= self.config.close_distance_m
+            )
+            if b.detected and near:
+                self._near_tracks.add(b.track_id)
         if len(self._placed_tracks) > 64:  # forget tracks long gone
             live = {b.track_id for b in beliefs if b.track_id is not None}
             self._ahead_tracks &= live
             self._placed_tracks &= live
+            self._near_tracks &= live
         if len(self._lights_seen) > 64:  # forget tracks long gone
             memory = self.config.duty.lights_memory_s
             latest = max(self._lights_seen.values())
@@ -768,7 +791,7 @@ class YieldStateMachine:
         seen = bool(b.detected) and conf >= cfg.release_confidence
         self._seen_now = seen
         if not seen:
-            self._run_since = self._yield_run_since = None
+            self._run_since = self._yield_run_since = self._far_receding_since = None
             self._corroborated = False
             return
         if self._belief is not None and b.track_id != self._belief.track_id:
@@ -776,6 +799,7 @@ class YieldStateMachine:
             # (but whether this EV's own track was seen ahead, while another was followed, does)
             self._last_distance = math.nan
             self._ev_was_ahead = b.track_id in self._ahead_tracks
+            self._far_receding_since = None
         self._duty = self._duty_for(b)
         dist = _distance(b)
         approach = b.approaching
@@ -791,6 +815,18 @@ class YieldStateMachine:
         rel_x = _rel_x(b)
         if _finite(rel_x) and rel_x > cfg.passed_margin_m:
             self._ev_was_ahead = True
+        far_receding = (
+            b.relation is EVRelation.AHEAD
+            and approach is False
+            and b.track_id not in self._near_tracks
+            and not (_finite(rel_x) and rel_x <= cfg.passed_margin_m)
+        )
+        if not far_receding:
+            self._far_receding_since = None
+        elif self._far_receding_since is None:
+            self._far_receding_since, self._far_receding_min_m = now, dist if _finite(dist) else math.inf
+        elif _finite(dist):
+            self._far_receding_min_m = min(self._far_receding_min_m, dist)
         relevant = self._relevant(b)
         signals = b.lights or b.siren or not cfg.signals_required
         active = relevant and signals and self._duty != "ignore"
@@ -837,7 +873,20 @@ class YieldStateMachine:
             r = b.relation
             gap = f" {abs(rel_x):.0f} m" if _finite(rel_x) else ""
             if r is EVRelation.AHEAD and not (_finite(rel_x) and rel_x <= cfg.passed_margin_m):
-                return f"the emergency vehicle is{gap} ahead and pulling away: it has passed"
+                if b.track_id in self._near_tracks:
+                    return f"the emergency vehicle is{gap} ahead and pulling away: it has passed"
+                since = self._far_receding_since
+                gain = _distance(b) - self._far_receding_min_m
+                if since is not None and _finite(gain) and gain >= cfg.far_passed_gain_m - _EPS:
+                    return (
+                        f"the emergency vehicle is{gap} ahead and pulling away, {gain:.0f} m farther "
+                        f"than {now - since:.1f} s ago: it has passed"
+                    )
+                if since is not None and now - since >= cfg.far_passed_hold_s - _EPS:
+                    return (
+                        f"the emergency vehicle is{gap} ahead and has been pulling away for "
+                        f"{now - since:.1f} s: it has passed"
+                    )
             if r is EVRelation.ONCOMING:
                 return "the oncoming emergency vehicle is moving away: it has gone by"
             if (
@@ -884,6 +933,8 @@ class YieldStateMachine:
         if to is YieldState.MOVING_OVER:
             self._stopped_since = None
             self._passed_note = None
+        if to is YieldState.NO_EV:
+            self._near_tracks.discard(None)  # the EV without a track id is gone
 
     def _step(self, now: float, ego: VehicleState, road: RoadContext) -> None:
         cfg = self.config

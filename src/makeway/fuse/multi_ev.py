@@ -60,7 +60,14 @@ standard deviations (each track's bearing σ from its position covariance across
 become the older one. The bearing test keeps a stale track from swallowing a new EV: a false light
 ahead, unsupported for a second and a half, has a position σ of 50 m or more, and a 4-d.o.f.
 Mahalanobis test alone would merge into it the track of an EV whose lights were just seen 50 m
-behind (seed003, seed 7: the EV's track was lost that way and confirmed 0.8 s late).
+behind (seed003, seed 7: the EV's track was lost that way and confirmed 0.8 s late). **A bearing
+alone** (a light with no range, a siren with no distance) is neither gated against a track whose own
+bearing from the car is unknown, nor is such a track merged with another: unknown means a bearing σ
+(the position's spread across the line of sight over its distance) above
+``bearing_only_max_sigma_deg``, 60° by default, as for a track a few metres from the car with a
+spread of several metres. The linearised gate of such a track takes a light from any direction, and
+the update drags the track to it (``two_evs`` seed 11 with today's lights detector: a false light
+ahead joined a stray siren track 7 m behind the car and made it "EV ahead, 1 m away, approaching").
 
 **Belief** per confirmed track, in the ego's vehicle frame: position, distance and bearing (position
 and distance NaN while the range is unknown: radial standard deviation above ``placed_sigma_frac``
@@ -234,6 +241,7 @@ class MultiEVFusion:
         max_speed_sigma_mps: float = 4.0,
         v2x_confidence: float = 0.99,
         keep_call_beyond_ranging: bool = True,
+        bearing_only_max_sigma_deg: float = 60.0,
     ) -> None:
         noises = (
             accel_noise_mps2,
@@ -253,6 +261,10 @@ class MultiEVFusion:
             raise ValueError(
                 "0 < gate_prob <= birth_gate_prob < 1, 1 <= confirm_senses_m <= confirm_m <= confirm_n, "
                 "lost_after_s > 0"
+            )
+        if not 0.0 < bearing_only_max_sigma_deg <= 180.0:
+            raise ValueError(
+                f"bearing_only_max_sigma_deg must be in (0, 180], not {bearing_only_max_sigma_deg}"
             )
         self.accel_noise_mps2 = accel_noise_mps2
         self.siren_bearing_sigma_rad = math.radians(siren_bearing_sigma_deg)
@@ -278,6 +290,7 @@ class MultiEVFusion:
         self.max_speed_sigma_mps = max_speed_sigma_mps
         self.v2x_confidence = v2x_confidence
         self.keep_call_beyond_ranging = keep_call_beyond_ranging
+        self.bearing_only_max_sigma_rad = math.radians(bearing_only_max_sigma_deg)
         self.reset()
 
     def reset(self) -> MultiEVFusion:
@@ -428,6 +441,11 @@ class MultiEVFusion:
                 if kind != 4:
                     nu[..., 0] = _wrap(nu[..., 0])
                 d2 = np.einsum("toi,toi->to", nu, np.linalg.solve(s, nu[..., None])[..., 0])
+                if kind == 1:
+                    # a bearing alone cannot test (nor correct) a track whose own bearing is unknown
+                    # (one placed a few metres from the car with a spread of several metres): the
+                    # linearised gate would take a light from any direction
+                    d2[self._bearing_sigma(ego) > self.bearing_only_max_sigma_rad] = np.inf
                 inside = d2 <= self.gate_chi2[kind]
                 nll2 = d2 + np.linalg.slogdet(s)[1] + kind * math.log(2.0 * math.pi)
                 cost[:, cols] = np.where(inside, nll2, _BARRED)
@@ -490,6 +508,14 @@ class MultiEVFusion:
         self.state_ = np.vstack([self.state_, state[None]])
         self.cov_ = np.concatenate([self.cov_, cov[None]])
 
+    def _bearing_sigma(self, ego: VehicleState) -> np.ndarray:
+        """Every track's bearing standard deviation seen from the ego (rad), ``(T,)``."""
+        dx, dy = self.state_[:, 0] - ego.x_m, self.state_[:, 1] - ego.y_m
+        r = np.maximum(np.hypot(dx, dy), 1.0)
+        across = np.stack([-dy, dx], axis=1) / r[:, None]
+        var = np.einsum("ti,tij,tj->t", across, self.cov_[:, :2, :2], across)
+        return np.sqrt(np.maximum(var, 0.0)) / r
+
     def _bearing(self, i: int, ego: VehicleState) -> tuple[float, float]:
         """Track ``i``'s bearing from the ego (world frame, rad) and its standard deviation (rad)."""
         dx, dy = float(self.state_[i, 0]) - ego.x_m, float(self.state_[i, 1]) - ego.y_m
@@ -498,9 +524,12 @@ class MultiEVFusion:
         return math.atan2(dy, dx), math.sqrt(float(across @ self.cov_[i, :2, :2] @ across)) / r
 
     def _same_bearing(self, a: int, b: int, ego: VehicleState) -> bool:
-        """Whether tracks ``a`` and ``b`` are seen on one bearing (within ``merge_bearing_sigmas``)."""
+        """Whether tracks ``a`` and ``b`` are seen on one bearing (within ``merge_bearing_sigmas``);
+        never when either's bearing is unknown (σ above ``bearing_only_max_sigma_deg``)."""
         ta, sa = self._bearing(a, ego)
         tb, sb = self._bearing(b, ego)
+        if max(sa, sb) > self.bearing_only_max_sigma_rad:
+            return False
         gap = abs(math.atan2(math.sin(ta - tb), math.cos(ta - tb)))
         return gap <= self.merge_bearing_sigmas * math.hypot(sa, sb)
 
