@@ -816,10 +816,7 @@ class YieldStateMachine:
         if _finite(rel_x) and rel_x > cfg.passed_margin_m:
             self._ev_was_ahead = True
         far_receding = (
-            b.relation is EVRelation.AHEAD
-            and approach is False
-            and b.track_id not in self._near_tracks
-            and not (_finite(rel_x) and rel_x <= cfg.passed_margin_m)
+            approach is False and self._ahead_past_margin(b) and b.track_id not in self._near_tracks
         )
         if not far_receding:
             self._far_receding_since = None
@@ -864,6 +861,12 @@ class YieldStateMachine:
             return f"no lights or siren (or out of range) for {inactive:.1f} s"
         return None
 
+    def _ahead_past_margin(self, b: EVBelief) -> bool:
+        """``b`` is AHEAD and not known to be within ``passed_margin_m`` ahead."""
+        rel_x = _rel_x(b)
+        near = _finite(rel_x) and rel_x <= self.config.passed_margin_m
+        return b.relation is EVRelation.AHEAD and not near
+
     def _passed_reason(self, now: float) -> str | None:
         """Why the EV has passed (rules 1–3 of the module docstring), or ``None``."""
         cfg = self.config
@@ -872,7 +875,7 @@ class YieldStateMachine:
             rel_x = _rel_x(b)
             r = b.relation
             gap = f" {abs(rel_x):.0f} m" if _finite(rel_x) else ""
-            if r is EVRelation.AHEAD and not (_finite(rel_x) and rel_x <= cfg.passed_margin_m):
+            if self._ahead_past_margin(b):
                 if b.track_id in self._near_tracks:
                     return f"the emergency vehicle is{gap} ahead and pulling away: it has passed"
                 since = self._far_receding_since

@@ -66,8 +66,8 @@ bearing from the car is unknown, nor is such a track merged with another: unknow
 (the position's spread across the line of sight over its distance) above
 ``bearing_only_max_sigma_deg``, 60° by default, as for a track a few metres from the car with a
 spread of several metres. The linearised gate of such a track takes a light from any direction, and
-the update drags the track to it (``two_evs`` seed 11 with today's lights detector: a false light
-ahead joined a stray siren track 7 m behind the car and made it "EV ahead, 1 m away, approaching").
+the update drags the track to it: a false light ahead would turn a stray siren track just behind the
+car into "EV ahead, 1 m away, approaching".
 
 **Belief** per confirmed track, in the ego's vehicle frame: position, distance and bearing (position
 and distance NaN while the range is unknown: radial standard deviation above ``placed_sigma_frac``
@@ -82,8 +82,8 @@ track placed ``siren_compressed_from_m`` or more away, it is receding if its ran
 receding when it was last placed well (a light, V2X, or a siren nearer than that), or if the
 listener calls it receding, whatever its range rate says now. Placed by compressed distances, an EV
 driving away sits too near with too low a speed, so the ego's own speed reads as closing, and the
-listener's distance trend, fed the same readings, may call it approaching too (``curve_behind``,
-seeds 4 and 8: the car, starting again after the EV had overtaken it, yielded a second time to it).
+listener's distance trend, fed the same readings, may call it approaching too (a car starting again
+after an EV overtook it would yield to it a second time).
 An approaching call is not kept: an EV seen approaching may pass the car and drive off. ``sources``
 — the senses that supported the track within ``sense_hold_s``; ``confidence`` the noisy-OR
 ``1 − Π(1 − p_s)`` over those senses, ``p_s`` the last detector probability of sense ``s`` (the
@@ -508,20 +508,19 @@ class MultiEVFusion:
         self.state_ = np.vstack([self.state_, state[None]])
         self.cov_ = np.concatenate([self.cov_, cov[None]])
 
-    def _bearing_sigma(self, ego: VehicleState) -> np.ndarray:
-        """Every track's bearing standard deviation seen from the ego (rad), ``(T,)``."""
-        dx, dy = self.state_[:, 0] - ego.x_m, self.state_[:, 1] - ego.y_m
+    def _bearing_sigma(self, ego: VehicleState, rows: slice | list[int] = slice(None)) -> np.ndarray:
+        """The bearing standard deviation (rad) seen from the ego of the tracks ``rows`` (default
+        all): the position's spread across the line of sight over the distance."""
+        dx, dy = self.state_[rows, 0] - ego.x_m, self.state_[rows, 1] - ego.y_m
         r = np.maximum(np.hypot(dx, dy), 1.0)
         across = np.stack([-dy, dx], axis=1) / r[:, None]
-        var = np.einsum("ti,tij,tj->t", across, self.cov_[:, :2, :2], across)
+        var = np.einsum("ti,tij,tj->t", across, self.cov_[rows, :2, :2], across)
         return np.sqrt(np.maximum(var, 0.0)) / r
 
     def _bearing(self, i: int, ego: VehicleState) -> tuple[float, float]:
         """Track ``i``'s bearing from the ego (world frame, rad) and its standard deviation (rad)."""
         dx, dy = float(self.state_[i, 0]) - ego.x_m, float(self.state_[i, 1]) - ego.y_m
-        r = max(math.hypot(dx, dy), 1.0)
-        across = np.array([-dy, dx]) / r
-        return math.atan2(dy, dx), math.sqrt(float(across @ self.cov_[i, :2, :2] @ across)) / r
+        return math.atan2(dy, dx), float(self._bearing_sigma(ego, [i])[0])
 
     def _same_bearing(self, a: int, b: int, ego: VehicleState) -> bool:
         """Whether tracks ``a`` and ``b`` are seen on one bearing (within ``merge_bearing_sigmas``);
