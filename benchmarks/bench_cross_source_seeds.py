@@ -6,9 +6,10 @@ one held out) run for one recipe with several seeds, with and without quality ma
 (:mod:`makeway.train.crop_quality`: each source's EV crops made as soft as its other vehicles,
 since in road photos and video the EV is usually the sharpest vehicle). For every variant it
 prints each seed's accuracy per held-out source and its worst source, the mean and spread over
-seeds, and the **seed bag** — the mean of the seeds' probabilities, one classifier costing as many
-runs — beside the target (worst held-out source ≥ 0.90) and the anchor, the shipped `default`
-head's worst source.
+seeds, the **seed bag** — the mean of the seeds' probabilities, one classifier costing as many
+runs — and, for ``effnet_ft``, the **soup** — one network whose fine-tuned tail is the mean of the
+seeds' (:func:`makeway.train.effnet.soup_deltas`), costing one run — beside the target (worst
+held-out source ≥ 0.90) and the anchor, the shipped `default` head's worst source.
 
     .venv/bin/python benchmarks/bench_cross_source_seeds.py [--trainer effnet_ft|head] [--seeds 0,1,2]
         [--variants plain,matched] [--threads 2] [--cache DIR] [--json OUT.json]
@@ -44,6 +45,16 @@ ANCHOR_DEFAULT_WORST = 0.892
 def _accuracy(probs: np.ndarray, labels: np.ndarray) -> float:
     """Accuracy at threshold 0.5 (both recipes' stored threshold)."""
     return score_crops(probs, labels, 0.5, model="bench", source="held out").accuracy
+
+
+def _soup_probs(paths: list[Path], test: Any, threads: int) -> np.ndarray:
+    """P(EV) of ``test`` by the soup of the deltas ``paths`` (written beside them)."""
+    from makeway.perceive.vision.efficientnet_lite import load_effnet_delta
+    from makeway.train.effnet import soup_deltas
+
+    seeds = "_".join(p.stem.rsplit("-seed", 1)[-1] for p in paths)
+    out = paths[0].with_name(paths[0].stem.rsplit("-seed", 1)[0] + f"-soup{seeds}.npz")
+    return predict_crop_set(load_effnet_delta(soup_deltas(paths, out), num_threads=threads), test)
 
 
 def _trainer(name: str, seed: int, matched: bool, cache: Path, threads: int, features: Any) -> Any:
@@ -97,6 +108,7 @@ def main(argv: list[str] | None = None) -> int:
     for variant in variants:
         matched = variant == "matched"
         probs: dict[int, dict[str, np.ndarray]] = {}
+        deltas: dict[str, list[Path]] = {held: [] for held in sources}
         for seed in seeds:
             train = _trainer(args.trainer, seed, matched, args.cache, args.threads, features)
             probs[seed] = {}
@@ -104,6 +116,8 @@ def main(argv: list[str] | None = None) -> int:
                 print(f"{variant}, seed {seed}: holding out {held}", flush=True)
                 clf = train(merge_sources({k: v for k, v in sources.items() if k != held}))
                 probs[seed][held] = predict_crop_set(clf, test)
+                if isinstance(getattr(clf, "path", None), Path) and clf.path.suffix == ".npz":
+                    deltas[held].append(clf.path)
         rows: dict[str, dict[str, float]] = {}
         for seed in seeds:
             rows[f"seed {seed}"] = {
@@ -114,6 +128,11 @@ def main(argv: list[str] | None = None) -> int:
                 held: _accuracy(np.mean([probs[s][held] for s in seeds], axis=0), test.labels)
                 for held, test in sources.items()
             }
+            if all(len(deltas[h]) == len(seeds) for h in sources):
+                rows[f"soup of {len(seeds)} seeds"] = {
+                    held: _accuracy(_soup_probs(deltas[held], test, args.threads), test.labels)
+                    for held, test in sources.items()
+                }
         report["variants"][variant] = rows
         print(f"\n{args.trainer}, {variant}: accuracy per held-out source (threshold 0.5)")
         print(f"  {'':22s}" + "".join(f"{h:>16s}" for h in sources) + f"{'worst':>10s}")

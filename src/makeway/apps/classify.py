@@ -325,9 +325,10 @@ def evaluate_crop_classifier(
     on_skip: Callable[[InputError], None] | None = None,
     log: Callable[[str], None] | None = None,
 ) -> CropEvaluation:
-    """Score the crop classifier ``model`` (a shipped name — ``default``, ``fast``, ``fastest``,
-    ``imagenet`` — or a head ``.npz`` / CNN ``.onnx``) on the crop folder ``data`` at its own decision
-    threshold; on ev_crops only the committed held-out part is scored. A crop that cannot be read is
+    """Score the crop classifier ``model`` (a shipped name — ``default``, ``general``, ``fast``,
+    ``fastest``, ``imagenet`` — or a head ``.npz`` / CNN ``.onnx``) on the crop folder ``data`` at its
+    own decision threshold; on ev_crops and on the ambulance_yolo crops only the committed held-out
+    part is scored (:func:`~makeway.sense.crops.training_split`). A crop that cannot be read is
     left out, passed to ``on_skip`` and listed in ``skipped``; the rest is scored. With ``plot``,
     also writes the precision–recall curve (operating point and max-F1 marked) as PNG. ``log``
     receives a line saying which crops are scored, before they are read, and one naming the plot.
@@ -339,7 +340,7 @@ def evaluate_crop_classifier(
     from makeway.atomic import check_writable
     from makeway.eval.classification import operating_point_metrics
     from makeway.perceive.vision.ev_classifier import SHIPPED_MODELS, load_crop_classifier
-    from makeway.sense.crops import committed_split, read_crop_folder
+    from makeway.sense.crops import committed_split, read_crop_folder, training_split
 
     def say(line: str) -> None:
         if log is not None:
@@ -349,10 +350,11 @@ def evaluate_crop_classifier(
         check_writable(plot, folder=False)
     clf = load_crop_classifier(model)
     crops = read_crop_folder(data)
-    split = committed_split(crops)
+    split = training_split(crops)
     if split is not None:
+        source = "ev_crops" if committed_split(crops) is not None else "ambulance_yolo"
         crops = crops.subset(split[1])
-        say(f"ev_crops: scoring the committed held-out part only ({len(crops)} crops)")
+        say(f"{source}: scoring the committed held-out part only ({len(crops)} crops)")
     else:
         say(f"scoring all {len(crops)} crops of {data}")
     skipped: list[str] = []

@@ -57,9 +57,9 @@ def detect(
     light detector ``light_detector`` (registry name) with the colour set ``colours``, and each
     ``tracks.jsonl`` line then also lists the frame's ``lights``.
 
-    ``classifier`` is a shipped crop classifier name (``default``, ``fast``, ``fastest``,
-    ``imagenet``), a model file (``.npz`` head or ``.onnx`` CNN) or ``none``; it judges each track on
-    every ``classify_every``-th frame, and ``single_view`` skips the mirror image for heads. The
+    ``classifier`` is a shipped crop classifier name (``default``, ``general``, ``fast``,
+    ``fastest``, ``imagenet``), a model file (``.npz`` head or ``.onnx`` CNN) or ``none``; it judges
+    each track on every ``classify_every``-th frame, and ``single_view`` skips the mirror image for heads. The
     classifier and its feature extractors are built before the first frame, so bad weights fail early.
     ``video`` may also be a robotics log (an MCAP file or a ROS 2 bag folder): its camera ``topic``
     is read (``None``: the log's only camera topic). With ``mcap`` the run is also written there as a

@@ -309,8 +309,9 @@ def train(
     a CNN written as .onnx with its .pt checkpoint: resnet18 or small_cnn trained from scratch (or
     resnet18 from --pretrained), yolox_ft or nanodet_ft a detector's own backbone fine-tuned after a
     linear probe. With --unlabelled, a CNN also learns a teacher's judgements of unlabelled crops.
-    On ev_crops only the training part (the complement of the committed holdout) is used, and the
-    held-out metrics are printed (one JSON line last)."""
+    On ev_crops, and on the crops of ambulance_yolo (classify build-ambulance-crops), only the
+    training part (the complement of the committed held-out part) is used, and the held-out metrics
+    are printed (one JSON line per held-out part)."""
     if arch != "logreg":
         from makeway.train.cnn import train_crop_cnn
 
@@ -463,7 +464,8 @@ def eval_cmd(
     model: Annotated[
         str,
         typer.Option(
-            "--model", help="default|fast|fastest|imagenet (shipped models) or a head .npz / CNN .onnx."
+            "--model",
+            help="default|general|fast|fastest|imagenet (shipped models) or a head .npz / CNN .onnx.",
         ),
     ] = "default",
     plot: Annotated[
@@ -476,8 +478,9 @@ def eval_cmd(
     """Score an EV crop classifier on a crop folder.
 
     The classifier is a shipped one or a head .npz / CNN .onnx. Prints one JSON line last: accuracy,
-    precision, recall, f1, max_f1, p_at_r80 (precision at recall 0.8), n, skipped. On ev_crops only
-    the committed held-out part is scored. A crop that cannot be read (corrupt,
+    precision, recall, f1, max_f1, p_at_r80 (precision at recall 0.8), n, skipped. On ev_crops, and
+    on the crops of ambulance_yolo (classify build-ambulance-crops), only the committed held-out part
+    is scored. A crop that cannot be read (corrupt,
     truncated) is named on stderr ("skipped: FILE: problem"), left out and listed under "skipped";
     the rest is scored."""
     from makeway.apps.classify import evaluate_crop_classifier
@@ -506,8 +509,9 @@ def cross_source(
         list[str] | None,
         typer.Option(
             "--model",
-            help="Fixed classifier(s) to score: default|fast|fastest|imagenet or a head .npz / CNN .onnx "
-            "(repeat or comma-separate). Default, when --train is not given either: all four shipped.",
+            help="Fixed classifier(s) to score: default|general|fast|fastest|imagenet or a head .npz / "
+            "CNN .onnx (repeat or comma-separate). Default, when --train is not given either: default, "
+            "fast, fastest and imagenet.",
         ),
     ] = None,
     train: Annotated[
@@ -616,7 +620,8 @@ def mine(
     model: Annotated[
         str,
         typer.Option(
-            "--model", help="default|fast|fastest|imagenet (shipped models) or a head .npz / CNN .onnx."
+            "--model",
+            help="default|general|fast|fastest|imagenet (shipped models) or a head .npz / CNN .onnx.",
         ),
     ] = "default",
     out: Annotated[

@@ -49,7 +49,9 @@ def mine(
     ] = None,
     classifier: Annotated[
         str,
-        typer.Option(help="Crop classifier: default, fast, fastest, imagenet, or a .npz/.onnx file."),
+        typer.Option(
+            help="Crop classifier: default, general, fast, fastest, imagenet, or a .npz/.onnx file."
+        ),
     ] = "default",
     threshold: Annotated[
         float | None,

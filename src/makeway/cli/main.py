@@ -63,11 +63,14 @@ def detect(
         str,
         typer.Option(
             help="Per-track EV crop classifier: 'default' (the shipped head on YOLOX-nano + NanoDet-m "
-            "features: the accurate one, ~13 ms per crop on 2 cores), 'fast' (the "
+            "features: the accurate one, ~13 ms per crop on 2 cores), 'general' (EfficientNet-Lite0 "
+            "fine-tuned on web photos, road photos and road clips: the one that holds up best on "
+            "footage from other sources, ~6 ms per crop), 'fast' (the "
             "shipped 64 px small CNN), 'fastest' (the 32 px small CNN: 100 crops in ~4 ms), "
             "'imagenet' (EfficientNet-Lite0 features: best on still crops, worse on road video), a model "
             "file (.npz head or .onnx CNN) or 'none'. With one, tracks get smoothed EV states (see "
-            "docs/model_card_ev_head.md, docs/model_card_ev_cnn.md). Default: 'default'."
+            "docs/model_card_ev_head.md, docs/model_card_ev_general.md, docs/model_card_ev_cnn.md). "
+            "Default: 'default'."
         ),
     ] = "default",
     classify_every: Annotated[
@@ -388,7 +391,9 @@ def evaluate_detector(
     ] = "b",
     classifier: Annotated[
         str,
-        typer.Option(help="Crop classifier: default, fast, fastest, imagenet, or a .npz/.onnx file."),
+        typer.Option(
+            help="Crop classifier: default, general, fast, fastest, imagenet, or a .npz/.onnx file."
+        ),
     ] = "default",
     split: Annotated[
         str,

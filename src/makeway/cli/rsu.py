@@ -51,7 +51,8 @@ def run(
     max_frames: Annotated[int | None, typer.Option(min=1, help="Stop after this many frames.")] = None,
     stride: Annotated[int, typer.Option(min=1, help="Process every N-th frame.")] = 1,
     classifier: Annotated[
-        str, typer.Option(help="EV crop classifier: default, fast, fastest, imagenet or a model file.")
+        str,
+        typer.Option(help="EV crop classifier: default, general, fast, fastest, imagenet or a model file."),
     ] = "default",
     siren: Annotated[bool, typer.Option("--siren/--no-siren", help="Siren flag of the alerts.")] = False,
     topic: Annotated[

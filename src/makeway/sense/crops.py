@@ -25,6 +25,12 @@ stratified by label at group level and seeded. The result for ``ev_crops`` is co
 ``makeway classify holdout``) so every training and evaluation run uses the same parts; the file
 carries a fingerprint of the set's image names (:func:`names_fingerprint`) so it is only applied to
 the set it was made from.
+
+The crops of ``ambulance_yolo`` (``makeway classify build-ambulance-crops``: one group per source
+photo, crop names ``<image stem>_<kind><k>``) have a committed held-out part too: the crops of the
+photos listed in ``makeway/data/ambulance_yolo_held_out.txt`` (:data:`AMBULANCE_YOLO_HELD_OUT`, the
+images the detector evaluation holds out). :func:`training_split` applies whichever of the two a
+crop folder is.
 """
 
 from __future__ import annotations
@@ -48,11 +54,13 @@ from makeway.errors import InputError
 from makeway.messages import Box
 
 __all__ = [
+    "AMBULANCE_YOLO_HELD_OUT",
     "EV_CROPS_HOLDOUT",
     "IMAGE_SUFFIXES",
     "CropSet",
     "Holdout",
     "YoloImage",
+    "ambulance_held_out_split",
     "average_hash",
     "committed_split",
     "holdout_split",
@@ -65,12 +73,17 @@ __all__ = [
     "roboflow_source",
     "split_holdout",
     "thumbnail_signatures",
+    "training_split",
     "write_crop_folder",
     "write_holdout",
 ]
 
 #: The committed held-out 20 % of ``ev_crops`` (image names; see the module docstring).
 EV_CROPS_HOLDOUT = Path(__file__).resolve().parents[1] / "data" / "ev_crops_holdout.txt"
+
+#: The held-out images of ``ambulance_yolo/valid`` (image names after a ``#`` header), shared by
+#: the detector evaluation, the lights split and the crop classifiers' training.
+AMBULANCE_YOLO_HELD_OUT = Path(__file__).resolve().parents[1] / "data" / "ambulance_yolo_held_out.txt"
 
 #: File suffixes treated as images in YOLO folders (lower case).
 IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff", ".webp")
@@ -698,3 +711,29 @@ def committed_split(crop_set: CropSet) -> tuple[np.ndarray, np.ndarray] | None:
     if not committed.matches(crop_set):
         return None
     return holdout_split(crop_set, committed)
+
+
+def ambulance_held_out_split(crop_set: CropSet) -> tuple[np.ndarray, np.ndarray] | None:
+    """``(train_idx, test_idx)`` of a crop folder built from ``ambulance_yolo``: the test part holds
+    the crops of the source photos listed in :data:`AMBULANCE_YOLO_HELD_OUT`. ``None`` for any other
+    set — one without groups, with a crop whose name does not start with its group's photo
+    (``<group>.rf.``), or with no crop of a held-out photo."""
+    if crop_set.groups is None or not AMBULANCE_YOLO_HELD_OUT.is_file() or not len(crop_set):
+        return None
+    groups = np.asarray(crop_set.groups).astype(str)
+    if not all(p.name.startswith(f"{g}.rf.") for p, g in zip(crop_set.paths, groups, strict=True)):
+        return None
+    lines = AMBULANCE_YOLO_HELD_OUT.read_text(encoding="utf-8").splitlines()
+    held = {roboflow_source(Path(n.strip()).stem) for n in lines if n.strip() and not n.startswith("#")}
+    test = np.isin(groups, sorted(held))
+    if not test.any():
+        return None
+    return np.flatnonzero(~test).astype(np.int64), np.flatnonzero(test).astype(np.int64)
+
+
+def training_split(crop_set: CropSet) -> tuple[np.ndarray, np.ndarray] | None:
+    """The committed ``(train_idx, test_idx)`` of ``crop_set``: the ``ev_crops`` holdout
+    (:func:`committed_split`) or the held-out photos of the ``ambulance_yolo`` crops
+    (:func:`ambulance_held_out_split`); ``None`` for any other set (trained on whole)."""
+    split = committed_split(crop_set)
+    return split if split is not None else ambulance_held_out_split(crop_set)

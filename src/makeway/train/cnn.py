@@ -1075,7 +1075,7 @@ def train_crop_cnn(
     """
     from makeway.eval.classification import operating_point_metrics
     from makeway.perceive.vision.cnn_classifier import OnnxCropClassifier
-    from makeway.sense.crops import committed_split, near_duplicate_groups, read_crop_folder
+    from makeway.sense.crops import near_duplicate_groups, read_crop_folder, training_split
 
     def say(line: str) -> None:
         if log is not None:
@@ -1124,7 +1124,7 @@ def train_crop_cnn(
     parts: list[str] = []
     held: list[tuple[Any, Path]] = []
     for k, (folder, crops) in enumerate(sets):
-        split = committed_split(crops)
+        split = training_split(crops)
         if split is not None:
             held.append((crops.subset(split[1]), folder))
             crops = crops.subset(split[0])

