@@ -64,8 +64,8 @@ def detect(
         typer.Option(
             help="Per-track EV crop classifier: 'default' (the shipped head on YOLOX-nano + NanoDet-m "
             "features: the accurate one, ~13 ms per crop on 2 cores), 'general' (EfficientNet-Lite0 "
-            "fine-tuned on web photos, road photos and road clips: the one that holds up best on "
-            "footage from other sources, ~6 ms per crop), 'fast' (the "
+            "fine-tuned on web photos, road photos and road clips: holds up best on photos from other "
+            "sources, but flags more ordinary vehicles in road video; ~6 ms per crop), 'fast' (the "
             "shipped 64 px small CNN), 'fastest' (the 32 px small CNN: 100 crops in ~4 ms), "
             "'imagenet' (EfficientNet-Lite0 features: best on still crops, worse on road video), a model "
             "file (.npz head or .onnx CNN) or 'none'. With one, tracks get smoothed EV states (see "
