@@ -32,8 +32,10 @@ from pathlib import Path
 from typing import Any
 
 from makeway.apps.classify import built_cross_sources
+from makeway.atomic import check_writable
+from makeway.errors import InputError
 from makeway.eval.actor_sweep import EV_CLIPS, TRACK_LABELS, ClipRecord, read_track_labels, sweep
-from makeway.paths import data_dir
+from makeway.paths import require_data_dir
 from makeway.perceive.vision.ev_classifier import DEFAULT_MODEL
 from makeway.pipeline.clip_record import cached_clip
 
@@ -111,12 +113,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--cache", type=Path, default=Path("reports/general_clips"), help="models and recordings")
     ap.add_argument("--json", type=Path, default=None, help="also write every figure here")
     args = ap.parse_args(argv)
-    data = args.data if args.data is not None else data_dir()
-    if data is None or not data.is_dir():
-        print("error: shared data not found (../shared/data or MAKEWAY_DATA)", file=sys.stderr)
-        return 2
-    if args.json is not None and not os.access(args.json.resolve().parent, os.W_OK):
-        print(f"error: {args.json}: its folder is missing or not writable", file=sys.stderr)
+    try:
+        data = require_data_dir(args.data)
+        if args.json is not None:
+            check_writable(args.json, folder=False)
+    except InputError as exc:
+        print(f"error: {exc}", file=sys.stderr)
         return 2
     clips = [c.strip() for c in args.clips.split(",") if c.strip()]
     unknown = [c for c in clips if not (data / "video" / f"{c}.mp4").is_file()]

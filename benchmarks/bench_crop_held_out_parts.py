@@ -27,9 +27,10 @@ from pathlib import Path
 from typing import Any
 
 from makeway.apps.classify import CROSS_SOURCES, built_cross_sources
+from makeway.atomic import check_writable
 from makeway.errors import InputError
 from makeway.eval.cross_source import predict_crop_set, score_crops
-from makeway.paths import data_dir
+from makeway.paths import require_data_dir
 from makeway.perceive.vision.ev_classifier import load_crop_classifier
 from makeway.sense.crops import training_split
 
@@ -55,12 +56,12 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     names = [m.strip() for m in args.models.split(",") if m.strip()]
     in_clips = {m.strip() for m in args.trained_on_clips.split(",") if m.strip()}
-    data = args.data if args.data is not None else data_dir()
-    if data is None or not data.is_dir():
-        print("error: shared data not found (../shared/data or MAKEWAY_DATA)", file=sys.stderr)
-        return 2
-    if args.json is not None and not os.access(args.json.resolve().parent, os.W_OK):
-        print(f"error: {args.json}: its folder is missing or not writable", file=sys.stderr)
+    try:
+        data = require_data_dir(args.data)
+        if args.json is not None:
+            check_writable(args.json, folder=False)
+    except InputError as exc:
+        print(f"error: {exc}", file=sys.stderr)
         return 2
     try:
         models = {name: load_crop_classifier(name, num_threads=args.threads) for name in names}

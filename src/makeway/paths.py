@@ -34,6 +34,24 @@ def data_dir() -> Path | None:
     return None
 
 
+def require_data_dir(data: str | Path | None = None) -> Path:
+    """``data``, or the shared data folder :func:`data_dir` finds when it is ``None``, checked to be
+    a folder.
+
+    Raises:
+        InputError: no such folder (named, with how to point at one).
+    """
+    from makeway.errors import InputError
+
+    path = Path(data) if data is not None else data_dir()
+    if path is None or not path.is_dir():
+        raise InputError(
+            path if path is not None else "../shared/data",
+            "shared data folder not found; pass --data or set MAKEWAY_DATA",
+        )
+    return path
+
+
 def models_candidates() -> list[Path]:
     """The folders that may hold detector weights, in the order they are tried."""
     out: list[Path] = []

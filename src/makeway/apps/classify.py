@@ -235,7 +235,7 @@ def build_ambulance_crops(
     import cv2
 
     from makeway.messages import Box
-    from makeway.paths import data_dir
+    from makeway.paths import require_data_dir
     from makeway.perceive.vision.crops import detection_crop_items, square_crop
     from makeway.perceive.vision.detectors import DETECTORS
     from makeway.progress import progress_bar
@@ -250,12 +250,7 @@ def build_ambulance_crops(
     )
 
     if data is None:
-        base = data_dir()
-        if base is None:
-            raise InputError(
-                "../shared/data", "shared data folder not found; pass --data or set MAKEWAY_DATA"
-            )
-        data = base / "vision" / "ambulance_yolo" / "valid"
+        data = require_data_dir() / "vision" / "ambulance_yolo" / "valid"
     fixes: dict[str, list[LabelCorrection]] = {}
     if check_label_set(labels) == "corrected":
         fixes = corrections_by_image(read_corrections(corrections or CORRECTIONS_FILE))
@@ -444,6 +439,7 @@ def built_cross_sources(
         InputError: the data folder, the ambulance_yolo set or a labelled road clip is missing.
         ValueError: an unknown label set.
     """
+    from makeway.paths import require_data_dir
     from makeway.sense.crops import CropSet, near_duplicate_groups, read_crop_folder
     from makeway.sense.label_corrections import CORRECTIONS_FILE, check_label_set
 
@@ -455,11 +451,7 @@ def built_cross_sources(
     wanted = [n for n in names if n in CROSS_SOURCES]
     if not wanted:
         return {}
-    if data is None or not data.is_dir():
-        raise InputError(
-            data or "../shared/data", "shared data folder not found; pass --data or set MAKEWAY_DATA"
-        )
-    base, root = data, cache
+    base, root = require_data_dir(data), cache
     crop_sets: dict[str, CropSet] = {}
     for name in wanted:
         if name == "ev_crops":

@@ -45,6 +45,7 @@ from typing import Any
 import numpy as np
 
 from makeway.errors import InputError
+from makeway.sense.crops import AMBULANCE_YOLO_HELD_OUT
 
 __all__ = [
     "FRAMEWORKS",
@@ -62,7 +63,7 @@ __all__ = [
 ]
 
 #: The committed held-out image names of ``ambulance_yolo/valid`` (module docstring).
-HELD_OUT_FILE = Path(__file__).resolve().parents[1] / "data" / "ambulance_yolo_held_out.txt"
+HELD_OUT_FILE = AMBULANCE_YOLO_HELD_OUT
 #: Share of source photos held out by :func:`held_out_by_hash`.
 HELD_OUT_FRACTION = 0.2
 FRAMEWORKS = ("a", "b")

@@ -13,7 +13,7 @@ from typing import Any
 
 from makeway.atomic import check_writable, write_text_atomic
 from makeway.errors import InputError
-from makeway.paths import data_dir
+from makeway.paths import require_data_dir
 
 __all__ = ["train_lights"]
 
@@ -52,11 +52,7 @@ def train_lights(
     if out.suffix.lower() != ".onnx":
         raise InputError(out, "the output must be an .onnx file")
     check_writable(out, folder=False)
-    root = Path(data) if data is not None else data_dir()
-    if root is None or not Path(root).is_dir():
-        raise InputError(
-            str(data or "../shared/data"), "shared data folder not found; pass --data or set MAKEWAY_DATA"
-        )
+    root = require_data_dir(data)
     from makeway.train.lights import ARCHS
 
     if arch not in ARCHS:

@@ -64,10 +64,10 @@ class CameraFigures:
     40 m in the rig's fisheyes, below which its width says little); ``flash_hz`` and ``flash_duty``
     the light bars' flash pattern (typical bars flash 1.5–2.5 times a second, lit about half the
     time); ``probability`` the detector's score range on true lights. False lights:
-    ``false_lights_per_hour`` is an **assumption** (one a minute of driving: the rule-based detector's
-    flash check is not yet measured on hours of negatives — ``detector_false_lights_per_hour`` is
-    the field for that figure), with the event duration, per-frame detection probability, azimuth
-    spread and score range of such a light.
+    ``false_lights_per_hour`` is an **assumption** (one a minute of driving: seed 004 gives no
+    rate, and no hours of negatives exist here — ``detector_false_lights_per_hour`` is the field for
+    a detector's measured rate, :mod:`makeway.eval.false_lights`), with the event duration,
+    per-frame detection probability, azimuth spread and score range of such a light.
     """
 
     recall_distances_m: tuple[float, ...] = (10.0, 20.0, 30.0, 40.0, 50.0, 60.0, 70.0, 80.0, 90.0)
@@ -127,10 +127,13 @@ def makeway_figures() -> CameraFigures:
     (a calibrated day camera), at the distance the rig's fisheyes would see the lamps as large —
     35.3 % at 6–10 m (68 frames), 2.5 % at 10–14 m (40), 0 % at 14–18 m (4), with its small-lamp
     verifier. Nearer than 8 m the 8 m figure holds; beyond 18 m nothing was measured and nothing
-    is assumed seen. The night table
-    stays seed 004's (no calibrated night clip; on the night clip, at a few metres, the detector
-    finds the ambulance in 88 % of frames) and the false lights stay the assumption of
-    :class:`CameraFigures` (39 s of day footage without an EV cannot bound them)."""
+    is assumed seen. False lights by day: 123 per hour, the detector's rate on the day footage
+    without a lit emergency light that no detector was trained on (29 s of two clips, one event:
+    95 % interval 3–687 per hour; ``benchmarks/bench_false_lights.py``,
+    :mod:`makeway.eval.false_lights`). The night table stays seed 004's (no calibrated night clip;
+    on the night clip, at a few metres, the detector finds the ambulance in 88 % of frames); at
+    night the detector puts about 10 boxes on every frame whose light bar is dark, which this
+    model does not carry (its false lights are day figures)."""
     seed = CameraFigures()
     grid = (8.0, 12.0, 16.0, 20.0, 30.0, 40.0, 50.0, 60.0, 70.0, 80.0, 90.0)
 
@@ -142,6 +145,7 @@ def makeway_figures() -> CameraFigures:
         recall_day=on_grid(seed.recall_day),
         recall_night=on_grid(seed.recall_night),
         detector_recall_day=(0.353, 0.025, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0),
+        detector_false_lights_per_hour=123.0,
         recall_source="day: makeway's verified lights detector on intersection_cam_ambulance "
         "(benchmarks/bench_camera_figures.py); night: seed 004, static field test (Table IV)",
     )

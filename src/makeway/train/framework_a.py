@@ -60,6 +60,7 @@ import torch.nn.functional as nnf
 from torch import nn
 
 from makeway.errors import InputError
+from makeway.sense.crops import AMBULANCE_YOLO_HELD_OUT
 
 __all__ = [
     "INPUT_SIZE",
@@ -90,7 +91,7 @@ STRIDES = (8, 16, 32)
 VAL_FRACTION = 0.2
 #: The committed held-out images of ``ambulance_yolo/valid`` (the file
 #: :mod:`makeway.apps.evaluate_detector` scores on): never read by training.
-HELD_OUT_FILE = Path(__file__).resolve().parents[1] / "data" / "ambulance_yolo_held_out.txt"
+HELD_OUT_FILE = AMBULANCE_YOLO_HELD_OUT
 _PAD = 114.0
 _COCO_CAR, _COCO_TRUCK = 2, 7
 

@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 
 from makeway.perceive.vision.light_cnn import letterbox
+from makeway.sense.crops import AMBULANCE_YOLO_HELD_OUT
 
 __all__ = [
     "HELD_OUT_FILE",
@@ -35,7 +36,7 @@ __all__ = [
 
 _PKG = Path(__file__).resolve().parents[1]
 LABEL_DIR = _PKG / "data" / "lights"
-HELD_OUT_FILE = _PKG / "data" / "ambulance_yolo_held_out.txt"
+HELD_OUT_FILE = AMBULANCE_YOLO_HELD_OUT
 
 #: Source (label file stem, or ``ambulance_yolo`` for the image folder) → split. ``ambulance_yolo``
 #: images go to test when held out, else to train.

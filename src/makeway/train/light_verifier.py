@@ -691,7 +691,7 @@ def train_light_verifier(
             ``vehicle_context``) the vehicle detector's weights are missing.
     """
     from makeway.errors import InputError
-    from makeway.paths import data_dir
+    from makeway.paths import require_data_dir
     from makeway.perceive.vision.light_verify import vehicle_detector
     from makeway.progress import progress_bar
     from makeway.train.light_split import load_split
@@ -699,9 +699,7 @@ def train_light_verifier(
     target = Path(out) if out is not None else DEFAULT_VERIFIER_MODEL
     if not target.parent.is_dir():
         raise InputError(target, "its folder does not exist")
-    root = Path(data_root) if data_root is not None else data_dir()
-    if root is None or not Path(root).is_dir():
-        raise InputError(str(data_root), "shared data folder not found (set MAKEWAY_DATA)")
+    root = require_data_dir(data_root)
     if appearance < 0 or (appearance and not vehicle_context):
         raise ValueError("appearance columns need the vehicle context and a count >= 0")
     if applies_below_px is not None and not applies_below_px > 0:
