@@ -52,8 +52,11 @@ def _soup_probs(paths: list[Path], test: Any, threads: int) -> np.ndarray:
     from makeway.perceive.vision.efficientnet_lite import load_effnet_delta
     from makeway.train.effnet import soup_deltas
 
-    seeds = "_".join(p.stem.rsplit("-seed", 1)[-1] for p in paths)
-    out = paths[0].with_name(paths[0].stem.rsplit("-seed", 1)[0] + f"-soup{seeds}.npz")
+    # the trainer names a delta <recipe>-seed<k>[-mq]: the soup becomes <recipe>-soup<k>_<k>…[-mq]
+    head, tail = paths[0].stem.rsplit("-seed", 1)
+    tag = tail[len(tail.split("-", 1)[0]) :]
+    seeds = "_".join(p.stem.rsplit("-seed", 1)[1].split("-", 1)[0] for p in paths)
+    out = paths[0].with_name(f"{head}-soup{seeds}{tag}.npz")
     return predict_crop_set(load_effnet_delta(soup_deltas(paths, out), num_threads=threads), test)
 
 

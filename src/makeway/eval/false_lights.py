@@ -49,13 +49,12 @@ __all__ = [
 @dataclass(frozen=True)
 class NegativeStretch:
     """Frames ``0 … last_frame`` (``None``: to the end) of ``clip`` (``<data>/video/<clip>.mp4``)
-    with no lit emergency light; ``role`` is the clip's part in the lights detectors' training
-    (``test``, ``validation`` or ``training``), ``light`` ``day`` or ``night``."""
+    with no lit emergency light, by day; ``role`` is the clip's part in the lights detectors'
+    training (``test``, ``validation`` or ``training``)."""
 
     clip: str
     last_frame: int | None
     role: str
-    light: str = "day"
 
 
 #: The real footage without a lit emergency light (module docstring).
