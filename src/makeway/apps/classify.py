@@ -335,7 +335,7 @@ def evaluate_crop_classifier(
     from makeway.atomic import check_writable
     from makeway.eval.classification import operating_point_metrics
     from makeway.perceive.vision.ev_classifier import SHIPPED_MODELS, load_crop_classifier
-    from makeway.sense.crops import committed_split, read_crop_folder, training_split
+    from makeway.sense.crops import ambulance_held_out_split, committed_split, read_crop_folder
 
     def say(line: str) -> None:
         if log is not None:
@@ -345,9 +345,10 @@ def evaluate_crop_classifier(
         check_writable(plot, folder=False)
     clf = load_crop_classifier(model)
     crops = read_crop_folder(data)
-    split = training_split(crops)
+    split, source = committed_split(crops), "ev_crops"
+    if split is None:
+        split, source = ambulance_held_out_split(crops), "ambulance_yolo"
     if split is not None:
-        source = "ev_crops" if committed_split(crops) is not None else "ambulance_yolo"
         crops = crops.subset(split[1])
         say(f"{source}: scoring the committed held-out part only ({len(crops)} crops)")
     else:

@@ -33,7 +33,7 @@ from pathlib import Path
 from scipy.stats import chi2
 
 from makeway.perceive.vision.lights import LightDetector
-from makeway.sense.video import VideoReader
+from makeway.sense.video import VideoReader, probe_video
 from makeway.track.lights import LightTracker
 
 __all__ = [
@@ -114,9 +114,7 @@ def count_false_lights(
     if not rate_hz > 0:
         raise ValueError(f"rate_hz must be > 0, got {rate_hz}")
     tracker = tracker if tracker is not None else LightTracker()
-    probe = VideoReader(video)
-    stride = max(1, round(probe.info.fps / rate_hz))
-    probe.close()
+    stride = max(1, round(probe_video(video).fps / rate_hz))
     seen: dict[int, list[float]] = {}  # track id → first and last detection time
     flashing: set[int] = set()
     count = FalseLightCount(stretch=stretch, seconds=0.0, frames=0)

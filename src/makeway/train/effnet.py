@@ -34,7 +34,6 @@ U(15, 90)).
 
 from __future__ import annotations
 
-import zipfile
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
@@ -401,24 +400,14 @@ def soup_deltas(paths: Sequence[str | Path], out: str | Path) -> Path:
     """
     from makeway.atomic import atomic_path
     from makeway.errors import InputError
-    from makeway.perceive.vision.efficientnet_lite import DELTA_FORMAT
+    from makeway.perceive.vision.efficientnet_lite import read_delta_arrays
 
     files = [Path(p) for p in paths]
     if len(files) < 2:
         raise InputError(Path(out), f"a soup needs at least two deltas, got {len(files)}")
-    members: list[dict[str, np.ndarray]] = []
-    for path in files:
-        try:
-            with np.load(path, allow_pickle=False) as npz:
-                members.append({k: npz[k] for k in npz.files})
-        except FileNotFoundError:
-            raise InputError(path, "delta file not found") from None
-        except (OSError, ValueError, zipfile.BadZipFile, EOFError) as exc:
-            raise InputError(path, f"not a readable .npz file ({exc})") from None
+    members = [read_delta_arrays(path) for path in files]
     first = members[0]
     for path, arrays in zip(files, members, strict=True):
-        if str(arrays.get("delta_format", "")) != DELTA_FORMAT:
-            raise InputError(path, f"not an EfficientNet-Lite0 delta (expected {DELTA_FORMAT})")
         for key in ("input_size", "threshold", "base_sha256"):
             if key not in arrays or str(arrays[key]) != str(first[key]):
                 raise InputError(path, f"its {key} differs from {files[0].name}'s")

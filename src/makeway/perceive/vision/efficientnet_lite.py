@@ -446,6 +446,29 @@ def efficientnet_lite0_graph(
 DELTA_FORMAT = "ev_effnet_delta/1"
 
 
+def read_delta_arrays(path: str | Path) -> dict[str, np.ndarray]:
+    """Every array of the delta file ``path`` (:func:`apply_effnet_delta` describes them), checked
+    to be of :data:`DELTA_FORMAT`; nothing else is checked.
+
+    Raises:
+        InputError: the file is missing or unreadable, or not a delta of this format.
+    """
+    path = Path(path)
+    try:
+        with np.load(path, allow_pickle=False) as npz:
+            arrays = {k: npz[k] for k in npz.files}
+    except FileNotFoundError:
+        raise InputError(path, "delta file not found") from None
+    except (OSError, ValueError, zipfile.BadZipFile, EOFError) as exc:
+        raise InputError(path, f"not a readable .npz file ({exc})") from None
+    fmt = str(arrays.get("delta_format", ""))
+    if fmt != DELTA_FORMAT:
+        raise InputError(
+            path, f"not an EfficientNet-Lite0 delta (delta_format {fmt!r}, expected {DELTA_FORMAT})"
+        )
+    return arrays
+
+
 def apply_effnet_delta(path: str | Path) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
     """The installed package's ImageNet state dict with the delta file ``path`` added, and the
     delta's metadata (``input_size``, ``threshold``, ``training``, ``base_sha256``).
@@ -461,18 +484,7 @@ def apply_effnet_delta(path: str | Path) -> tuple[dict[str, np.ndarray], dict[st
     import hashlib
 
     path = Path(path)
-    try:
-        with np.load(path, allow_pickle=False) as npz:
-            arrays = {k: npz[k] for k in npz.files}
-    except FileNotFoundError:
-        raise InputError(path, "delta file not found") from None
-    except (OSError, ValueError, zipfile.BadZipFile, EOFError) as exc:
-        raise InputError(path, f"not a readable .npz file ({exc})") from None
-    fmt = str(arrays.get("delta_format", ""))
-    if fmt != DELTA_FORMAT:
-        raise InputError(
-            path, f"not an EfficientNet-Lite0 delta (delta_format {fmt!r}, expected {DELTA_FORMAT})"
-        )
+    arrays = read_delta_arrays(path)
     try:
         meta = {
             "input_size": int(arrays["input_size"]),
